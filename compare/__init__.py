@@ -1,0 +1,1 @@
+"""Comparison harness: simulation, sensing, scenarios, metrics, CLI."""

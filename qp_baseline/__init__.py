@@ -1,0 +1,1 @@
+"""Hierarchical-QP baseline over the same tpik hierarchy, and the mink peer."""

@@ -1,0 +1,116 @@
+"""A kinematics snapshot: frame poses and Jacobians at one configuration, computed once."""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
+import numpy as np
+import pinocchio as pin
+
+from robots.exceptions import StaleKinematics
+
+if TYPE_CHECKING:
+    from robots.robot import Robot
+
+_LWA = pin.ReferenceFrame.LOCAL_WORLD_ALIGNED
+
+
+class Kinematics:
+    """Frame poses and Jacobians of one robot at one configuration ``q``.
+
+    Tasks read everything they need from here, so a control step evaluates forward
+    kinematics and joint Jacobians exactly once whatever the number of tasks. Frame
+    Jacobians are fetched lazily and cached per frame.
+
+    Attributes:
+        robot: The robot model.
+        q: Joint configuration [rad]. Shape (n,). Read-only.
+    """
+
+    __slots__ = ("_data", "_generation", "_jacobians", "q", "robot")
+
+    def __init__(self, robot: Robot, q: np.ndarray, data: pin.Data, generation: int) -> None:
+        self.robot = robot
+        self.q = q
+        self.q.flags.writeable = False
+        self._data = data
+        self._generation = generation
+        self._jacobians: dict[int, np.ndarray] = {}
+
+    def _check(self) -> None:
+        if not self.robot.is_current(self._generation):
+            raise StaleKinematics(
+                "this Kinematics snapshot is stale: robot.kinematics() was called again since"
+            )
+
+    @property
+    def nq(self) -> int:
+        """Number of joints ``n``."""
+        return self.robot.nq
+
+    def frame_pose(self, name: str) -> np.ndarray:
+        """Homogeneous transform base → frame. Shape (4, 4)."""
+        self._check()
+        return np.array(self._data.oMf[self.robot.frame_id(name)].homogeneous)
+
+    def frame_position(self, name: str) -> np.ndarray:
+        """Frame origin in the base frame [m]. Shape (3,)."""
+        self._check()
+        return np.array(self._data.oMf[self.robot.frame_id(name)].translation)
+
+    def frame_rotation(self, name: str) -> np.ndarray:
+        """Frame orientation in the base frame. Shape (3, 3)."""
+        self._check()
+        return np.array(self._data.oMf[self.robot.frame_id(name)].rotation)
+
+    def frame_jacobian(self, name: str) -> np.ndarray:
+        r"""Geometric Jacobian of the frame origin, base-frame axes.
+
+        .. math:: \begin{bmatrix} \dot p \\ \omega \end{bmatrix} = J(q)\,\dot q
+
+        Returns:
+            ``J`` with linear rows first [m/rad] then angular rows [rad/rad]. Shape (6, n).
+            The array is cached: do not modify it.
+        """
+        self._check()
+        frame_id = self.robot.frame_id(name)
+        jac = self._jacobians.get(frame_id)
+        if jac is None:
+            jac = pin.getFrameJacobian(self.robot.pin_model, self._data, frame_id, _LWA)
+            jac.flags.writeable = False
+            self._jacobians[frame_id] = jac
+        return jac
+
+    def position_jacobian(self, name: str) -> np.ndarray:
+        """Rows ``0:3`` of :meth:`frame_jacobian` [m/rad]. Shape (3, n)."""
+        return self.frame_jacobian(name)[:3]
+
+    def joint_origins(self) -> np.ndarray:
+        """Origins of the joint frames 1..n in the base frame [m]. Shape (n, 3)."""
+        self._check()
+        return np.array([self._data.oMi[i].translation for i in range(1, self.nq + 1)])
+
+    def partial_position_jacobian(self, name: str, joint: int | None = None) -> np.ndarray:
+        r"""The paper's partial position Jacobian of a control point (sec. III).
+
+        .. math:: J^{1..j}_{pos} = [\,J^1_{pos}\ \cdots\ J^{j-1}_{pos}\ 0 \cdots 0\,]
+
+        Columns ``j .. n`` (1-based) are zero: only the joints before the control point's
+        joint ``j`` may move it away from an obstacle.
+
+        Args:
+            name: Control point frame (its origin is the point).
+            joint: 1-based joint number ``j``; defaults to the joint moving the frame.
+
+        Returns:
+            Shape (3, n), a new array.
+        """
+        j = self.robot.frame_joint(name) if joint is None else int(joint)
+        if not 1 <= j <= self.nq:
+            raise ValueError(f"joint must be in 1..{self.nq}, got {j}")
+        jac = np.array(self.position_jacobian(name))
+        jac[:, j - 1 :] = 0.0
+        return jac
+
+    def __repr__(self) -> str:
+        return f"Kinematics(robot={self.robot.name!r}, q={np.round(self.q, 4).tolist()})"

@@ -1,0 +1,96 @@
+"""Forward kinematics against MuJoCo, the fact sheet's reference poses, and finite differences."""
+
+from __future__ import annotations
+
+import mujoco
+import numpy as np
+import pytest
+
+from tests.conftest import random_configuration
+
+PI = np.pi
+FRAMES = ("link_4", "link_6", "link_7", "end_effector")
+
+# Reference poses of ../shared/robots/j2s7s300_kinematics.md (computed from the URDF).
+REFERENCE = [
+    (np.zeros(7), {"link_4": (0, 0.0016, -0.1345), "link_6": (0, -0.0098, 0.17655),
+                   "end_effector": (0, -0.0098, -0.0872)}),
+    (np.full(7, PI), {"link_4": (0, -0.0016, 0.6855), "link_6": (0, -0.013, 0.99655),
+                      "end_effector": (0, -0.013, 1.2603)}),
+    (np.array([0, PI / 2, PI, PI, PI, PI, PI]), {"end_effector": (0.9848, 0.013, 0.2755)}),
+    (np.array([4.71, 2.84, 0, 0.75, 4.62, 4.48, 4.88]), {"end_effector": (0.2659, -0.2121, 0.5031)}),
+]
+
+
+@pytest.mark.parametrize(("q", "expected"), REFERENCE)
+def test_fk_matches_fact_sheet_reference_poses(jaco, q, expected):
+    for frame, position in expected.items():
+        np.testing.assert_allclose(jaco.frame_position(q, frame), position, atol=1e-4)
+
+
+def test_ee_rotation_at_zero_and_candle(jaco):
+    np.testing.assert_allclose(jaco.frame_pose(np.zeros(7), "end_effector")[:3, :3],
+                               [[0, 1, 0], [1, 0, 0], [0, 0, -1]], atol=1e-9)
+    np.testing.assert_allclose(jaco.frame_pose(np.full(7, PI), "end_effector")[:3, :3],
+                               [[0, -1, 0], [1, 0, 0], [0, 0, 1]], atol=1e-9)
+
+
+def test_hand_computed_elbow_bend(jaco):
+    # Candle with joint 2 at π/2: the whole arm lies along +x at shoulder height 0.2755 m.
+    # Elbow (link_4 origin) = 0.41 m out; lateral offsets −0.0016 (link_1) on y.
+    q = np.array([0, PI / 2, PI, PI, PI, PI, PI])
+    np.testing.assert_allclose(jaco.frame_position(q, "link_4"), (0.41, 0.0016, 0.2755), atol=1e-9)
+    # Wrist (link_6): + 0.2073 + 0.10375 further out, offsets 0.0016 + 0.0114 on y.
+    np.testing.assert_allclose(jaco.frame_position(q, "link_6"), (0.72105, 0.013, 0.2755), atol=1e-9)
+
+
+def test_mujoco_and_pinocchio_agree_on_random_configurations(jaco):
+    rng = np.random.default_rng(0)
+    data = mujoco.MjData(jaco.mj_model)
+    for _ in range(50):
+        q = rng.uniform(-2 * PI, 2 * PI, size=7)
+        data.qpos[:] = q
+        mujoco.mj_kinematics(jaco.mj_model, data)
+        kin = jaco.kinematics(q)
+        for frame in FRAMES:
+            body = jaco.mj_model.body("j2s7s300_" + frame)
+            np.testing.assert_allclose(kin.frame_position(frame), data.xpos[body.id], atol=1e-9)
+            np.testing.assert_allclose(kin.frame_rotation(frame), data.xmat[body.id].reshape(3, 3), atol=1e-9)
+
+
+def _numeric_jacobian(jaco, q, frame, eps=1e-6):
+    cols = []
+    for k in range(7):
+        dq = np.zeros(7)
+        dq[k] = eps
+        plus, minus = jaco.frame_pose(q + dq, frame), jaco.frame_pose(q - dq, frame)
+        lin = (plus[:3, 3] - minus[:3, 3]) / (2 * eps)
+        # angular velocity: (dR Rᵀ)^∨
+        d_rot = (plus[:3, :3] - minus[:3, :3]) / (2 * eps) @ jaco.frame_pose(q, frame)[:3, :3].T
+        ang = np.array([d_rot[2, 1], d_rot[0, 2], d_rot[1, 0]])
+        cols.append(np.concatenate([lin, ang]))
+    return np.array(cols).T
+
+
+@pytest.mark.parametrize("frame", FRAMES)
+def test_frame_jacobian_matches_finite_differences(jaco, frame):
+    rng = np.random.default_rng(1)
+    for _ in range(10):
+        q = random_configuration(jaco, rng)
+        np.testing.assert_allclose(jaco.frame_jacobian(q, frame), _numeric_jacobian(jaco, q, frame), atol=1e-6)
+
+
+@pytest.mark.parametrize(("frame", "joint"), [("link_4", 4), ("link_6", 6), ("link_7", 7)])
+def test_partial_jacobian_zeroes_columns_from_control_joint(jaco, frame, joint):
+    rng = np.random.default_rng(2)
+    q = random_configuration(jaco, rng)
+    partial = jaco.partial_position_jacobian(q, frame)
+    full = jaco.position_jacobian(q, frame)
+    assert np.all(partial[:, joint - 1 :] == 0.0)
+    np.testing.assert_allclose(partial[:, : joint - 1], full[:, : joint - 1])
+    # The first j−1 columns are the velocity of P caused by joints 1..j−1 alone.
+    eps = 1e-6
+    dq = np.zeros(7)
+    dq[: joint - 1] = rng.normal(size=joint - 1)
+    moved = (jaco.frame_position(q + eps * dq, frame) - jaco.frame_position(q - eps * dq, frame)) / (2 * eps)
+    np.testing.assert_allclose(partial @ dq, moved, atol=1e-6)

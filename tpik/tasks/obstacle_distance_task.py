@@ -1,0 +1,66 @@
+"""Obstacle distance of a control point (set-based, m = 1; paper sec. III)."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from robots import Kinematics
+from tpik.tasks._targets import as_finite_vector
+from tpik.tasks.task import SetTask, Thresholds
+
+
+class ObstacleDistanceTask(SetTask):
+    r"""Keep a control point P away from its closest obstacle point O.
+
+    .. math::
+        \sigma = \|O - P\|,\qquad
+        J = -\frac{(O - P)^T}{\|O - P\|}\, J^{1..j}_{pos}
+
+    where :math:`J^{1..j}_{pos}` is the partial position Jacobian of the control point
+    (columns ``j..n`` zero, paper sec. III). O is supplied from outside (depth sensing or
+    geometry) with :meth:`set_obstacle`; O is taken as fixed over the step. With no obstacle
+    (``None``) σ = +inf and J = 0: the task stays inactive.
+
+    Args:
+        name: Task name.
+        frame: Control point frame (e.g. ``"link_4"``: the origin of joint 4).
+        thresholds: Thresholds [m]; typically physical_lower > 0, safety_lower = 0.35, upper = inf.
+        gain: K [1/s].
+        joint: 1-based joint ``j`` of the control point; defaults to the joint moving ``frame``.
+    """
+
+    def __init__(
+        self,
+        name: str,
+        frame: str,
+        thresholds: Thresholds,
+        gain: float = 1.0,
+        joint: int | None = None,
+    ) -> None:
+        super().__init__(name, thresholds, gain)
+        self.frame = frame
+        self.joint = joint
+        self._obstacle: np.ndarray | None = None
+
+    def set_obstacle(self, point: np.ndarray | None) -> None:
+        """Set the closest obstacle point O [m] in the base frame (copied), or None."""
+        self._obstacle = None if point is None else as_finite_vector(self.name, "obstacle", point, 3)
+
+    @property
+    def obstacle(self) -> np.ndarray | None:
+        """A copy of O [m], or None."""
+        return None if self._obstacle is None else self._obstacle.copy()
+
+    def compute_value_and_jacobian(self, kin: Kinematics) -> tuple[float, np.ndarray]:
+        """σ = ‖O − P‖ and the paper's partial-Jacobian row; (inf, 0) without obstacle."""
+        if self._obstacle is None:
+            return math.inf, np.zeros((1, kin.nq))
+        diff = self._obstacle - kin.frame_position(self.frame)
+        dist = float(np.sqrt(diff @ diff))
+        if dist < 1e-9:
+            # O on P: the direction is undefined; report contact with no usable gradient.
+            return 0.0, np.zeros((1, kin.nq))
+        jac = -(diff / dist) @ kin.partial_position_jacobian(self.frame, self.joint)
+        return dist, jac[None, :]
