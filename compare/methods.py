@@ -54,7 +54,7 @@ def make_method(name: str, robot: Robot, settings: Mapping[str, Any] | None = No
     """
     opts = dict(settings or {})
     if name == "tpik" or name.startswith("tpik-"):
-        from tpik.solver import TpikSolver, TpikSettings
+        from tpik.solver import TpikSettings, TpikSolver
 
         variant = name.partition("-")[2] or opts.pop("variant", TpikSolver.VARIANTS[0])
         if variant not in TpikSolver.VARIANTS:

@@ -39,9 +39,7 @@ class Kinematics:
 
     def _check(self) -> None:
         if not self.robot.is_current(self._generation):
-            raise StaleKinematics(
-                "this Kinematics snapshot is stale: robot.kinematics() was called again since"
-            )
+            raise StaleKinematics("this Kinematics snapshot is stale: robot.kinematics() was called again since")
 
     @property
     def nq(self) -> int:

@@ -130,7 +130,7 @@ class Robot:
 
     def check_configuration(self, q: np.ndarray) -> np.ndarray:
         """Return ``q`` as a float array of shape (n,), or raise :class:`InvalidConfiguration`."""
-        q_arr = np.asarray(q, dtype=float)
+        q_arr = np.array(q, dtype=float)  # a copy: the snapshot freezes it
         if q_arr.shape != (self.nq,):
             raise InvalidConfiguration(f"q must have shape ({self.nq},), got {q_arr.shape}")
         if not np.all(np.isfinite(q_arr)):

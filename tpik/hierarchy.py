@@ -170,8 +170,12 @@ def _virtual_wall(spec: dict[str, Any], robot: Robot) -> list[Task]:
     th = _thresholds(-phys, 0.0, math.inf, math.inf, eps)
     return [
         VirtualWallTask(
-            spec.pop("name"), spec.pop("frame", "end_effector"), spec.pop("normal"), spec.pop("offset"),
-            th, spec.pop("gain", 1.0),
+            spec.pop("name"),
+            spec.pop("frame", "end_effector"),
+            spec.pop("normal"),
+            spec.pop("offset"),
+            th,
+            spec.pop("gain", 1.0),
         )
     ]
 
@@ -202,7 +206,11 @@ def _position(spec: dict[str, Any], robot: Robot) -> list[Task]:
 def _orientation(spec: dict[str, Any], robot: Robot) -> list[Task]:
     frame = spec.pop("frame", "end_effector")
     robot.frame_id(frame)
-    return [OrientationTask(spec.pop("name", f"orientation_{frame}"), frame, spec.pop("gain", 1.0), spec.pop("target", None))]
+    return [
+        OrientationTask(
+            spec.pop("name", f"orientation_{frame}"), frame, spec.pop("gain", 1.0), spec.pop("target", None)
+        )
+    ]
 
 
 def _pose(spec: dict[str, Any], robot: Robot) -> list[Task]:

@@ -65,7 +65,7 @@ class StepResult:
 
     @property
     def total_time_s(self) -> float:
-        """build + solve time [s]."""
+        """Build + solve time [s]."""
         return self.build_time_s + self.solve_time_s
 
 

@@ -13,13 +13,35 @@ from tpik.tasks import Activation, ObstacleDistanceTask, PositionTask
 CONTROL_POINTS = ("link_4", "link_6", "link_7")
 
 CASE2_DESCRIPTION: list[dict[str, object]] = [
-    {"name": "joint_limits", "tasks": [{"type": "joint_limit", "joints": [2, 4, 6], "safety_margin": 0.1,
-                                        "activation_margin": 0.05}]},
-    {"name": "walls", "tasks": [{"type": "wall_box", "frame": "end_effector", "lower": [-0.5, -0.5, 0.2],
-                                 "upper": [0.5, 0.5, 0.9], "physical_margin": 0.05, "activation_margin": 0.03}]},
-    {"name": "obstacles", "tasks": [{"type": "obstacle_distance", "frames": list(CONTROL_POINTS),
-                                     "safety_distance": 0.35, "physical_distance": 0.1,
-                                     "activation_margin": 0.05}]},
+    {
+        "name": "joint_limits",
+        "tasks": [{"type": "joint_limit", "joints": [2, 4, 6], "safety_margin": 0.1, "activation_margin": 0.05}],
+    },
+    {
+        "name": "walls",
+        "tasks": [
+            {
+                "type": "wall_box",
+                "frame": "end_effector",
+                "lower": [-0.5, -0.5, 0.2],
+                "upper": [0.5, 0.5, 0.9],
+                "physical_margin": 0.05,
+                "activation_margin": 0.03,
+            }
+        ],
+    },
+    {
+        "name": "obstacles",
+        "tasks": [
+            {
+                "type": "obstacle_distance",
+                "frames": list(CONTROL_POINTS),
+                "safety_distance": 0.35,
+                "physical_distance": 0.1,
+                "activation_margin": 0.05,
+            }
+        ],
+    },
     {"name": "operational", "tasks": [{"type": "position", "frame": "end_effector", "gain": 1.0}]},
 ]
 """Paper case 2 (sec. IV-C): joint limits 2,4,6 > six walls on the EE > obstacle distance of

@@ -61,8 +61,21 @@ def summarize(name: str, case: str, samples_us: np.ndarray, **extra: float) -> B
     )
 
 
-_VERSIONED = ("tpik-compare", "numpy", "mujoco", "pin", "qpsolvers", "mink", "daqp", "osqp", "proxsuite",
-              "clarabel", "piqp", "quadprog", "scipy")
+_VERSIONED = (
+    "tpik-compare",
+    "numpy",
+    "mujoco",
+    "pin",
+    "qpsolvers",
+    "mink",
+    "daqp",
+    "osqp",
+    "proxsuite",
+    "clarabel",
+    "piqp",
+    "quadprog",
+    "scipy",
+)
 
 
 def versions() -> dict[str, str]:

@@ -13,10 +13,14 @@ FRAMES = ("link_4", "link_6", "link_7", "end_effector")
 
 # Reference poses of ../shared/robots/j2s7s300_kinematics.md (computed from the URDF).
 REFERENCE = [
-    (np.zeros(7), {"link_4": (0, 0.0016, -0.1345), "link_6": (0, -0.0098, 0.17655),
-                   "end_effector": (0, -0.0098, -0.0872)}),
-    (np.full(7, PI), {"link_4": (0, -0.0016, 0.6855), "link_6": (0, -0.013, 0.99655),
-                      "end_effector": (0, -0.013, 1.2603)}),
+    (
+        np.zeros(7),
+        {"link_4": (0, 0.0016, -0.1345), "link_6": (0, -0.0098, 0.17655), "end_effector": (0, -0.0098, -0.0872)},
+    ),
+    (
+        np.full(7, PI),
+        {"link_4": (0, -0.0016, 0.6855), "link_6": (0, -0.013, 0.99655), "end_effector": (0, -0.013, 1.2603)},
+    ),
     (np.array([0, PI / 2, PI, PI, PI, PI, PI]), {"end_effector": (0.9848, 0.013, 0.2755)}),
     (np.array([4.71, 2.84, 0, 0.75, 4.62, 4.48, 4.88]), {"end_effector": (0.2659, -0.2121, 0.5031)}),
 ]
@@ -29,10 +33,12 @@ def test_fk_matches_fact_sheet_reference_poses(jaco, q, expected):
 
 
 def test_ee_rotation_at_zero_and_candle(jaco):
-    np.testing.assert_allclose(jaco.frame_pose(np.zeros(7), "end_effector")[:3, :3],
-                               [[0, 1, 0], [1, 0, 0], [0, 0, -1]], atol=1e-9)
-    np.testing.assert_allclose(jaco.frame_pose(np.full(7, PI), "end_effector")[:3, :3],
-                               [[0, -1, 0], [1, 0, 0], [0, 0, 1]], atol=1e-9)
+    np.testing.assert_allclose(
+        jaco.frame_pose(np.zeros(7), "end_effector")[:3, :3], [[0, 1, 0], [1, 0, 0], [0, 0, -1]], atol=1e-9
+    )
+    np.testing.assert_allclose(
+        jaco.frame_pose(np.full(7, PI), "end_effector")[:3, :3], [[0, -1, 0], [1, 0, 0], [0, 0, 1]], atol=1e-9
+    )
 
 
 def test_hand_computed_elbow_bend(jaco):

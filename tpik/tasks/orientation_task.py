@@ -28,7 +28,9 @@ class OrientationTask(Task):
         target: Optional target rotation R_d, shape (3, 3).
     """
 
-    def __init__(self, name: str, frame: str = "end_effector", gain: float = 1.0, target: np.ndarray | None = None) -> None:
+    def __init__(
+        self, name: str, frame: str = "end_effector", gain: float = 1.0, target: np.ndarray | None = None
+    ) -> None:
         super().__init__(name, 3, gain)
         self.frame = frame
         self._target: np.ndarray | None = None

@@ -23,7 +23,9 @@ class PoseTask(Task):
         target: Optional 4×4 homogeneous target in the base frame.
     """
 
-    def __init__(self, name: str, frame: str = "end_effector", gain: float = 1.0, target: np.ndarray | None = None) -> None:
+    def __init__(
+        self, name: str, frame: str = "end_effector", gain: float = 1.0, target: np.ndarray | None = None
+    ) -> None:
         super().__init__(name, 6, gain)
         self.frame = frame
         self._position = PositionTask(f"{name}.position", frame, gain)

@@ -41,7 +41,9 @@ class PositionTask(Task):
     def set_target(self, position: np.ndarray, velocity: np.ndarray | None = None) -> None:
         """Set p_d [m] and optionally ṗ_d [m/s]; both are copied."""
         self._target = as_finite_vector(self.name, "target", position, 3)
-        self._velocity = np.zeros(3) if velocity is None else as_finite_vector(self.name, "target_velocity", velocity, 3)
+        self._velocity = (
+            np.zeros(3) if velocity is None else as_finite_vector(self.name, "target_velocity", velocity, 3)
+        )
 
     @property
     def target(self) -> np.ndarray:
