@@ -5,7 +5,7 @@ PY      = $(VENV)/bin/python
 STAMP   = $(VENV)/.installed
 export MUJOCO_GL ?= egl
 
-.PHONY: install system-deps demo test lint format bench clean
+.PHONY: install system-deps hw-deps demo test lint format bench clean
 
 # Headless MuJoCo rendering needs EGL + Mesa; installed from Debian only when missing.
 system-deps:
@@ -13,6 +13,20 @@ system-deps:
 	  if [ "$$(id -u)" = 0 ] && command -v apt-get >/dev/null; then \
 	    apt-get update -qq && apt-get install -y -qq libegl1 libgl1-mesa-dri libegl-mesa0 >/dev/null; \
 	  else echo "warning: libEGL not found; install libegl1 libgl1-mesa-dri for depth rendering"; fi; \
+	fi
+
+# ROS 1 from Debian 12 for the hardware bridge only (docs/hardware.md): rospy, roscore, the
+# sensor_msgs/std_msgs Python messages and genpy (generates kinova_msgs/JointVelocity at run time).
+# The core project installs and tests without it; tests/hardware skips when it is missing.
+HW_DEBS = python3-rospy python3-rosmaster python3-roslaunch python3-rostopic python3-sensor-msgs \
+          python3-std-msgs python3-genpy python3-genmsg
+hw-deps:
+	@if dpkg -s $(HW_DEBS) >/dev/null 2>&1 && command -v roscore >/dev/null; then \
+	  echo "hw-deps: ROS 1 packages already installed"; \
+	elif [ "$$(id -u)" = 0 ] && command -v apt-get >/dev/null; then \
+	  apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq --no-install-recommends $(HW_DEBS) >/dev/null; \
+	else \
+	  echo "hw-deps: needs root and apt-get (Debian 12): apt-get install $(HW_DEBS)" >&2; exit 1; \
 	fi
 
 $(STAMP): pyproject.toml

@@ -1,0 +1,162 @@
+"""Sensing benchmark: depth rendering, self-filter and depth-space distance per 512×424 frame.
+
+Case ``512x424-rho0.5``: the work cell with the arm at ``home`` and the person stepped in,
+reaching for the wrist (every control point has the person within ρ = 0.5 m). Stages, each
+timed on the same frame:
+
+* ``depth-render``: MuJoCo offscreen depth render + conversion to metres (no noise);
+* ``self-filter``: static-background removal + arm removal (inflated geoms);
+* ``depth-distance``: depth-space distance of the 3 control points (Flacco, sec. III);
+* ``depth-kdtree-baseline``: brute force on the same filtered frame: every valid pixel to a
+  base-frame point, ``scipy.spatial.cKDTree`` build and 3 nearest-point queries;
+* ``geometric-distance``: the no-render mode (capsule geometry), for sweeps.
+
+Run: ``MUJOCO_GL=egl .venv/bin/python -m compare.bench.sensing [repeats]``.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import sys
+from collections.abc import Callable
+
+os.environ.setdefault("MUJOCO_GL", "egl")
+
+import mujoco  # noqa: E402
+import numpy as np  # noqa: E402
+from scipy.spatial import cKDTree  # noqa: E402
+
+import robots  # noqa: E402
+from compare.bench.timing import BenchRow, summarize, time_calls, versions  # noqa: E402
+from compare.sensing import (  # noqa: E402
+    DepthPipeline,
+    DepthSensingSettings,
+    GeometricDistance,
+    Person,
+    PersonKeyframe,
+    control_point_positions,
+    load_workcell,
+    make_data,
+    point_cloud,
+    valid_fraction,
+)
+
+CASE = "512x424-rho0.5"
+RHO_M = 0.5
+
+
+def _bench_scene() -> tuple[mujoco.MjModel, mujoco.MjData, dict[str, np.ndarray], np.ndarray]:
+    """Work cell at ``home``, the person 0.7 m from the base reaching past the hand (all 3 points in range)."""
+    model = load_workcell()
+    data = make_data(model)
+    jaco = robots.load("jaco2")
+    q = np.array(data.qpos[: jaco.nq])
+    points = control_point_positions(jaco.kinematics(q))
+    reach = tuple(float(v) for v in points["link_7"] + np.array([0.05, 0.25, 0.0]))
+    person = Person(model, [PersonKeyframe(0.0, (0.05, 0.7), yaw=-math.pi / 2, right_hand=reach)])
+    person.apply(0.0, data)
+    mujoco.mj_forward(model, data)
+    return model, data, points, q
+
+
+def run_sensing_bench(repeats: int = 200) -> list[BenchRow]:
+    """Time the sensing stages on the case ``512x424-rho0.5`` (module docstring).
+
+    Args:
+        repeats: Timed calls per stage (after warm-up).
+
+    Returns:
+        Rows ``depth-render``, ``self-filter``, ``depth-distance``, ``depth-kdtree-baseline``,
+        ``geometric-distance``; ``extra`` holds pixel counts, the speed-up of the depth-space
+        distance over the baseline and the whole pipeline's median per frame.
+    """
+    model, data, points, q = _bench_scene()
+    pipe = DepthPipeline(model, DepthSensingSettings(rho_m=RHO_M))
+    try:
+        frame = pipe.render(data)
+        vf = valid_fraction(frame)
+        render_us = time_calls(lambda: pipe.render(data), repeats, warmup=5)
+        filter_us = time_calls(lambda: pipe.filter(frame, q=q), repeats, warmup=5)
+        filtered = pipe.filter(frame, q=q)
+        result = pipe.distance.compute(filtered, points, vf)
+        targets = np.array(list(points.values()))
+
+        def distance() -> object:
+            return pipe.distance.compute(filtered, points, vf)
+
+        def kdtree() -> tuple[np.ndarray, np.ndarray]:
+            cloud, _ = point_cloud(filtered)
+            return cKDTree(cloud).query(targets)
+
+        kd_dist, _ = kdtree()
+        distance_us, kdtree_us = _interleaved(distance, kdtree, repeats)
+    finally:
+        pipe.close()
+    geometric = GeometricDistance(model, rho_m=RHO_M)
+    truth = geometric.compute(data, points)
+    geometric_us = time_calls(lambda: geometric.compute(data, points), repeats)
+
+    n_points = int(np.count_nonzero(filtered.depth_m > 0))
+    depth_d = np.array([result.readings[n].distance_m for n in points])
+    true_d = np.array([truth.readings[n].distance_m for n in points])
+    med = {k: float(np.median(v)) for k, v in (("r", render_us), ("f", filter_us), ("d", distance_us))}
+    rows = [
+        summarize("depth-render", CASE, render_us, pixels=float(frame.depth_m.size), valid_fraction=vf),
+        summarize("self-filter", CASE, filter_us, foreground_pixels=float(n_points)),
+        summarize(
+            "depth-distance",
+            CASE,
+            distance_us,
+            pixels_visited=float(result.pixels_visited),
+            speedup_vs_kdtree=float(np.median(kdtree_us)) / med["d"],
+            pipeline_median_us=med["r"] + med["f"] + med["d"],
+            max_error_vs_geometry_m=float(np.max(np.abs(depth_d - true_d))),
+        ),
+        summarize(
+            "depth-kdtree-baseline",
+            CASE,
+            kdtree_us,
+            cloud_points=float(n_points),
+            max_diff_vs_depth_distance_m=float(np.max(np.abs(kd_dist - depth_d))),
+        ),
+        summarize("geometric-distance", CASE, geometric_us, control_points=float(len(points))),
+    ]
+    return rows
+
+
+def _interleaved(fn_a: Callable[[], object], fn_b: Callable[[], object], repeats: int) -> tuple[np.ndarray, np.ndarray]:
+    """Time two functions in alternating blocks of 10 calls, so both see the same machine load."""
+    block = 10
+    time_calls(fn_a, 1, warmup=20)
+    time_calls(fn_b, 1, warmup=20)
+    a, b = [], []
+    for _ in range(max(1, repeats // block)):
+        a.append(time_calls(fn_a, block, warmup=0))
+        b.append(time_calls(fn_b, block, warmup=0))
+    return np.concatenate(a), np.concatenate(b)
+
+
+def format_table(rows: list[BenchRow]) -> str:
+    """Markdown table of the rows."""
+    lines = ["| stage | case | median [ms] | p95 [ms] | samples | notes |", "|---|---|---:|---:|---:|---|"]
+    for r in rows:
+        notes = ", ".join(f"{k}={v:.4g}" for k, v in r.extra.items())
+        lines.append(
+            f"| {r.name} | {r.case} | {r.median_us / 1e3:.3f} | {r.p95_us / 1e3:.3f} | {r.samples} | {notes} |"
+        )
+    return "\n".join(lines)
+
+
+def main(argv: list[str] | None = None) -> None:
+    """Print the sensing table (optional argument: repeats)."""
+    args = sys.argv[1:] if argv is None else argv
+    repeats = int(args[0]) if args else 200
+    rows = run_sensing_bench(repeats)
+    info = versions()
+    print(f"python {info.get('python')}, mujoco {info.get('mujoco')}, numpy {info.get('numpy')}, cpu {info.get('cpu')}")
+    print(format_table(rows))
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,273 @@
+"""``tpik-compare``: run scenarios, sweeps, plots, benchmarks and the viewer (DESIGN §7).
+
+User mistakes (bad config, unknown method, missing directory) print one line on stderr
+and exit with code 2; no traceback.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import sys
+from pathlib import Path
+from typing import Annotated
+
+import typer
+
+os.environ.setdefault("MUJOCO_GL", "egl")
+
+app = typer.Typer(
+    add_completion=False,
+    no_args_is_help=True,
+    help="Set-based task-priority IK vs hierarchical QP vs mink on a Kinova Jaco², side by side.",
+)
+
+EXIT_USAGE = 2
+
+
+def _fail(message: str) -> None:
+    typer.echo(f"error: {message}", err=True)
+    raise typer.Exit(EXIT_USAGE)
+
+
+def _overrides(duration: float | None, time_scale: float | None, sensing: str | None) -> dict[str, object]:
+    out: dict[str, object] = {}
+    if duration is not None:
+        out["scenario.duration_s"] = duration
+    if time_scale is not None:
+        out["scenario.time_scale"] = time_scale
+    if sensing is not None:
+        out["scenario.sensing"] = sensing
+    return out
+
+
+ConfigArg = Annotated[Path, typer.Argument(help="Scenario TOML file (see configs/).", show_default=False)]
+MethodsOpt = Annotated[
+    list[str] | None,
+    typer.Option("--methods", "-m", help="Methods to run instead of the config's (repeatable): tpik, hqp-daqp, mink..."),
+]
+DurationOpt = Annotated[float | None, typer.Option("--duration", help="Override scenario.duration_s [s].")]
+ScaleOpt = Annotated[
+    float | None, typer.Option("--time-scale", help="Override scenario.time_scale (short form of a scenario).")
+]
+SensingOpt = Annotated[str | None, typer.Option("--sensing", help="Override scenario.sensing: depth | geometric.")]
+
+
+@app.command()
+def run(
+    config: ConfigArg,
+    out: Annotated[Path | None, typer.Option("--out", "-o", help="Results directory [results/<scenario>].")] = None,
+    methods: MethodsOpt = None,
+    duration: DurationOpt = None,
+    time_scale: ScaleOpt = None,
+    sensing: SensingOpt = None,
+    plots: Annotated[bool, typer.Option(help="Write the plots after the run.")] = True,
+    quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress bar.")] = False,
+) -> None:
+    """Run one scenario with every selected method; write summary.json, per-step tables, plots."""
+    from compare.config import ConfigError, load_config
+    from compare.run import run_scenario
+
+    try:
+        cfg, text = load_config(config, _overrides(duration, time_scale, sensing))
+        if methods:
+            from compare.config import parse_config
+
+            data = cfg.model_dump(mode="python")
+            data["methods"] = {"names": list(methods), "settings": {k: v for k, v in cfg.methods.settings.items()
+                                                                    if k in methods}}
+            cfg = parse_config(data)
+    except ConfigError as exc:
+        _fail(str(exc))
+        return
+    out_dir = out or Path("results") / cfg.scenario.name
+    summary = run_scenario(cfg, out_dir, config_text=text, progress=not quiet, make_plots=plots)
+    _print_summary(summary, out_dir)
+    if summary.get("errors"):
+        raise typer.Exit(1)
+
+
+def _print_summary(summary: dict[str, object], out_dir: Path) -> None:
+    from rich.console import Console
+
+    from compare.report import summary_table
+
+    console = Console()
+    console.print(summary_table(summary))
+    console.print(f"results: {out_dir}/summary.json   plots: {out_dir}/plots/")
+
+
+@app.command()
+def sweep(
+    config: ConfigArg,
+    n: Annotated[int, typer.Option("--n", "-n", min=1, help="Number of randomized runs (seeds seed..seed+n-1).")] = 10,
+    workers: Annotated[int, typer.Option("--workers", "-w", min=1, help="Parallel worker processes.")] = 2,
+    out: Annotated[Path | None, typer.Option("--out", "-o", help="Sweep directory [results/sweep-<scenario>].")] = None,
+    methods: MethodsOpt = None,
+    duration: DurationOpt = None,
+    time_scale: ScaleOpt = None,
+    sensing: Annotated[
+        str | None, typer.Option("--sensing", help="depth | geometric (sweeps default to geometric).")
+    ] = None,
+) -> None:
+    """Run a randomized batch in parallel; finished runs are skipped when re-run (resumable)."""
+    from compare.config import ConfigError, load_config
+    from compare.sweep import run_sweep
+
+    try:
+        cfg, text = load_config(config, _overrides(duration, time_scale, sensing or "geometric"))
+    except ConfigError as exc:
+        _fail(str(exc))
+        return
+    out_dir = out or Path("results") / f"sweep-{cfg.scenario.name}"
+    try:
+        summary = run_sweep(cfg, text, out_dir, n=n, workers=workers, methods=list(methods) if methods else None)
+    except ConfigError as exc:
+        _fail(str(exc))
+        return
+    typer.echo(f"sweep summary: {out_dir}/sweep_summary.json ({summary.get('runs', n)} runs)")
+
+
+@app.command()
+def plot(results: Annotated[Path, typer.Argument(help="A run or sweep results directory.")]) -> None:
+    """Draw the plots of a finished run (summary.json) or sweep (runs/)."""
+    from compare.plots import plot_run, plot_sweep
+
+    if (results / "summary.json").is_file():
+        paths = plot_run(results)
+    elif (results / "runs").is_dir():
+        paths = plot_sweep(results)
+    else:
+        _fail(f"{results}: neither a run (summary.json) nor a sweep (runs/) directory")
+        return
+    for p in paths:
+        typer.echo(str(p))
+
+
+@app.command()
+def bench(
+    json_out: Annotated[Path | None, typer.Option("--json", help="Write results as JSON (DESIGN §7).")] = None,
+    repeats: Annotated[int, typer.Option(min=10, help="Timed calls per case.")] = 300,
+    only: Annotated[str | None, typer.Option(help="solvers | sensing (default both).")] = None,
+    methods: MethodsOpt = None,
+) -> None:
+    """Solver and sensing micro-benchmarks with medians, p95 and ratios to the reference."""
+    from compare.bench.__main__ import main as bench_main
+
+    argv: list[str] = ["--repeats", str(repeats)]
+    if json_out is not None:
+        argv += ["--json", str(json_out)]
+    if only is not None:
+        argv += ["--only", only]
+    if methods:
+        argv += ["--methods", *methods]
+    code = bench_main(argv)
+    if code:
+        raise typer.Exit(code)
+
+
+@app.command()
+def view(config: ConfigArg, method: Annotated[str, typer.Option(help="Method driving the arm.")] = "tpik") -> None:
+    """Watch a scenario in the interactive MuJoCo viewer (needs a display)."""
+    from compare.config import ConfigError, load_config
+
+    if not os.environ.get("DISPLAY") and not os.environ.get("WAYLAND_DISPLAY"):
+        _fail("no display found (DISPLAY is not set): use `tpik-compare run` for headless runs")
+        return
+    try:
+        cfg, _ = load_config(config)
+    except ConfigError as exc:
+        _fail(str(exc))
+        return
+    from compare.run import view_scenario
+
+    view_scenario(cfg, method)
+
+
+@app.command()
+def hw(
+    config: ConfigArg,
+    method: Annotated[str, typer.Option("--method", "-m", help="Method driving the arm.")] = "tpik",
+    dry_run: Annotated[
+        bool, typer.Option("--dry-run", help="Run everything (ROS, sensing, solver, logs) but publish nothing.")
+    ] = False,
+    duration: Annotated[float | None, typer.Option("--duration", help="Run time [s] (default: scenario's).")] = None,
+    out: Annotated[Path | None, typer.Option("--out", "-o", help="Results directory [results/hw-<scenario>].")] = None,
+    time_scale: ScaleOpt = None,
+    plots: Annotated[bool, typer.Option(help="Write the plots after the run.")] = True,
+    quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress bar.")] = False,
+) -> None:
+    """Drive the real Jaco² and depth camera through the Kinova ROS 1 driver (docs/hardware.md)."""
+    from compare.config import ConfigError, load_config
+    from compare.hardware.exceptions import HardwareError
+
+    try:
+        cfg, text = load_config(config, _overrides(None, time_scale, None))
+    except ConfigError as exc:
+        _fail(str(exc))
+        return
+    if method not in cfg.methods.names:
+        from compare.config import parse_config
+
+        data = cfg.model_dump(mode="python")
+        settings = {k: v for k, v in cfg.methods.settings.items() if k == method}
+        data["methods"] = {"names": [method], "settings": settings}
+        try:
+            cfg = parse_config(data)
+        except ConfigError as exc:
+            _fail(str(exc))
+            return
+    logging.getLogger("compare.hardware").setLevel(logging.INFO)
+    out_dir = out or Path("results") / f"hw-{cfg.scenario.name}"
+    from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
+
+    from compare.hardware.run import run_hardware
+
+    total = duration if duration is not None else cfg.scenario.sim_time_s
+    bar = Progress(
+        TextColumn(f"[bold]{method}"),
+        BarColumn(),
+        TextColumn("{task.completed:5.1f}/{task.total:.0f} s"),
+        TimeElapsedColumn(),
+        disable=quiet,
+    )
+    try:
+        with bar:
+            task_id = bar.add_task(method, total=total)
+            summary = run_hardware(
+                cfg,
+                method,
+                out_dir,
+                config_text=text,
+                dry_run=dry_run,
+                duration_s=duration,
+                make_plots=plots,
+                progress=lambda t: bar.update(task_id, completed=t),
+            )
+    except HardwareError as exc:
+        _fail(str(exc))
+        return
+    except KeyboardInterrupt:
+        typer.echo("interrupted: zero velocity sent", err=True)
+        raise typer.Exit(130) from None
+    _print_summary(summary, out_dir)
+    hw_report = summary["methods"][method].get("hardware", {})
+    rates = hw_report.get("rates", {})
+    typer.echo(
+        "measured rates [Hz]: "
+        + ", ".join(f"{k} {v['rate_hz']:.1f}" for k, v in rates.items() if v.get("rate_hz") is not None)
+    )
+    for event in hw_report.get("watchdog_events", []):
+        typer.echo(event["message"])
+    if summary["methods"][method].get("interrupted"):
+        raise typer.Exit(130)
+
+
+def main(argv: list[str] | None = None) -> None:
+    """Console-script entry point."""
+    logging.basicConfig(level=logging.WARNING, format="%(levelname)s %(name)s: %(message)s")
+    app(args=argv if argv is not None else sys.argv[1:], prog_name="tpik-compare")
+
+
+if __name__ == "__main__":
+    main()

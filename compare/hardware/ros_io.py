@@ -1,0 +1,515 @@
+"""ROS 1 implementation of :class:`~compare.robot_io.RobotIO`: the kinova-ros driver and a depth camera.
+
+Data flow (one process; rospy's receive threads fill the latest values, the control loop reads them):
+
+* ``hardware.joint_state_topic`` (``sensor_msgs/JointState``, rad) → :meth:`RosRobotIO.read_joints`;
+  the 7 arm joints are picked by name, fingers are ignored;
+* ``hardware.depth_topic`` + ``hardware.camera_info_topic`` → :meth:`RosRobotIO.read_depth`, a
+  :class:`~compare.robot_io.DepthFrame` with the calibrated camera pose from the config;
+* :meth:`RosRobotIO.send_velocity` [rad/s] → clamps → watchdog → ``hardware.velocity_topic``
+  (``kinova_msgs/JointVelocity``, **deg/s**), published at once.
+
+A *pump* thread keeps the 100 Hz stream the driver needs when the loop is late (it republishes
+the held command) and stops it safely when the loop stalls or the data goes stale (zero
+velocity). Every published command passes the :class:`~compare.hardware.safety.Watchdog`.
+
+Times are on this process's monotonic clock, in seconds since :meth:`RosRobotIO.start_clock`
+(arrival times, not the senders' header stamps: machines' clocks may differ).
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import socket
+import threading
+import time
+import xmlrpc.client
+from collections import deque
+from typing import Any
+
+import numpy as np
+
+from compare.config import HardwareConfig
+from compare.hardware.conversions import (
+    camera_model_from_info,
+    decode_depth,
+    joint_indices,
+    rad_s_to_deg_s,
+    transform_from_translation_quaternion,
+)
+from compare.hardware.exceptions import HardwareError, MasterUnreachable, StartRefused
+from compare.hardware.ros_env import RosApi, load_ros
+from compare.hardware.safety import CommandLimiter, Watchdog, WatchdogEvent
+from compare.robot_io import CameraModel, DepthFrame, JointReading, RobotIO
+
+log = logging.getLogger(__name__)
+
+_STOP_REPEAT_S = 0.1
+"""How long zero velocity is streamed when stopping [s] (the driver stops when the stream ends)."""
+
+
+class _TimeoutTransport(xmlrpc.client.Transport):
+    def __init__(self, timeout_s: float) -> None:
+        super().__init__()
+        self._timeout_s = timeout_s
+
+    def make_connection(self, host: Any) -> Any:
+        conn = super().make_connection(host)
+        conn.timeout = self._timeout_s
+        return conn
+
+
+def master_online(uri: str, timeout_s: float = 1.0) -> bool:
+    """Whether a ROS master answers ``getPid`` at ``uri`` within ``timeout_s`` (no ROS import)."""
+    try:
+        proxy = xmlrpc.client.ServerProxy(uri, transport=_TimeoutTransport(timeout_s))
+        code, _, _ = proxy.getPid("/tpik_compare_probe")
+        return int(code) == 1
+    except (TimeoutError, OSError, xmlrpc.client.Error, ValueError):
+        return False
+
+
+def init_node(ros: RosApi, name: str) -> None:
+    """``rospy.init_node`` without taking over the process: our own signal handling, our log handlers kept.
+
+    rospy replaces the root logger's handlers by a file handler in ``$ROS_HOME/log``; the
+    handlers in place before (the CLI's stderr) are put back next to it.
+    """
+    root = logging.getLogger()
+    handlers, level = list(root.handlers), root.level
+    ros.rospy.init_node(name, anonymous=True, disable_signals=True)
+    for handler in handlers:
+        if handler not in root.handlers:
+            root.addHandler(handler)
+    root.setLevel(level)
+
+
+class _RateCounter:
+    """Arrival times of one topic (bounded), for measured rates."""
+
+    def __init__(self, maxlen: int = 200_000) -> None:
+        self.times: deque[float] = deque(maxlen=maxlen)
+
+    def add(self, t: float) -> None:
+        self.times.append(t)
+
+    def stats(self, since: float = -math.inf) -> dict[str, float | int | None]:
+        t = np.array([x for x in self.times if x >= since])
+        if t.size < 2:
+            return {"count": int(t.size), "rate_hz": None, "interval_p99_ms": None, "interval_max_ms": None}
+        dt = np.diff(t)
+        return {
+            "count": int(t.size),
+            "rate_hz": float((t.size - 1) / (t[-1] - t[0])) if t[-1] > t[0] else None,
+            "interval_p99_ms": float(np.percentile(dt, 99) * 1e3),
+            "interval_max_ms": float(dt.max() * 1e3),
+        }
+
+
+class RosRobotIO(RobotIO):
+    """The real arm (kinova-ros driver) and depth camera, as the control loop sees them.
+
+    Args:
+        hw: Topics, rates, limits and camera pose (``[hardware]`` of the config).
+        v_max: Model joint velocity limits [rad/s]; scaled by ``hw.max_velocity_scale``. Shape (n,).
+        dt: Control period [s] (0.01: the driver needs 100 Hz).
+        use_depth: Subscribe to the depth camera and watch its age.
+        dry_run: Run everything but never advertise or publish the velocity topic.
+        ros: Loaded ROS API (default: :func:`~compare.hardware.ros_env.load_ros`).
+
+    Raises:
+        StartRefused: ``use_depth`` without a calibrated camera transform.
+    """
+
+    def __init__(
+        self,
+        hw: HardwareConfig,
+        v_max: np.ndarray,
+        dt: float,
+        use_depth: bool = True,
+        dry_run: bool = False,
+        ros: RosApi | None = None,
+    ) -> None:
+        self.hw = hw
+        self.nq = len(hw.joint_names)
+        self.dt = float(dt)
+        self.use_depth = use_depth
+        self.dry_run = dry_run
+        if use_depth and not hw.has_camera_transform:
+            raise StartRefused(
+                "camera transform missing: set hardware.camera_translation_m and hardware.camera_quaternion_xyzw "
+                "(the calibrated pose of the depth optical frame in the arm base frame, docs/hardware.md)"
+            )
+        self._camera_T = (
+            transform_from_translation_quaternion(hw.camera_translation_m, hw.camera_quaternion_xyzw)  # type: ignore[arg-type]
+            if hw.has_camera_transform
+            else None
+        )
+        self._ros = ros
+        v_limit = np.asarray(v_max, dtype=float) * hw.max_velocity_scale
+        self._limiter = CommandLimiter(v_limit, hw.max_acceleration_rad_s2, self.dt)
+        self.watchdog = Watchdog(hw.state_timeout_s, hw.depth_timeout_s if use_depth else None, 3.0 * self.dt)
+        self.watchdog.quiet = True  # until start_clock: zero is expected before the loop runs
+        self._lock = threading.RLock()
+        self._epoch = time.monotonic()
+        self._indices: np.ndarray | None = None
+        self._index_names: tuple[str, ...] = ()
+        self._joint: tuple[np.ndarray, np.ndarray, float] | None = None
+        self._history: deque[tuple[float, np.ndarray]] = deque(maxlen=300)
+        self._camera: CameraModel | None = None
+        self._frame: tuple[np.ndarray, float, CameraModel] | None = None
+        self._command = np.zeros(self.nq)
+        self._command_t: float | None = None
+        self._sent = np.zeros(self.nq)
+        self._last_publish_t = -math.inf
+        self._halt_reason: str | None = None
+        self._next_tick: float | None = None
+        self._closed = False
+        self._pump: threading.Thread | None = None
+        self._pump_stop = threading.Event()
+        self._subs: list[Any] = []
+        self._pub: Any = None
+        self._nodelay_done: set[int] = set()
+        self.rates = {name: _RateCounter() for name in ("joint_state", "depth", "camera_info", "command")}
+        self.clamp_count = 0
+        self.zero_commands = 0
+        self.overruns = 0
+        self.bad_messages: dict[str, int] = {}
+        self._clock_start = 0.0
+        self.startup_events: list[WatchdogEvent] = []
+
+    # -- lifecycle ---------------------------------------------------------------------------
+
+    def connect(self, master_uri: str | None = None) -> None:
+        """Check the master, start the node, subscribe, advertise (unless dry run), start the pump.
+
+        Raises:
+            MasterUnreachable: no master at ``ROS_MASTER_URI``.
+        """
+        ros = self._ros = self._ros or load_ros()
+        uri = master_uri or ros.rosgraph.get_master_uri()
+        if not master_online(uri, timeout_s=2.0):
+            raise MasterUnreachable(f"no ROS master answers at {uri} (start roscore/the driver, or set ROS_MASTER_URI)")
+        rospy = ros.rospy
+        if not rospy.core.is_initialized():
+            init_node(ros, self.hw.node_name)
+        self._subs.append(
+            rospy.Subscriber(
+                self.hw.joint_state_topic, ros.JointState, self._on_joint_state, queue_size=1, tcp_nodelay=True
+            )
+        )
+        if self.use_depth:
+            self._subs.append(
+                rospy.Subscriber(
+                    self.hw.camera_info_topic, ros.CameraInfo, self._on_camera_info, queue_size=1, tcp_nodelay=True
+                )
+            )
+            self._subs.append(
+                rospy.Subscriber(
+                    self.hw.depth_topic, ros.Image, self._on_depth, queue_size=1, buff_size=2**24, tcp_nodelay=True
+                )
+            )
+        if not self.dry_run:
+            self._pub = rospy.Publisher(self.hw.velocity_topic, ros.JointVelocity, queue_size=1, tcp_nodelay=True)
+        self._pump = threading.Thread(target=self._pump_loop, name="tpik-hw-pump", daemon=True)
+        self._pump.start()
+
+    def wait_ready(self, timeout_s: float | None = None) -> None:
+        """Wait for joint states (and camera info + depth), then check the joint state rate.
+
+        Raises:
+            StartRefused: nothing within ``timeout_s`` (default ``hardware.startup_timeout_s``), or the
+                driver publishes joint states much slower than ``hardware.state_rate_hz``.
+        """
+        timeout_s = self.hw.startup_timeout_s if timeout_s is None else timeout_s
+        deadline = time.monotonic() + timeout_s
+        needs = [("joint state", lambda: self._joint is not None, self.hw.joint_state_topic)]
+        if self.use_depth:
+            needs.append(("camera info", lambda: self._camera is not None, self.hw.camera_info_topic))
+            needs.append(("depth frame", lambda: self._frame is not None, self.hw.depth_topic))
+        for what, ready, topic in needs:
+            while not ready():
+                if self._closed:
+                    raise StartRefused("stopped while waiting for data")
+                if time.monotonic() > deadline:
+                    bad = f" ({self.bad_messages})" if self.bad_messages else ""
+                    raise StartRefused(f"no {what} on {topic} within {timeout_s:.1f} s{bad}: is the publisher running?")
+                time.sleep(0.005)
+        # Measure the state rate over ~20 periods: a driver launched with the default
+        # feedback_publish_rate (0.1 s) would leave the 100 Hz loop on 10 Hz data.
+        t0 = time.monotonic()
+        window = max(0.3, 20.0 / self.hw.state_rate_hz)
+        while time.monotonic() - t0 < window:
+            time.sleep(0.01)
+        rate = self.rates["joint_state"].stats(since=t0)["rate_hz"] or 0.0
+        want = self.hw.state_rate_hz * self.hw.min_state_rate_fraction
+        if rate < want:
+            raise StartRefused(
+                f"joint states arrive at {rate:.1f} Hz, expected {self.hw.state_rate_hz:.0f} Hz: launch the driver "
+                f"with feedback_publish_rate:={1.0 / self.hw.state_rate_hz:g} (or set hardware.state_rate_hz)"
+            )
+        if self.use_depth:
+            age = time.monotonic() - self._frame[1]  # type: ignore[index]
+            if age > self.hw.depth_timeout_s:
+                raise StartRefused(f"depth frames are stale ({1e3 * age:.0f} ms old) at start")
+
+    def start_clock(self) -> None:
+        """Make :meth:`now` read 0 here (call right before the control loop)."""
+        with self._lock:
+            shift = time.monotonic() - self._epoch
+            self._epoch += shift
+            self._clock_start = self._epoch
+            self._next_tick = None
+            self.startup_events.extend(self.watchdog.events)
+            self.watchdog.events.clear()
+            self.watchdog.quiet = False
+
+    def halt(self, reason: str, level: int = logging.WARNING) -> None:
+        """Latch zero velocity from now on (Ctrl-C, errors); safe to call from a signal handler."""
+        if self._halt_reason is None:
+            self._halt_reason = reason
+            log.log(level, "halt: %s: zero velocity", reason)
+        self._publish(time.monotonic())
+
+    def close(self) -> None:
+        """Stream zero velocity for 0.1 s, stop the pump and shut the node down (idempotent)."""
+        if self._closed:
+            return
+        self.halt(self._halt_reason or "closing", level=logging.INFO)
+        end = time.monotonic() + _STOP_REPEAT_S
+        while time.monotonic() < end:
+            self._publish(time.monotonic())
+            time.sleep(self.dt)
+        self._closed = True
+        self._pump_stop.set()
+        if self._pump is not None:
+            self._pump.join(timeout=1.0)
+        for sub in self._subs:
+            sub.unregister()
+        self._subs.clear()
+        if self._pub is not None:
+            time.sleep(0.02)  # let the queued zero leave the socket
+            self._pub.unregister()
+            self._pub = None
+
+    # -- RobotIO -----------------------------------------------------------------------------
+
+    def now(self) -> float:
+        """Seconds since :meth:`start_clock` (monotonic)."""
+        return time.monotonic() - self._epoch
+
+    def read_joints(self) -> JointReading | None:
+        """Latest arm joint state, or None when none arrived within the watchdog timeout."""
+        with self._lock:
+            joint = self._joint
+        if joint is None:
+            return None
+        q, qdot, stamp = joint
+        if time.monotonic() - stamp > self.hw.state_timeout_s:
+            return None
+        return JointReading(q.copy(), qdot.copy(), stamp - self._epoch)
+
+    def q_at(self, stamp_s: float) -> np.ndarray | None:
+        """Measured joint positions [rad] at time ``stamp_s`` (this clock): the last state received by then.
+
+        Used to self-filter a depth frame with the arm where it was when the frame arrived.
+        None when no state that old is kept (the last 3 s are).
+        """
+        t = stamp_s + self._epoch
+        with self._lock:
+            history = list(self._history)
+        best = None
+        for arrival, q in history:
+            if arrival <= t + 1e-4:
+                best = q
+            else:
+                break
+        return None if best is None else best.copy()
+
+    def read_depth(self) -> DepthFrame | None:
+        """Latest depth frame with the calibrated camera (its age is the caller's to check)."""
+        with self._lock:
+            frame = self._frame
+        if frame is None:
+            return None
+        depth, stamp, camera = frame
+        return DepthFrame(depth, stamp - self._epoch, camera)
+
+    def send_velocity(self, qdot: np.ndarray) -> None:
+        """Clamp, watchdog, then publish ``qdot`` [rad/s] (converted to deg/s on the wire)."""
+        now = time.monotonic()
+        with self._lock:
+            self._command = np.array(qdot, dtype=float, copy=True)
+            self._command_t = now
+            self._publish(now)
+
+    def wait(self) -> None:
+        """Sleep until the next control tick (absolute schedule; a late loop restarts it)."""
+        now = time.monotonic()
+        if self._next_tick is None:
+            self._next_tick = now
+        self._next_tick += self.dt
+        delay = self._next_tick - now
+        if delay > 0.0:
+            time.sleep(delay)
+        elif -delay > self.dt:
+            self.overruns += 1
+            self._next_tick = now
+
+    def stop(self) -> None:
+        """Command zero velocity (published at once)."""
+        self.send_velocity(np.zeros(self.nq))
+
+    # -- publishing ----------------------------------------------------------------------------
+
+    def _times(self, now: float) -> tuple[float, float | None, float | None, float | None]:
+        """(now, state, depth, command) times on this clock, for the watchdog (under the lock)."""
+        e = self._epoch
+        return (
+            now - e,
+            self._joint[2] - e if self._joint else None,
+            self._frame[1] - e if self._frame else None,
+            self._command_t - e if self._command_t is not None else None,
+        )
+
+    def _publish(self, now: float) -> None:
+        with self._lock:
+            if self._halt_reason is not None:
+                reason: str | None = self._halt_reason
+            else:
+                reason = self.watchdog.check(*self._times(now))
+            if reason is not None:
+                out = np.zeros(self.nq)
+            else:
+                out, why = self._limiter.apply(self._command, self._sent)
+                if why is not None:
+                    self.clamp_count += 1
+                    level = logging.INFO if self.clamp_count == 1 else logging.DEBUG
+                    log.log(level, "command %s (%d so far; counted in the summary)", why, self.clamp_count)
+            self._sent = out
+            if not np.any(out):
+                self.zero_commands += 1
+            self._last_publish_t = now
+            self.rates["command"].add(now)
+            pub = self._pub
+        if pub is not None:
+            deg_s = rad_s_to_deg_s(out)
+            msg = self._ros.JointVelocity(*(float(v) for v in deg_s))  # type: ignore[union-attr]
+            try:
+                pub.publish(msg)
+            except Exception as exc:  # rospy raises on shutdown; never let a publish kill the stop path
+                log.error("publishing the velocity command failed: %s", exc)
+
+    def _pump_loop(self) -> None:
+        """Watch the stream every millisecond.
+
+        Zero goes out at once when the data goes stale while the arm is commanded to move; the
+        held command is republished when the loop is 1.5 periods late (the stream stays at
+        100 Hz; zero if the loop stalled).
+        """
+        while not self._pump_stop.wait(0.001):
+            now = time.monotonic()
+            with self._lock:
+                moving = bool(np.any(self._sent))
+                stale = moving and self.watchdog.reason_at(*self._times(now)) is not None
+            if stale or now - self._last_publish_t >= 1.5 * self.dt:
+                self._publish(now)
+            self._set_nodelay()
+
+    def _set_nodelay(self) -> None:
+        """Set TCP_NODELAY on our command sockets.
+
+        roscpp subscribers (the driver) don't ask for it by default, and Nagle's algorithm with
+        delayed ACKs would deliver 100 Hz commands in bursts.
+        """
+        pub = self._pub
+        if pub is None:
+            return
+        for conn in list(getattr(pub.impl, "connections", [])):
+            sock = getattr(conn, "socket", None)
+            if sock is None or id(sock) in self._nodelay_done:
+                continue
+            try:
+                sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+                self._nodelay_done.add(id(sock))
+            except OSError:
+                pass
+
+    # -- callbacks (rospy threads) -------------------------------------------------------------
+
+    def _bad(self, what: str, message: str) -> None:
+        self.bad_messages[what] = self.bad_messages.get(what, 0) + 1
+        if self.bad_messages[what] in (1, 100, 10_000):
+            log.warning("ignored %s message (%d so far): %s", what, self.bad_messages[what], message)
+
+    def _on_joint_state(self, msg: Any) -> None:
+        now = time.monotonic()
+        names = tuple(msg.name)
+        try:
+            if names != self._index_names:
+                self._indices = joint_indices(names, self.hw.joint_names)
+                self._index_names = names
+            idx = self._indices
+            q = np.asarray(msg.position, dtype=float)[idx]  # type: ignore[index]
+        except (HardwareError, IndexError) as exc:
+            self._bad("joint_state", str(exc))
+            return
+        if not np.all(np.isfinite(q)):
+            self._bad("joint_state", "non-finite position")
+            return
+        vel = np.asarray(msg.velocity, dtype=float)
+        qdot = vel[idx] if vel.size == len(names) else np.zeros(self.nq)
+        with self._lock:
+            self._joint = (q, qdot, now)
+            self._history.append((now, q))
+        self.rates["joint_state"].add(now)
+
+    def _on_camera_info(self, msg: Any) -> None:
+        now = time.monotonic()
+        try:
+            cam = camera_model_from_info(
+                msg.width, msg.height, msg.K, self._camera_T, self.hw.depth_min_range_m, self.hw.depth_max_range_m
+            )
+        except HardwareError as exc:
+            self._bad("camera_info", str(exc))
+            return
+        with self._lock:
+            self._camera = cam
+        self.rates["camera_info"].add(now)
+
+    def _on_depth(self, msg: Any) -> None:
+        now = time.monotonic()
+        cam = self._camera
+        if cam is None:
+            self._bad("depth", "no camera_info yet")
+            return
+        if (msg.width, msg.height) != (cam.width, cam.height):
+            self._bad("depth", f"image {msg.width}x{msg.height} but camera_info {cam.width}x{cam.height}")
+            return
+        try:
+            depth = decode_depth(msg.encoding, msg.height, msg.width, msg.step, bool(msg.is_bigendian), msg.data)
+        except HardwareError as exc:
+            self._bad("depth", str(exc))
+            return
+        with self._lock:
+            self._frame = (depth, now, cam)
+        self.rates["depth"].add(now)
+
+    # -- report --------------------------------------------------------------------------------
+
+    def report(self) -> dict[str, Any]:
+        """Measured rates, watchdog events and counters since :meth:`start_clock` (for summary.json)."""
+        since = self._clock_start
+        return {
+            "dry_run": self.dry_run,
+            "rates": {name: counter.stats(since) for name, counter in self.rates.items()},
+            "watchdog_events": [{"t_s": e.t_s, "reason": e.reason, "message": e.message} for e in self.watchdog.events],
+            "startup_watchdog_events": [e.message for e in self.startup_events],
+            "clamped_commands": self.clamp_count,
+            "zero_commands": self.zero_commands,
+            "loop_overruns": self.overruns,
+            "ignored_messages": dict(self.bad_messages),
+            "state_timeout_s": self.hw.state_timeout_s,
+            "depth_timeout_s": self.hw.depth_timeout_s if self.use_depth else None,
+        }

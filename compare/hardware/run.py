@@ -1,0 +1,230 @@
+"""Run a scenario's hierarchy on the real arm: the hardware counterpart of :func:`compare.run.run_method`.
+
+Sequence (docs/hardware.md, "Safety behaviour"):
+
+1. build the hierarchy and the solver; refuse early if obstacle tasks need a depth camera whose
+   calibrated transform is missing;
+2. connect to ROS, wait for joint states (and camera info + depth), check the joint state rate;
+3. take the first joint state (and a first depth update): refuse if any set-based task is
+   outside its safety thresholds;
+4. run :func:`compare.loop.run_loop` — the same loop as in simulation — on a
+   :class:`~compare.hardware.ros_io.RosRobotIO`;
+5. whatever happens (end, Ctrl-C, SIGTERM, an exception): stream zero velocity, shut down;
+6. write ``summary.json`` + per-step table (the same :class:`~compare.results.ResultsWriter` and
+   :func:`~compare.metrics.compute_summary`), and the plots.
+
+On hardware there is no ground truth: obstacle metrics use the measured distances, and the
+summary says so (``obstacle_distance_source``).
+"""
+
+from __future__ import annotations
+
+import logging
+import signal
+import threading
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+import robots
+from compare.config import Config
+from compare.hardware.exceptions import StartRefused
+from compare.hardware.ros_io import RosRobotIO
+from compare.hardware.safety import start_problems
+from compare.loop import CONTROL_POINTS, LoopSettings, ObstacleSource, run_loop
+from compare.methods import make_method
+from compare.waypoints import WaypointSchedule
+from tpik.hierarchy import Hierarchy
+from tpik.tasks import ObstacleDistanceTask
+
+log = logging.getLogger(__name__)
+
+
+class Interrupted:
+    """Signal state shared with the handler: the first signal asks the loop to stop cleanly."""
+
+    def __init__(self) -> None:
+        self.signal_name: str | None = None
+
+
+@contextmanager
+def _signals(io: RosRobotIO, state: Interrupted) -> Iterator[None]:
+    """SIGINT/SIGTERM: first → zero velocity at once and end the loop; second → KeyboardInterrupt."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+
+    def handler(signum: int, _frame: Any) -> None:
+        name = signal.Signals(signum).name
+        if state.signal_name is not None:
+            raise KeyboardInterrupt(name)
+        state.signal_name = name
+        io.halt(f"{name} received")
+
+    previous = {sig: signal.signal(sig, handler) for sig in (signal.SIGINT, signal.SIGTERM)}
+    try:
+        yield
+    finally:
+        for sig, old in previous.items():
+            signal.signal(sig, old)
+
+
+def make_obstacle_source(config: Config, robot: robots.Robot, io: RosRobotIO) -> ObstacleSource:
+    """Depth-space obstacle distance on the live frames: background capture, self-filter, distance."""
+    from compare.hardware.sensing import HardwareDepthSensing, capture_background
+
+    frame = io.read_depth()
+    if frame is None:
+        raise StartRefused("no depth frame to build the obstacle sensing from")
+
+    def q_now() -> np.ndarray | None:
+        reading = io.read_joints()
+        return None if reading is None else reading.q
+
+    seconds = config.hardware.background_capture_s
+    if seconds > 0:
+        log.info("capturing the static background for %.1f s: keep people out of the camera's view", seconds)
+    background = capture_background(io.read_depth, q_now, robot, config, seconds)
+    return HardwareDepthSensing(robot, frame.camera, io.read_depth, io.q_at, config, background)
+
+
+def _apply_sensing(hierarchy: Hierarchy, result: Any) -> None:
+    for task in hierarchy.set_tasks:
+        if isinstance(task, ObstacleDistanceTask):
+            r = result.readings.get(task.frame)
+            task.set_obstacle(r.closest_point if r is not None and r.in_range else None)
+
+
+def run_hardware(
+    config: Config,
+    method: str,
+    out_dir: Path,
+    config_text: str | None = None,
+    dry_run: bool = False,
+    duration_s: float | None = None,
+    make_plots: bool = True,
+    progress: Callable[[float], None] | None = None,
+    obstacle_source: Callable[[Config, robots.Robot, RosRobotIO], ObstacleSource] | None = None,
+) -> dict[str, Any]:
+    """Drive the arm through ROS with one method; write results like a simulated run.
+
+    Args:
+        config: Validated configuration (scenario, hierarchy, methods' settings, ``[hardware]``).
+        method: Method key (``tpik``, ``hqp-daqp``, ``mink``, ...).
+        out_dir: Results directory.
+        config_text: TOML text copied to the results.
+        dry_run: Everything runs, nothing is published on the velocity topic.
+        duration_s: Run time [s]; default the scenario's (after ``time_scale``).
+        make_plots: Draw the plots after the run.
+        progress: Called with the elapsed time [s] about every 0.5 s.
+        obstacle_source: Builds the obstacle source (default :func:`make_obstacle_source`).
+
+    Returns:
+        The content of ``summary.json``; ``["methods"][method]["hardware"]`` holds the measured
+        rates, watchdog events and counters, ``["interrupted"]`` the signal that ended the run.
+
+    Raises:
+        StartRefused: a start-up check failed (nothing was commanded but zero).
+        MasterUnreachable: no ROS master.
+        RosUnavailable: ROS 1 not installed.
+    """
+    from compare.metrics import RunMeta, compute_summary
+    from compare.results import ResultsWriter
+    from compare.run import set_task_infos
+
+    robot = robots.load("jaco2")
+    sc = config.scenario
+    hw = config.hardware
+    hierarchy = config.build_hierarchy(robot)
+    obstacle_tasks = [t for t in hierarchy.set_tasks if isinstance(t, ObstacleDistanceTask)]
+    if obstacle_tasks and not hw.use_depth:
+        raise StartRefused("the hierarchy has obstacle tasks but hardware.use_depth is false")
+    use_depth = hw.use_depth and bool(obstacle_tasks)
+    solver = make_method(method, robot, config.methods.settings.get(method))
+    duration = float(duration_s) if duration_s is not None else sc.sim_time_s
+    if abs(sc.control_rate_hz - 100.0) > 1e-9:
+        log.warning("control rate %.0f Hz: the Kinova driver expects commands at 100 Hz", sc.control_rate_hz)
+
+    io = RosRobotIO(hw, robot.v_max, sc.dt, use_depth=use_depth, dry_run=dry_run)  # refuses without camera pose
+    state = Interrupted()
+    with _signals(io, state):
+        try:
+            io.connect()
+            io.wait_ready()
+            obstacles = (obstacle_source or make_obstacle_source)(config, robot, io) if use_depth else None
+            reading = io.read_joints()
+            if reading is None:
+                raise StartRefused("joint states stopped during start-up")
+            kin = robot.kinematics(reading.q)
+            if obstacles is not None:
+                first = obstacles.update(io.now(), kin)
+                if first.blind:
+                    raise StartRefused("depth sensing is blind at start (too few valid pixels or stale frame)")
+                _apply_sensing(hierarchy, first)
+            problems = start_problems(hierarchy, kin)
+            if problems:
+                raise StartRefused("arm outside its safety thresholds at start: " + "; ".join(problems))
+            wp = config.waypoints
+            ee0 = kin.frame_position("end_effector")
+            schedule = WaypointSchedule(wp.positions, ee0, wp.tolerance_m, wp.dwell_s * sc.time_scale, wp.cycle)
+            settings = LoopSettings(
+                dt=sc.dt,
+                duration_s=duration,
+                sensing_period_s=1.0 / sc.sensing_rate_hz,
+                fallback=sc.fallback,
+                fallback_decay_s=sc.fallback_decay_s,
+                max_sensing_age_s=config.sensor.max_age_s,
+            )
+            log.info("hardware run: %s, %.1f s%s", method, duration, " (dry run: nothing published)" if dry_run else "")
+            io.start_clock()
+            out = run_loop(
+                io,
+                robot,
+                hierarchy,
+                solver,
+                schedule,
+                settings,
+                obstacles,
+                None,
+                progress,
+                on_step=lambda: state.signal_name is None,
+            )
+        finally:
+            io.close()
+
+    steps = out.steps.drop(columns=[c for c in out.steps.columns if c.startswith(("truth:", "dist_true:"))])
+    meta = RunMeta(
+        scenario=sc.name,
+        seed=sc.seed,
+        method=method,
+        dt=sc.dt,
+        sim_time_s=out.sim_time_s,
+        wall_time_s=out.wall_time_s,
+        sensing="depth" if use_depth else "none",
+        set_tasks=set_task_infos(hierarchy),
+    )
+    summary = compute_summary(steps, meta)
+    measured = [steps[f"dist_meas:{cp}"].to_numpy(dtype=float) for cp in CONTROL_POINTS if f"dist_meas:{cp}" in steps]
+    summary["min_obstacle_distance_m"] = [_finite_min(d) for d in measured]
+    summary["obstacle_distance_source"] = "measured (depth camera; no ground truth on hardware)"
+    summary["hardware"] = io.report()
+    summary["events"] = out.events[:50]
+    summary["interrupted"] = state.signal_name
+    writer = ResultsWriter(Path(out_dir), sc.name, sc.seed, duration, config_text)
+    writer.add_method(method, summary, steps)
+    if make_plots:
+        try:
+            from compare.plots import plot_run
+
+            plot_run(Path(out_dir))
+        except Exception as exc:  # plots must never lose the results
+            log.warning("plots failed: %s", exc)
+    return writer.summary
+
+
+def _finite_min(x: np.ndarray) -> float | None:
+    x = x[np.isfinite(x)]
+    return float(x.min()) if x.size else None

@@ -1,0 +1,153 @@
+"""Obstacle distance from the real depth camera: the simulation's sensing pieces on ROS frames.
+
+The simulation's :class:`~compare.sensing.pipeline.DepthPipeline` renders its frames and its
+background from the MuJoCo scene; on hardware the frames come from ROS, the camera model from
+``camera_info`` plus the calibrated pose, and the background from live frames at start. The
+filters and the distance are the same classes with the same settings
+(:class:`~compare.sensing.pipeline.DepthSensingSettings` from ``[sensor]``).
+
+Per update (30 Hz, called by the control loop): take the latest frame; if it is new, remove the
+static scene (:class:`~compare.sensing.self_filter.StaticBackground`) and the arm
+(:class:`~compare.sensing.self_filter.SelfFilter`, at the joint positions measured when the
+frame arrived); then run the depth-space distance
+(:class:`~compare.sensing.depth_distance.DepthDistance`) for the control points at the current
+joint positions. Unlike the simulation's source, a frame older than ``[sensor] max_age_s`` is
+reported *blind* (a stalled camera must stop the arm, not replay its last frame).
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import time
+import warnings
+from collections.abc import Callable
+
+import numpy as np
+
+from compare.config import Config
+from compare.robot_io import CameraModel, DepthFrame
+from compare.sensing.camera import valid_fraction
+from compare.sensing.depth_distance import DepthDistance
+from compare.sensing.pipeline import DepthSensingSettings
+from compare.sensing.results import DistanceResult, ObstacleReading
+from compare.sensing.scene import CONTROL_POINTS, control_point_positions
+from compare.sensing.self_filter import SelfFilter, StaticBackground
+from robots import Kinematics, Robot
+
+log = logging.getLogger(__name__)
+
+
+def sensing_settings(config: Config) -> DepthSensingSettings:
+    """The simulation's depth-sensing parameters from ``[sensor]`` (noise = the real sensor's, for the margins)."""
+    return DepthSensingSettings.from_sensor_config(config.sensor, seed=config.scenario.seed)
+
+
+def make_self_filter(robot: Robot, camera: CameraModel, settings: DepthSensingSettings) -> SelfFilter:
+    """Arm removal on the arm's own model (its visual geoms), for frames of ``camera``."""
+    return SelfFilter(
+        robot.mj_model,
+        camera,
+        margin_m=settings.self_filter_margin_m,
+        noise=settings.noise,
+        noise_allowance=settings.noise_allowance,
+        root_body=settings.robot_root_body,
+    )
+
+
+class HardwareDepthSensing:
+    """An :class:`~compare.loop.ObstacleSource` on live depth frames.
+
+    Args:
+        robot: The arm model (its visual geoms are what the self-filter removes).
+        camera: Camera model of the frames (intrinsics from ``camera_info``, calibrated pose).
+        frames: Latest frame (``RosRobotIO.read_depth``), stamps on the loop's clock.
+        q_at: Measured joint positions [rad] at a time on the same clock (None if unknown).
+        config: ``[sensor]`` margins, noise, ρ, blind fraction and max age.
+        background: Static scene to remove (None: keep everything the self-filter leaves).
+    """
+
+    def __init__(
+        self,
+        robot: Robot,
+        camera: CameraModel,
+        frames: Callable[[], DepthFrame | None],
+        q_at: Callable[[float], np.ndarray | None],
+        config: Config,
+        background: StaticBackground | None = None,
+    ) -> None:
+        s = self.settings = sensing_settings(config)
+        self.self_filter = make_self_filter(robot, camera, s)
+        self.distance = DepthDistance(camera, s.rho_m, s.blind_fraction, s.min_support)
+        self.background = background
+        self.camera = camera
+        self.max_age_s = config.sensor.max_age_s
+        self._frames = frames
+        self._q_at = q_at
+        self._last: tuple[DepthFrame, DepthFrame, float] | None = None
+        self.filter_time_s = 0.0
+
+    def update(self, t: float, kin: Kinematics) -> DistanceResult:
+        """Closest obstacle of every control point at loop time ``t`` [s] with the arm at ``kin.q``."""
+        frame = self._frames()
+        if frame is None or t - frame.stamp_s > self.max_age_s:
+            return DistanceResult({n: ObstacleReading.nothing() for n in CONTROL_POINTS}, 0.0, True, t)
+        if self._last is not None and self._last[0] is frame:
+            filtered, vf = self._last[1], self._last[2]
+        else:
+            start = time.perf_counter()
+            vf = valid_fraction(frame)
+            q = self._q_at(frame.stamp_s)
+            depth = np.nan_to_num(frame.depth_m, nan=0.0, posinf=0.0, neginf=0.0).astype(np.float32, copy=True)
+            if self.background is not None:
+                self.background.apply_inplace(depth)
+            self.self_filter.apply_inplace(depth, q=kin.q if q is None else q)
+            filtered = DepthFrame(depth, frame.stamp_s, frame.camera)
+            self._last = (frame, filtered, vf)
+            self.filter_time_s = time.perf_counter() - start
+        return self.distance.compute(filtered, control_point_positions(kin, CONTROL_POINTS), vf)
+
+
+def capture_background(
+    frames: Callable[[], DepthFrame | None],
+    q_now: Callable[[], np.ndarray | None],
+    robot: Robot,
+    config: Config,
+    duration_s: float,
+) -> StaticBackground | None:
+    """Capture the static scene from live frames (nobody may be in view), arm pixels left out.
+
+    The per-pixel median of the valid returns over ``duration_s`` is the background; pixels
+    measuring the arm (self-filter at the current joint positions) get no background, so
+    anything seen there later is kept. Returns None if ``duration_s`` <= 0 or no frame came.
+    """
+    if duration_s <= 0.0:
+        return None
+    stack: list[np.ndarray] = []
+    last_stamp = -math.inf
+    camera: CameraModel | None = None
+    end = time.monotonic() + duration_s
+    while time.monotonic() < end:
+        frame = frames()
+        if frame is not None and frame.stamp_s > last_stamp:
+            last_stamp = frame.stamp_s
+            stack.append(np.nan_to_num(frame.depth_m, nan=0.0).astype(np.float32))
+            camera = frame.camera
+        time.sleep(0.005)
+    if not stack or camera is None:
+        return None
+    depth = np.stack(stack)
+    valid = depth > 0.0
+    masked = np.where(valid, depth, np.nan)
+    with warnings.catch_warnings():  # pixels never valid: all-NaN columns, handled by `keep`
+        warnings.simplefilter("ignore", RuntimeWarning)
+        median = np.nanmedian(masked, axis=0) if depth.shape[0] > 1 else masked[0]
+    keep = valid.mean(axis=0) >= 0.5
+    background = np.where(keep & np.isfinite(median), median, 0.0).astype(np.float32)
+    settings = sensing_settings(config)
+    q = q_now()
+    if q is not None:
+        make_self_filter(robot, camera, settings).apply_inplace(background, q=q)
+    log.info("background captured from %d frames (%.0f%% pixels)", len(stack), 100.0 * float(np.mean(background > 0)))
+    margin, noise, allowance = settings.background_margin_m, settings.noise, settings.noise_allowance
+    return StaticBackground(background, margin_m=margin, noise=noise, noise_allowance=allowance)

@@ -1,0 +1,289 @@
+"""The closed loop shared by every method, in simulation and on hardware (DESIGN §4, §7).
+
+One control step (period ``dt``, 100 Hz in the paper):
+
+1. read the joint state from the :class:`~compare.robot_io.RobotIO`;
+2. at the sensing rate (30 Hz), update the closest obstacle point of each control point
+   from the obstacle source; between updates the latest estimate is used;
+3. advance the waypoint schedule and set the EE target;
+4. solve the hierarchy (timed: kinematics + solver);
+5. guard the command: a failed solve, a non-finite or out-of-limit velocity is replaced by the
+   configured fallback; blind or stale sensing commands zero velocity (safe stop);
+6. send the command and wait for the next period.
+
+Every method runs this same code on the same scenario, seed and sensing.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import time
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
+from typing import Protocol
+
+import numpy as np
+import pandas as pd
+
+from compare.robot_io import RobotIO
+from compare.waypoints import WaypointSchedule
+from robots import Kinematics, Robot
+from tpik.hierarchy import Hierarchy
+from tpik.step_result import IkSolver, SolveStatus
+from tpik.tasks import ObstacleDistanceTask, PositionTask, SetTask
+
+log = logging.getLogger(__name__)
+
+CONTROL_POINTS = ("link_4", "link_6", "link_7")
+
+
+class ObstacleReadingLike(Protocol):
+    """Closest obstacle of one control point (see :mod:`compare.sensing`)."""
+
+    distance_m: float
+    closest_point: np.ndarray | None
+    in_range: bool
+
+
+class DistanceResultLike(Protocol):
+    """One sensing update: a reading per control point and whether the sensor is blind."""
+
+    readings: Mapping[str, ObstacleReadingLike]
+    blind: bool
+
+
+class ObstacleSource(Protocol):
+    """Anything that gives closest obstacle points for the control points."""
+
+    def update(self, t: float, kin: Kinematics) -> DistanceResultLike:
+        """Sense at time ``t`` [s] with the robot at ``kin.q``."""
+        ...
+
+
+@dataclass
+class LoopSettings:
+    """Timing and safety reactions of the loop.
+
+    Attributes:
+        dt: Control period [s].
+        duration_s: Simulated (or wall) time to run [s].
+        sensing_period_s: Period of obstacle updates [s] (1/30 s).
+        fallback: ``zero`` or ``hold_last`` (last safe command, decaying to zero).
+        fallback_decay_s: Decay time of ``hold_last`` [s].
+        max_sensing_age_s: An estimate older than this is stale → zero velocity [s].
+        stop_when_blind: Command zero velocity while sensing is blind or stale.
+    """
+
+    dt: float = 0.01
+    duration_s: float = 10.0
+    sensing_period_s: float = 1.0 / 30.0
+    fallback: str = "zero"
+    fallback_decay_s: float = 0.2
+    max_sensing_age_s: float = 0.2
+    stop_when_blind: bool = True
+
+
+@dataclass
+class LoopOutput:
+    """What one run of the loop produced.
+
+    Attributes:
+        steps: Per-step table (columns documented in :mod:`compare.metrics`).
+        wall_time_s: Wall-clock time of the loop [s].
+        sim_time_s: Time covered on the backend's clock [s].
+        events: Log lines of safety reactions (fallbacks, blind sensing).
+    """
+
+    steps: pd.DataFrame
+    wall_time_s: float
+    sim_time_s: float
+    events: list[str] = field(default_factory=list)
+
+
+class _Recorder:
+    """Preallocated per-step columns, turned into a DataFrame at the end."""
+
+    def __init__(self, n_steps: int, nq: int, set_tasks: tuple[SetTask, ...], obstacle_tasks: list[str]) -> None:
+        self.n = 0
+        self.cols: dict[str, np.ndarray] = {}
+        f = self._float
+        for name in ["t", "ee_x", "ee_y", "ee_z", "target_x", "target_y", "target_z", "ee_error_m", "solve_time_us"]:
+            f(name, n_steps)
+        for j in range(1, nq + 1):
+            f(f"q_{j}", n_steps)
+            f(f"qdot_{j}", n_steps)
+        for task in set_tasks:
+            f(f"sigma:{task.name}", n_steps)
+            self.cols[f"active:{task.name}"] = np.zeros(n_steps, dtype=bool)
+        for name in obstacle_tasks:
+            f(f"truth:{name}", n_steps)
+        for cp in CONTROL_POINTS:
+            f(f"dist_meas:{cp}", n_steps)
+            f(f"dist_true:{cp}", n_steps)
+        self.cols["waypoint"] = np.zeros(n_steps, dtype=np.int32)
+        self.cols["status"] = np.empty(n_steps, dtype=object)
+        for name in ("fallback", "blind"):
+            self.cols[name] = np.zeros(n_steps, dtype=bool)
+
+    def _float(self, name: str, n: int) -> None:
+        self.cols[name] = np.full(n, np.nan)
+
+    def frame(self) -> pd.DataFrame:
+        return pd.DataFrame({k: v[: self.n] for k, v in self.cols.items()})
+
+
+def _guard(qdot: np.ndarray, v_max: np.ndarray) -> str | None:
+    """Why a command must not be sent, or None when it is finite and within the limits."""
+    if qdot.shape != v_max.shape:
+        return f"command has shape {qdot.shape}, expected {v_max.shape}"
+    if not np.all(np.isfinite(qdot)):
+        return "command is not finite"
+    if np.any(np.abs(qdot) > v_max * (1.0 + 1e-6) + 1e-9):
+        return f"command exceeds the velocity limits by {float(np.max(np.abs(qdot) - v_max)):.3g} rad/s"
+    return None
+
+
+def run_loop(
+    io: RobotIO,
+    robot: Robot,
+    hierarchy: Hierarchy,
+    solver: IkSolver,
+    waypoints: WaypointSchedule,
+    settings: LoopSettings,
+    obstacles: ObstacleSource | None = None,
+    truth: Callable[[Kinematics], Mapping[str, float]] | None = None,
+    progress: Callable[[float], None] | None = None,
+    on_step: Callable[[], bool] | None = None,
+) -> LoopOutput:
+    """Run the closed loop for ``settings.duration_s`` and record every step.
+
+    Args:
+        io: Robot and sensor backend (simulation or hardware).
+        robot: Kinematic model.
+        hierarchy: The tasks (this method's own copy: targets and obstacles are set here).
+        solver: Any :class:`~tpik.step_result.IkSolver`.
+        waypoints: EE target schedule.
+        settings: Rates and safety reactions.
+        obstacles: Obstacle source; None = no obstacle sensing (obstacle tasks stay inactive).
+        truth: Ground-truth distance per control point (simulation only), recorded for metrics.
+        progress: Called with the elapsed backend time [s] about every 0.5 s.
+        on_step: Called after every step (e.g. to sync a viewer); returning False stops the loop.
+
+    Returns:
+        :class:`LoopOutput` (the steps table even if a solver raised mid-run: the exception
+        is logged as a failure and the loop goes on with the fallback).
+    """
+    dt = settings.dt
+    n_steps = max(1, round(settings.duration_s / dt))
+    set_tasks = hierarchy.set_tasks
+    obstacle_tasks = [t for t in set_tasks if isinstance(t, ObstacleDistanceTask)]
+    position_tasks = [t for t in hierarchy.tasks if isinstance(t, PositionTask) and t.frame == "end_effector"]
+    rec = _Recorder(n_steps, robot.nq, set_tasks, [t.name for t in obstacle_tasks])
+    cols = rec.cols
+    events: list[str] = []
+    v_max = robot.v_max
+    last_safe = np.zeros(robot.nq)
+    last_safe_t = -math.inf
+    next_sense_t = -math.inf
+    last_good_sense_t = -math.inf
+    blind = obstacles is not None and bool(obstacle_tasks)
+    measured = dict.fromkeys(CONTROL_POINTS, math.inf)
+    was_blind = False
+    start_wall = time.perf_counter()
+    t0 = io.now()
+    next_progress = 0.0
+
+    for i in range(n_steps):
+        reading = io.read_joints()
+        t = io.now() - t0
+        if reading is None:
+            io.send_velocity(np.zeros(robot.nq))
+            io.wait()
+            continue
+        kin = robot.kinematics(reading.q)
+
+        if obstacles is not None and obstacle_tasks and t + 1e-9 >= next_sense_t:
+            next_sense_t = t + settings.sensing_period_s if next_sense_t < 0 else next_sense_t + settings.sensing_period_s
+            result = obstacles.update(t, kin)
+            if not result.blind:
+                last_good_sense_t = t
+                for task in obstacle_tasks:
+                    r = result.readings.get(task.frame)
+                    task.set_obstacle(r.closest_point if r is not None and r.in_range else None)
+                for cp in CONTROL_POINTS:
+                    r = result.readings.get(cp)
+                    measured[cp] = r.distance_m if r is not None and r.in_range else math.inf
+        if obstacles is not None and obstacle_tasks:
+            blind = t - last_good_sense_t > settings.max_sensing_age_s
+            if blind != was_blind:
+                events.append(f"t={t:.3f} s: sensing {'blind or stale: safe stop' if blind else 'recovered'}")
+                log.warning(events[-1])
+                was_blind = blind
+
+        ee = kin.frame_position("end_effector")
+        target = waypoints.update(t, ee)
+        for task in position_tasks:
+            task.set_target(target)
+
+        wall0 = time.perf_counter_ns()
+        try:
+            result_step = solver.solve(hierarchy, kin, dt)
+            qdot, status, active, message = result_step.qdot, result_step.status, result_step.active_set, result_step.message
+        except Exception as exc:  # a solver bug must not kill the run: log it, use the fallback
+            qdot, status, active, message = np.zeros(robot.nq), SolveStatus.FAILED, (), f"{type(exc).__name__}: {exc}"
+        solve_us = (time.perf_counter_ns() - wall0) * 1e-3
+        # Each step takes a fresh snapshot; the solver's one is stale once we take ours.
+        kin = robot.kinematics(reading.q)
+
+        reason = message if status is SolveStatus.FAILED else _guard(np.asarray(qdot, dtype=float), v_max)
+        fallback = reason is not None
+        if fallback:
+            if settings.fallback == "hold_last":
+                decay = math.exp(-(t - last_safe_t) / settings.fallback_decay_s)
+                command = last_safe * decay
+            else:
+                command = np.zeros(robot.nq)
+            events.append(f"t={t:.3f} s: {solver.name}: fallback ({settings.fallback}): {reason}")
+            log.warning(events[-1])
+        else:
+            command = np.array(qdot, dtype=float)
+            last_safe, last_safe_t = command, t
+        if blind and settings.stop_when_blind:
+            command = np.zeros(robot.nq)
+        io.send_velocity(command)
+
+        cols["t"][i] = t
+        cols["ee_x"][i], cols["ee_y"][i], cols["ee_z"][i] = ee
+        cols["target_x"][i], cols["target_y"][i], cols["target_z"][i] = target
+        cols["ee_error_m"][i] = float(np.linalg.norm(target - ee))
+        cols["solve_time_us"][i] = solve_us
+        cols["waypoint"][i] = waypoints.index
+        cols["status"][i] = status.value
+        cols["fallback"][i] = fallback
+        cols["blind"][i] = blind
+        for j in range(robot.nq):
+            cols[f"q_{j + 1}"][i] = reading.q[j]
+            cols[f"qdot_{j + 1}"][i] = command[j]
+        active_names = set(active)
+        for task in set_tasks:
+            cols[f"sigma:{task.name}"][i] = task.compute_value_and_jacobian(kin)[0]
+            cols[f"active:{task.name}"][i] = task.name in active_names
+        true_d = truth(kin) if truth is not None else {}
+        for cp in CONTROL_POINTS:
+            cols[f"dist_meas:{cp}"][i] = measured[cp]
+            cols[f"dist_true:{cp}"][i] = true_d.get(cp, math.inf)
+        for task in obstacle_tasks:
+            cols[f"truth:{task.name}"][i] = true_d.get(task.frame, math.inf)
+        rec.n = i + 1
+
+        if progress is not None and t >= next_progress:
+            progress(t)
+            next_progress = t + 0.5
+        io.wait()
+        if on_step is not None and not on_step():
+            break
+
+    io.stop()
+    wall = time.perf_counter() - start_wall
+    return LoopOutput(rec.frame(), wall, io.now() - t0, events)

@@ -1,0 +1,459 @@
+"""Figures of a run (the paper's Figs. 3–5, 8–10, and timing vs safety) and of a sweep.
+
+Everything is drawn on :class:`matplotlib.figure.Figure` objects with the Agg canvas, without
+``pyplot``: no display, no global backend switch, safe in worker processes. Files are PNG
+under ``<results>/plots/``.
+
+Thresholds come from the ``set_tasks`` list that :func:`compare.metrics.compute_summary`
+stores in each method's entry of ``summary.json``.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from collections.abc import Callable, Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pandas as pd
+from matplotlib.axes import Axes
+from matplotlib.backends.backend_agg import FigureCanvasAgg
+from matplotlib.figure import Figure
+from matplotlib.ticker import FuncFormatter, LogLocator, NullFormatter
+
+from compare.metrics import GROUPS, SetTaskInfo, set_tasks_from_summary
+from compare.results import RUNS_DIR, collect_sweep, load_steps, load_summary, safe_name, summarize_sweep_rows
+
+log = logging.getLogger(__name__)
+
+PLOTS_DIR = "plots"
+DPI = 110
+GROUP_UNITS = {"joint_limits": "rad", "walls": "m", "obstacles": "m"}
+GROUP_TITLES = {"joint_limits": "joint limits", "walls": "virtual walls", "obstacles": "obstacles"}
+SAFETY_STYLE: dict[str, Any] = {"color": "tab:red", "linestyle": "-", "linewidth": 1.2}
+PHYSICAL_STYLE: dict[str, Any] = {"color": "tab:red", "linestyle": ":", "linewidth": 1.0}
+ACTIVE_STYLE: dict[str, Any] = {"color": "tab:orange", "alpha": 0.15, "linewidth": 0}
+
+
+def _figure(nrows: int = 1, ncols: int = 1, height_in: float = 3.2, width_in: float = 8.0) -> tuple[Figure, Any]:
+    fig = Figure(figsize=(width_in, height_in), layout="constrained")
+    FigureCanvasAgg(fig)
+    axes = fig.subplots(nrows, ncols, squeeze=False)
+    return fig, axes
+
+
+def _save(fig: Figure, path: Path) -> Path:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=DPI)
+    return path
+
+
+def _finite(x: pd.Series | np.ndarray) -> np.ndarray:
+    """Float array with ±inf replaced by NaN (gaps in the line instead of broken autoscale)."""
+    arr = np.asarray(x, dtype=float).copy()
+    arr[~np.isfinite(arr)] = np.nan
+    return arr
+
+
+def _shade(ax: Axes, t: np.ndarray, mask: np.ndarray | None, label: str | None = None) -> None:
+    if mask is None or not np.any(mask):
+        return
+    ax.fill_between(t, 0, 1, where=mask, transform=ax.get_xaxis_transform(), label=label, **ACTIVE_STYLE)
+
+
+def _active(steps: pd.DataFrame, name: str) -> np.ndarray | None:
+    col = f"active:{name}"
+    if col not in steps.columns:
+        return None
+    return steps[col].astype("boolean").fillna(False).to_numpy(dtype=bool)
+
+
+def _legend_outside(ax: Axes) -> None:
+    """Legend to the right of the axes, off the data (constrained layout makes room)."""
+    if ax.get_legend_handles_labels()[0]:
+        ax.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize="small", borderaxespad=0.0)
+
+
+def _has_data(x: np.ndarray) -> bool:
+    return bool(np.any(np.isfinite(x)))
+
+
+def _log_x(ax: Axes) -> None:
+    """Log x axis labelled 1, 2, 5 × 10^k in plain numbers (the default labels overlap)."""
+    ax.set_xscale("log")
+    ax.xaxis.set_major_locator(LogLocator(base=10.0, subs=(1.0, 2.0, 5.0)))
+    ax.xaxis.set_major_formatter(FuncFormatter(lambda x, _pos: f"{x:g}"))
+    ax.xaxis.set_minor_formatter(NullFormatter())
+
+
+def _hline(ax: Axes, y: float, style: dict[str, Any], label: str | None = None) -> None:
+    if math.isfinite(y):
+        ax.axhline(y, label=label, **style)
+
+
+# ------------------------------------------------------------------------------------------- per run
+
+
+def plot_ee_error(steps: pd.DataFrame, method: str, path: Path, tolerance_m: float | None = None) -> Path:
+    """EE position error over time (paper Fig. 3), waypoint switches as vertical lines."""
+    fig, axes = _figure()
+    ax = axes[0, 0]
+    t = steps["t"].to_numpy(dtype=float)
+    ax.plot(t, _finite(steps["ee_error_m"]), color="tab:blue", label="‖p_d − p‖")
+    if "waypoint" in steps.columns:
+        wp = steps["waypoint"].to_numpy()
+        for i in np.flatnonzero(wp[1:] != wp[:-1]) + 1:
+            ax.axvline(t[i], color="0.6", linewidth=0.8, linestyle="--")
+    if tolerance_m:
+        ax.axhline(tolerance_m, color="0.4", linewidth=0.8, linestyle=":", label=f"tolerance {tolerance_m:g} m")
+    ax.set(xlabel="t [s]", ylabel="EE position error [m]", title=f"{method}: end-effector position error")
+    ax.set_ylim(bottom=0.0)
+    ax.grid(alpha=0.3)
+    _legend_outside(ax)
+    return _save(fig, path)
+
+
+def plot_distances(
+    steps: pd.DataFrame,
+    method: str,
+    control_points: Sequence[str],
+    obstacle_tasks: Sequence[SetTaskInfo],
+    path: Path,
+) -> Path | None:
+    """Distance of each control point to the closest obstacle (paper Figs. 4/9).
+
+    Ground truth solid, measured dashed, the obstacle safety threshold as a red line, steps
+    where the control point's obstacle task is active shaded. None if there are no distance
+    columns, or no finite distance and no obstacle task.
+    """
+    cps = [
+        cp
+        for cp in control_points
+        if any(_has_data(_finite(steps[c])) for c in (f"dist_true:{cp}", f"dist_meas:{cp}") if c in steps.columns)
+    ]
+    if not cps and not obstacle_tasks:
+        return None
+    cps = cps or [cp for cp in control_points if f"dist_true:{cp}" in steps.columns]
+    if not cps:
+        return None
+    t = steps["t"].to_numpy(dtype=float)
+    fig, axes = _figure(len(cps), 1, height_in=2.2 * len(cps) + 0.6)
+    for ax, cp in zip(axes[:, 0], cps, strict=True):
+        for kind, style in (("true", {"color": "tab:blue"}), ("meas", {"color": "tab:green", "linestyle": "--"})):
+            d = _finite(steps[f"dist_{kind}:{cp}"]) if f"dist_{kind}:{cp}" in steps.columns else np.array([np.nan])
+            if _has_data(d):
+                ax.plot(t, d, label="true" if kind == "true" else "measured", **style)
+        own = [task for task in obstacle_tasks if task.name.endswith(cp)] or list(obstacle_tasks)
+        for k, value in enumerate(sorted({task.safety_lower for task in own})):
+            _hline(ax, value, SAFETY_STYLE, "safety threshold" if k == 0 else None)
+        for k, value in enumerate(sorted({task.physical_lower for task in own})):
+            _hline(ax, value, PHYSICAL_STYLE, "physical threshold" if k == 0 else None)
+        for task in own if len(own) == 1 else []:
+            _shade(ax, t, _active(steps, task.name), "task active")
+        ax.set_ylabel(f"{cp} [m]")
+        ax.set_ylim(bottom=0.0)
+        ax.grid(alpha=0.3)
+    axes[0, 0].set_title(f"{method}: control point to closest obstacle")
+    _legend_outside(axes[0, 0])
+    axes[-1, 0].set_xlabel("t [s]")
+    return _save(fig, path)
+
+
+def plot_joints(steps: pd.DataFrame, method: str, joint_tasks: Sequence[SetTaskInfo], path: Path) -> Path | None:
+    """Joint positions of the joint-limit tasks with safety and physical limits (Figs. 5/10)."""
+    tasks = [task for task in joint_tasks if f"sigma:{task.name}" in steps.columns]
+    if not tasks:
+        return None
+    t = steps["t"].to_numpy(dtype=float)
+    fig, axes = _figure(len(tasks), 1, height_in=2.0 * len(tasks) + 0.6)
+    for ax, task in zip(axes[:, 0], tasks, strict=True):
+        ax.plot(t, _finite(steps[f"sigma:{task.name}"]), color="tab:blue", label="q")
+        _hline(ax, task.safety_lower, SAFETY_STYLE, "safety limits")
+        _hline(ax, task.safety_upper, SAFETY_STYLE)
+        _hline(ax, task.physical_lower, PHYSICAL_STYLE, "physical limits")
+        _hline(ax, task.physical_upper, PHYSICAL_STYLE)
+        _shade(ax, t, _active(steps, task.name), "task active")
+        ax.set_ylabel(f"{task.name} [rad]")
+        ax.grid(alpha=0.3)
+    axes[0, 0].set_title(f"{method}: joints with limits")
+    _legend_outside(axes[0, 0])
+    axes[-1, 0].set_xlabel("t [s]")
+    return _save(fig, path)
+
+
+def wall_axis(steps: pd.DataFrame, task: SetTaskInfo, tol_m: float = 1e-6) -> tuple[int, float, float] | None:
+    """Recognise an axis-aligned wall on the end effector from the data.
+
+    A wall ``σ = s·p_a − d`` (s = ±1, a ∈ {x, y, z}) has ``s·ee_a − σ`` constant over the run.
+
+    Returns:
+        ``(axis index, s, d)``, or None when σ is not such a function of the EE position.
+    """
+    sigma = steps[f"sigma:{task.name}"].to_numpy(dtype=float)
+    for a, axis in enumerate("xyz"):
+        col = f"ee_{axis}"
+        if col not in steps.columns:
+            continue
+        p = steps[col].to_numpy(dtype=float)
+        ok = np.isfinite(p) & np.isfinite(sigma)
+        if not np.any(ok):
+            continue
+        for s in (1.0, -1.0):
+            d = s * p[ok] - sigma[ok]
+            if np.ptp(d) < tol_m:
+                return a, s, float(np.median(d))
+    return None
+
+
+def plot_ee_walls(steps: pd.DataFrame, method: str, wall_tasks: Sequence[SetTaskInfo], path: Path) -> Path | None:
+    """EE x, y, z with the positions of the virtual walls (paper Fig. 8).
+
+    Walls that are not axis-aligned planes on the EE are listed in the title instead.
+    """
+    tasks = [task for task in wall_tasks if f"sigma:{task.name}" in steps.columns]
+    if not tasks or not all(f"ee_{a}" in steps.columns for a in "xyz"):
+        return None
+    t = steps["t"].to_numpy(dtype=float)
+    fig, axes = _figure(3, 1, height_in=7.0)
+    unmatched = []
+    placed: list[list[tuple[SetTaskInfo, float, float]]] = [[], [], []]
+    for task in tasks:
+        found = wall_axis(steps, task)
+        if found is None:
+            unmatched.append(task.name)
+        else:
+            a, s, d = found
+            placed[a].append((task, s, d))
+    for a, (ax, axis) in enumerate(zip(axes[:, 0], "xyz", strict=True)):
+        ax.plot(t, _finite(steps[f"ee_{axis}"]), color="tab:blue", label=f"EE {axis}")
+        if f"target_{axis}" in steps.columns:
+            ax.plot(t, _finite(steps[f"target_{axis}"]), color="0.5", linestyle="--", linewidth=0.8, label="target")
+        for k, (task, s, d) in enumerate(placed[a]):
+            # σ = s·p − d  ⇒  the threshold σ* sits at p = (σ* + d)/s.
+            _hline(ax, (task.safety_lower + d) / s, SAFETY_STYLE, "wall (safety)" if k == 0 else None)
+            _hline(ax, (task.physical_lower + d) / s, PHYSICAL_STYLE, "physical" if k == 0 else None)
+            _shade(ax, t, _active(steps, task.name))
+        ax.set_ylabel(f"{axis} [m]")
+        ax.grid(alpha=0.3)
+        _legend_outside(ax)
+    title = f"{method}: end-effector position and virtual walls"
+    if unmatched:
+        title += f"\n(not axis-aligned on the EE, not drawn: {', '.join(unmatched)})"
+    axes[0, 0].set_title(title)
+    axes[-1, 0].set_xlabel("t [s]")
+    return _save(fig, path)
+
+
+def _annotated_point(ax: Axes, x: float, x_hi: float | None, y: float, label: str, color: Any) -> None:
+    err = None if x_hi is None or x_hi < x else np.array([[0.0], [x_hi - x]])
+    ax.errorbar([x], [y], xerr=err, fmt="o", color=color, capsize=3, markersize=6)
+    if x_hi is not None and x_hi >= x:
+        ax.plot([x_hi], [y], marker="|", color=color, markersize=10)
+    ax.annotate(label, (x, y), textcoords="offset points", xytext=(5, 6), fontsize="small", color=color)
+
+
+def plot_comparison(methods: dict[str, dict[str, Any]], path: Path, title: str = "") -> Path | None:
+    """Solve time (median ●, bar to p99) against the worst safety margin, one panel per group.
+
+    x is logarithmic [µs]; y is the group's minimum safety margin in its own unit, with the
+    violation boundary (0) in red. Without set tasks the y axis is the final EE error.
+    """
+    groups = [g for g in GROUPS if any(isinstance(m.get(g), dict) for m in methods.values())]
+    panels = groups or ["ee_error"]
+    fig, axes = _figure(1, len(panels), height_in=4.0, width_in=max(5.0, 4.2 * len(panels)))
+    colors = _colors(list(methods))
+    for ax, panel in zip(axes[0], panels, strict=True):
+        skipped = []
+        for name, m in methods.items():
+            solve = m.get("solve_time_us") or {}
+            x, x_hi = solve.get("median"), solve.get("p99")
+            if panel == "ee_error":
+                y = (m.get("ee_error_m") or {}).get("final")
+            else:
+                y = (m.get(panel) or {}).get("safety_margin_min")
+            if x is None or y is None or x <= 0:
+                skipped.append(name)
+                continue
+            _annotated_point(ax, x, x_hi, y, name, colors[name])
+        _log_x(ax)
+        ax.set_xlabel("solve time per step [µs] (● median, | p99)")
+        if panel == "ee_error":
+            ax.set_ylabel("final EE error [m]")
+        else:
+            ax.axhline(0.0, **SAFETY_STYLE)
+            ax.set_ylabel(f"min safety margin [{GROUP_UNITS[panel]}] (< 0: violated)")
+            ax.set_title(GROUP_TITLES[panel] + (f"\n(no data: {', '.join(skipped)})" if skipped else ""))
+        ax.grid(alpha=0.3, which="both")
+    if title:
+        fig.suptitle(title)
+    return _save(fig, path)
+
+
+def _colors(names: list[str]) -> dict[str, Any]:
+    from matplotlib import colormaps
+
+    cmap = colormaps["tab10"]
+    return {name: cmap(i % 10) for i, name in enumerate(names)}
+
+
+def _plot_method(steps: pd.DataFrame, name: str, msum: dict[str, Any], out: Path) -> list[Path]:
+    """The per-method figures of :func:`plot_run`; a figure that fails is logged and skipped."""
+    tasks = set_tasks_from_summary(msum)
+    stem = safe_name(name)
+    cps = msum.get("control_points") or [c.split(":", 1)[1] for c in steps.columns if c.startswith("dist_true:")]
+
+    def group(g: str) -> list[SetTaskInfo]:
+        return [task for task in tasks if task.group == g]
+
+    figures: list[tuple[str, Callable[[Path], Path | None]]] = [
+        ("ee_error", lambda p: plot_ee_error(steps, name, p, msum.get("waypoint_tolerance_m"))),
+        ("distances", lambda p: plot_distances(steps, name, cps, group("obstacles"), p)),
+        ("joints", lambda p: plot_joints(steps, name, group("joint_limits"), p)),
+        ("ee_walls", lambda p: plot_ee_walls(steps, name, group("walls"), p)),
+    ]
+    paths: list[Path] = []
+    for kind, draw in figures:
+        try:
+            path = draw(out / f"{stem}_{kind}.png")
+        except Exception as exc:  # one bad figure must not cost the others
+            log.warning("plot %s of %s failed: %s", kind, name, exc)
+            continue
+        if path is not None:
+            paths.append(path)
+    return paths
+
+
+def plot_run(results_dir: Path) -> list[Path]:
+    """All figures of one run directory; returns the files written under ``plots/``.
+
+    Per method ``<method>_ee_error.png`` (Fig. 3), ``<method>_distances.png`` (Figs. 4/9),
+    ``<method>_joints.png`` (Figs. 5/10), ``<method>_ee_walls.png`` (Fig. 8, when the scenario
+    has walls), and ``comparison.png`` (solve time vs worst safety margin, all methods).
+    A method whose per-step table is missing only appears in the comparison.
+    """
+    results_dir = Path(results_dir)
+    summary = load_summary(results_dir)
+    out = results_dir / PLOTS_DIR
+    methods: dict[str, dict[str, Any]] = summary.get("methods") or {}
+    paths: list[Path] = []
+    for name, msum in methods.items():
+        try:
+            steps = load_steps(results_dir, name)
+        except FileNotFoundError as exc:
+            log.warning("%s", exc)
+            continue
+        paths += _plot_method(steps, name, msum, out)
+    if methods:
+        title = f"{summary.get('scenario', '')} (seed {summary.get('seed', '?')}): cost vs safety"
+        path = plot_comparison(methods, out / "comparison.png", title)
+        if path is not None:
+            paths.append(path)
+    return paths
+
+
+# ------------------------------------------------------------------------------------------- sweeps
+
+
+def plot_sweep(sweep_dir: Path) -> list[Path]:
+    """Figures of a sweep directory; returns the files written under ``plots/``.
+
+    ``sweep_comparison.png``: left, per method the median of the runs' median solve times
+    (● , bar to the median of their p99) against the share of runs with any safety violation;
+    right, every run: median solve time against total safety-violation time.
+    ``sweep_min_distance_cdf.png``: empirical CDF of the minimum obstacle distance per run,
+    per method, with the obstacle safety threshold (when the runs have obstacles).
+    """
+    sweep_dir = Path(sweep_dir)
+    runs = collect_sweep(sweep_dir)
+    out = sweep_dir / PLOTS_DIR
+    paths: list[Path] = []
+    ok = runs[runs["error"].isna()] if "error" in runs.columns else runs
+    if ok.empty:
+        log.warning("no finished runs in %s: no sweep plots", sweep_dir)
+        return paths
+    methods = list(dict.fromkeys(ok["method"]))
+    colors = _colors(methods)
+    aggregates = summarize_sweep_rows(runs)
+
+    fig, axes = _figure(1, 2, height_in=4.2, width_in=11.0)
+    left, right = axes[0]
+    for name in methods:
+        agg = aggregates.get(name) or {}
+        solve = agg.get("solve_time_us") or {}
+        x, share = solve.get("median_of_medians"), agg.get("share_runs_any_violation")
+        if x is not None and share is not None and x > 0:
+            _annotated_point(
+                left, x, solve.get("median_of_p99"), 100.0 * share, f"{name} (n={agg['runs']})", colors[name]
+            )
+        rows = ok[ok["method"] == name]
+        x_run = pd.to_numeric(rows.get("solve_median_us"), errors="coerce").to_numpy(dtype=float)
+        y_run = np.zeros(len(rows))
+        for g in GROUPS:
+            col = f"{g}_violation_time_s"
+            if col in rows.columns:
+                y_run += pd.to_numeric(rows[col], errors="coerce").fillna(0.0).to_numpy(dtype=float)
+        right.scatter(x_run, y_run, s=14, alpha=0.6, color=colors[name], label=name)
+    _log_x(left)
+    left.set(
+        xlabel="solve time [µs] (● median of run medians, | median of run p99)",
+        ylabel="runs with a safety violation [%]",
+        title="per method",
+    )
+    left.set_ylim(-5.0, 110.0)
+    left.grid(alpha=0.3, which="both")
+    _log_x(right)
+    right.set(
+        xlabel="median solve time of the run [µs]",
+        ylabel="safety violation time, summed over groups [s]",
+        title="per run",
+    )
+    right.grid(alpha=0.3, which="both")
+    right.legend(fontsize="small")
+    scenario = ok["scenario"].dropna().iloc[0] if "scenario" in ok.columns and ok["scenario"].notna().any() else ""
+    fig.suptitle(f"sweep {scenario}: {ok['run'].nunique()} runs, cost vs safety")
+    paths.append(_save(fig, out / "sweep_comparison.png"))
+
+    if "min_obstacle_distance_m" in ok.columns:
+        fig, axes = _figure(height_in=4.0, width_in=7.0)
+        ax = axes[0, 0]
+        drawn = False
+        for name in methods:
+            d = pd.to_numeric(ok.loc[ok["method"] == name, "min_obstacle_distance_m"], errors="coerce")
+            d = np.sort(d[np.isfinite(d)].to_numpy(dtype=float))
+            if d.size:
+                # Empirical CDF, starting from 0 at the smallest value.
+                x = np.concatenate([[d[0]], d])
+                y = np.arange(0, d.size + 1) / d.size
+                ax.step(x, y, where="post", color=colors[name], label=f"{name} (n={d.size})")
+                drawn = True
+        threshold = _sweep_obstacle_threshold(sweep_dir, ok)
+        if threshold is not None:
+            ax.axvline(threshold, label=f"safety threshold {threshold:g} m", **SAFETY_STYLE)
+        ax.set(
+            xlabel="minimum obstacle distance over the run [m]",
+            ylabel="share of runs ≤ x",
+            title="minimum distance to the person (ground truth)",
+        )
+        ax.set_ylim(0.0, 1.02)
+        ax.grid(alpha=0.3)
+        if drawn or threshold is not None:
+            ax.legend(fontsize="small", loc="lower right")
+        paths.append(_save(fig, out / "sweep_min_distance_cdf.png"))
+    return paths
+
+
+def _sweep_obstacle_threshold(sweep_dir: Path, ok: pd.DataFrame) -> float | None:
+    """Obstacle safety threshold of the first run that stores one (None if none does)."""
+    for run in ok["run"].unique()[:5]:
+        try:
+            summary = load_summary(sweep_dir / RUNS_DIR / str(run))
+        except (OSError, ValueError):
+            continue
+        for msum in (summary.get("methods") or {}).values():
+            values = [t.safety_lower for t in set_tasks_from_summary(msum) if t.group == "obstacles"]
+            finite = [v for v in values if math.isfinite(v)]
+            if finite:
+                return min(finite)
+    return None

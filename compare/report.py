@@ -1,0 +1,169 @@
+"""Human-readable views of a run: a rich table for the terminal and a Markdown report.
+
+Both read only ``summary.json`` (DESIGN §7); the report links the PNGs of :mod:`compare.plots`.
+"""
+
+from __future__ import annotations
+
+import datetime as dt
+import math
+from pathlib import Path
+from typing import Any
+
+from rich.table import Table
+from rich.text import Text
+
+from compare.metrics import GROUPS
+from compare.results import load_summary
+
+REPORT_FILE = "report.md"
+PLOTS_DIR = "plots"  # as compare.plots.PLOTS_DIR; not imported to keep matplotlib out of the CLI table
+
+_HEADERS: tuple[tuple[str, str], ...] = (
+    ("method", "left"),
+    ("solve median [µs]", "right"),
+    ("solve p99 [µs]", "right"),
+    ("realtime ×", "right"),
+    ("joint margin [rad]", "right"),
+    ("wall margin [m]", "right"),
+    ("obstacle margin [m]", "right"),
+    ("min obstacle dist. [m]", "right"),
+    ("EE final error [m]", "right"),
+    ("failures / fallbacks", "right"),
+)
+_GROUP_COLUMNS = {"joint_limits": 4, "walls": 5, "obstacles": 6}
+
+
+def _fmt(x: Any, fmt: str = ".3g") -> str:
+    if x is None or (isinstance(x, float) and not math.isfinite(x)):
+        return "–"
+    return format(x, fmt)
+
+
+def _min_finite(values: list[Any]) -> float | None:
+    finite = [float(v) for v in values if v is not None and math.isfinite(float(v))]
+    return min(finite) if finite else None
+
+
+def _cells(name: str, m: dict[str, Any]) -> list[str]:
+    solve = m.get("solve_time_us") or {}
+    cells = [
+        name,
+        _fmt(solve.get("median"), ".1f"),
+        _fmt(solve.get("p99"), ".1f"),
+        _fmt(m.get("realtime_factor"), ".2f"),
+    ]
+    for group in GROUPS:
+        g = m.get(group)
+        if not isinstance(g, dict):
+            cells.append("n/a")
+            continue
+        cell = _fmt(g.get("safety_margin_min"), "+.3f")
+        if g.get("violations"):
+            cell += f" ({g['violations']}× {g.get('violation_time_s', 0.0):.2f} s)"
+        cells.append(cell)
+    cells += [
+        _fmt(_min_finite(m.get("min_obstacle_distance_m") or []), ".3f"),
+        _fmt((m.get("ee_error_m") or {}).get("final"), ".4f"),
+        f"{m.get('failures', 0)} / {m.get('fallbacks', 0)}",
+    ]
+    return cells
+
+
+def _negative(m: dict[str, Any], group: str) -> bool:
+    g = m.get(group)
+    return isinstance(g, dict) and g.get("safety_margin_min") is not None and g["safety_margin_min"] < 0
+
+
+def summary_table(summary: dict[str, Any]) -> Table:
+    """Terminal table of a run's ``summary.json``: one row per method, failed methods in red.
+
+    Margins are the worst safety margins (negative = violated, shown in red with the number of
+    violations and their total time); ``n/a`` when the scenario has no task of that group.
+    """
+    title = f"{summary.get('scenario', '?')} (seed {summary.get('seed', '?')}, {_fmt(summary.get('sim_time_s'))} s)"
+    table = Table(title=title)
+    for header, justify in _HEADERS:
+        table.add_column(Text(header), justify=justify)  # type: ignore[arg-type]
+    for name, m in (summary.get("methods") or {}).items():
+        cells = [Text(cell) for cell in _cells(name, m)]  # Text: no rich markup in names or messages
+        for group, col in _GROUP_COLUMNS.items():
+            if _negative(m, group):
+                cells[col].stylize("bold red")
+        if m.get("failures") or m.get("fallbacks"):
+            cells[-1].stylize("yellow")
+        table.add_row(*cells)
+    for name, message in (summary.get("errors") or {}).items():
+        table.add_row(Text(name, style="red"), Text(f"failed: {message}", style="red"), *[""] * (len(_HEADERS) - 2))
+    return table
+
+
+def _markdown_table(headers: list[str], rows: list[list[str]]) -> str:
+    def esc(cell: str) -> str:
+        return cell.replace("|", "\\|")
+
+    lines = ["| " + " | ".join(esc(h) for h in headers) + " |"]
+    lines.append("|" + "|".join("---" if i == 0 else "---:" for i in range(len(headers))) + "|")
+    lines += ["| " + " | ".join(esc(c) for c in row) + " |" for row in rows]
+    return "\n".join(lines)
+
+
+def render_report(results_dir: Path, command: str | None = None) -> Path:
+    """Write ``results_dir/report.md``: provenance header, results table, violations, plots.
+
+    Args:
+        results_dir: Run directory with ``summary.json`` (plots are linked if present).
+        command: Command line that produced the results, shown in the header.
+
+    Returns:
+        Path of the report.
+    """
+    results_dir = Path(results_dir)
+    summary = load_summary(results_dir)
+    versions: dict[str, str] = summary.get("versions") or {}
+    methods: dict[str, dict[str, Any]] = summary.get("methods") or {}
+    now = dt.datetime.now(dt.UTC).strftime("%Y-%m-%d %H:%M UTC")
+    out: list[str] = [
+        f"# Results: {summary.get('scenario', '?')} (seed {summary.get('seed', '?')})",
+        "",
+        f"- generated: {now}",
+        f"- simulated time: {_fmt(summary.get('sim_time_s'))} s",
+        f"- git commit: `{versions.get('git_commit', 'unknown')}`",
+        f"- machine: {versions.get('cpu', 'unknown')} ({versions.get('machine', '?')}), "
+        f"Python {versions.get('python', '?')}",
+    ]
+    if command:
+        out.append(f"- command: `{command}`")
+    if (results_dir / "config.toml").is_file():
+        out.append(
+            f"- configuration: [config.toml](config.toml) (reproduce: `tpik-compare run {results_dir / 'config.toml'}`)"
+        )
+    libs = {k: v for k, v in versions.items() if k not in {"git_commit", "cpu", "machine", "python"}}
+    if libs:
+        out.append("- versions: " + ", ".join(f"{k} {v}" for k, v in sorted(libs.items())))
+    out += ["", "## Summary", ""]
+    if methods:
+        out.append(_markdown_table([h for h, _ in _HEADERS], [_cells(n, m) for n, m in methods.items()]))
+        out += [
+            "",
+            "Margins: worst signed distance to the safety threshold over the run (negative = violated;"
+            " in brackets: number of violation episodes × total time). Obstacle margins and distances use the"
+            " ground-truth geometry.",
+        ]
+    else:
+        out.append("No method finished.")
+    errors = summary.get("errors") or {}
+    if errors:
+        out += ["", "## Failed methods", ""]
+        out += [f"- `{name}`: {message}" for name, message in errors.items()]
+    plots = sorted((results_dir / PLOTS_DIR).glob("*.png")) if (results_dir / PLOTS_DIR).is_dir() else []
+    out += ["", "## Plots", ""]
+    if plots:
+        for p in plots:
+            rel = p.relative_to(results_dir).as_posix()
+            out += [f"### {p.stem}", "", f"![{p.stem}]({rel})", ""]
+    else:
+        out.append(f"No plots yet: `tpik-compare plot {results_dir}`.")
+    path = results_dir / REPORT_FILE
+    path.write_text("\n".join(out).rstrip() + "\n", encoding="utf-8")
+    return path

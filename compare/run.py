@@ -1,0 +1,160 @@
+"""Run one scenario with every selected method and write the results (DESIGN §5–7)."""
+
+from __future__ import annotations
+
+import logging
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
+
+import robots
+from compare.config import Config
+from compare.loop import LoopSettings, run_loop
+from compare.methods import make_method
+from compare.metrics import RunMeta, SetTaskInfo, compute_summary
+from compare.results import ResultsWriter
+from compare.scenarios import realize
+from compare.simulation import build_simulation
+from compare.waypoints import WaypointSchedule
+from tpik.hierarchy import Hierarchy
+from tpik.tasks import JointLimitTask, ObstacleDistanceTask, VirtualWallTask
+
+log = logging.getLogger(__name__)
+
+
+def set_task_infos(hierarchy: Hierarchy) -> tuple[SetTaskInfo, ...]:
+    """Group and thresholds of every set-based task, for the metrics."""
+    infos = []
+    for task in hierarchy.set_tasks:
+        if isinstance(task, JointLimitTask):
+            group = "joint_limits"
+        elif isinstance(task, VirtualWallTask):
+            group = "walls"
+        elif isinstance(task, ObstacleDistanceTask):
+            group = "obstacles"
+        else:
+            group = "other"
+        th = task.thresholds
+        infos.append(SetTaskInfo(task.name, group, th.physical_lower, th.safety_lower, th.safety_upper,
+                                 th.physical_upper))
+    return tuple(infos)
+
+
+def run_method(config: Config, method: str, robot: robots.Robot, progress: Progress | None = None) -> dict[str, Any]:
+    """Simulate ``config`` (already realized) with one method; return summary and steps."""
+    hierarchy = config.build_hierarchy(robot)
+    solver = make_method(method, robot, config.methods.settings.get(method))
+    sc = config.scenario
+    q0 = np.array(sc.start_q) if sc.start_q is not None else robot.home.copy()
+    sim = build_simulation(config, robot, q0)
+    ee0 = robot.frame_position(q0, "end_effector")
+    wp = config.waypoints
+    schedule = WaypointSchedule(wp.positions, ee0, wp.tolerance_m, wp.dwell_s * sc.time_scale, wp.cycle)
+    settings = LoopSettings(
+        dt=sc.dt,
+        duration_s=sc.sim_time_s,
+        sensing_period_s=1.0 / sc.sensing_rate_hz,
+        fallback=sc.fallback,
+        fallback_decay_s=sc.fallback_decay_s,
+        max_sensing_age_s=config.sensor.max_age_s,
+    )
+    task_id = None
+    callback = None
+    if progress is not None:
+        task_id = progress.add_task(method, total=sc.sim_time_s)
+
+        def callback(t: float) -> None:
+            progress.update(task_id, completed=t)
+
+    try:
+        out = run_loop(sim.io, robot, hierarchy, solver, schedule, settings, sim.obstacles, sim.truth, callback)
+    finally:
+        sim.close()
+    if progress is not None and task_id is not None:
+        progress.update(task_id, completed=sc.sim_time_s)
+    meta = RunMeta(
+        scenario=sc.name,
+        seed=sc.seed,
+        method=method,
+        dt=sc.dt,
+        sim_time_s=out.sim_time_s,
+        wall_time_s=out.wall_time_s,
+        sensing=sc.sensing,
+        set_tasks=set_task_infos(hierarchy),
+    )
+    summary = compute_summary(out.steps, meta)
+    summary["sensing"] = sc.sensing
+    summary["events"] = out.events[:50]
+    return {"summary": summary, "steps": out.steps}
+
+
+def run_scenario(
+    config: Config,
+    out_dir: Path,
+    config_text: str | None = None,
+    progress: bool = True,
+    make_plots: bool = True,
+) -> dict[str, Any]:
+    """Run every method of ``config`` on the same scenario; results survive a crash of one method.
+
+    Returns:
+        The content of ``out_dir/summary.json``.
+    """
+    robot = robots.load("jaco2")
+    config = realize(config, robot)
+    sc = config.scenario
+    writer = ResultsWriter(Path(out_dir), sc.name, sc.seed, sc.sim_time_s, config_text)
+    columns = (TextColumn("[bold]{task.description:<12}"), BarColumn(), TextColumn("{task.completed:5.1f}/{task.total:.0f} s"),
+               TimeElapsedColumn())
+    bar = Progress(*columns, disable=not progress)
+    with bar:
+        for method in config.methods.names:
+            t0 = time.perf_counter()
+            try:
+                result = run_method(config, method, robot, bar if progress else None)
+            except Exception as exc:  # record and go on: the other methods' results are kept
+                log.exception("method %s failed", method)
+                writer.add_error(method, f"{type(exc).__name__}: {exc}")
+                continue
+            writer.add_method(method, result["summary"], result["steps"])
+            log.info("%s done in %.1f s", method, time.perf_counter() - t0)
+    if make_plots:
+        try:
+            from compare.plots import plot_run
+
+            plot_run(Path(out_dir))
+        except Exception as exc:  # plots must never lose the results
+            log.warning("plots failed: %s", exc)
+    return writer.summary
+
+
+def view_scenario(config: Config, method: str) -> None:
+    """Run one method in the interactive MuJoCo viewer, in real time."""
+    import mujoco.viewer
+
+    robot = robots.load("jaco2")
+    config = realize(config, robot)
+    sc = config.scenario
+    q0 = np.array(sc.start_q) if sc.start_q is not None else robot.home.copy()
+    sim = build_simulation(config, robot, q0)
+    hierarchy = config.build_hierarchy(robot)
+    solver = make_method(method, robot, config.methods.settings.get(method))
+    schedule = WaypointSchedule(config.waypoints.positions, robot.frame_position(q0, "end_effector"),
+                                config.waypoints.tolerance_m, config.waypoints.dwell_s * sc.time_scale,
+                                config.waypoints.cycle)
+    settings = LoopSettings(dt=sc.dt, duration_s=sc.sim_time_s, sensing_period_s=1.0 / sc.sensing_rate_hz,
+                            max_sensing_age_s=config.sensor.max_age_s)
+    with mujoco.viewer.launch_passive(sim.io.model, sim.io.data) as viewer:
+        clock = {"tick": time.perf_counter()}
+
+        def sync() -> bool:
+            viewer.sync()
+            time.sleep(max(0.0, sc.dt - (time.perf_counter() - clock["tick"])))
+            clock["tick"] = time.perf_counter()
+            return viewer.is_running()
+
+        run_loop(sim.io, robot, hierarchy, solver, schedule, settings, sim.obstacles, sim.truth, on_step=sync)
+    sim.close()

@@ -1,0 +1,103 @@
+"""Simulated depth sensing and obstacle distance (paper sec. III; DESIGN §4).
+
+Scene: ``robots/kinova_j2s7s300/scene_workcell.xml`` (arm on its table, Kinect-v2-like depth
+camera, capsule person on mocap bodies). Two sensing modes with one result type
+(:class:`DistanceResult` holding an :class:`ObstacleReading` per control point):
+
+* **depth**: :class:`DepthPipeline` renders a :class:`~compare.robot_io.DepthFrame`
+  (:class:`DepthCamera`, noise and dropout), removes the static scene
+  (:class:`StaticBackground`) and the arm (:class:`SelfFilter`), and computes the
+  depth-space distance of each control point (:class:`DepthDistance`, Flacco et al.);
+* **geometric**: :class:`GeometricDistance`, exact distance to the person's capsules.
+
+Example (headless: ``MUJOCO_GL=egl``)::
+
+    from compare.sensing import (DepthPipeline, GeometricDistance, Person, PersonKeyframe,
+                                 control_point_positions, load_workcell, make_data)
+    import robots
+
+    model = load_workcell()
+    data = make_data(model)                       # arm at "home"
+    person = Person(model, [PersonKeyframe(0.0, (0.0, 1.35), yaw=-1.5708),
+                            PersonKeyframe(2.0, (0.05, 0.95), yaw=-1.5708, right_hand=(0, 0.62, 0.75))])
+    person.apply(t=1.0, data=data)                # mocap poses at t = 1 s
+    mujoco.mj_forward(model, data)
+    kin = robots.load("jaco2").kinematics(data.qpos[:7])
+    points = control_point_positions(kin)         # {"link_4": ..., "link_6": ..., "link_7": ...}
+    depth = DepthPipeline(model)                  # default DepthSensingSettings (rho 0.5 m)
+    result = depth.sense(data, points)            # render + filter + distance
+    exact = GeometricDistance(model).compute(data, points)
+"""
+
+from __future__ import annotations
+
+from compare.sensing.camera import (
+    DepthNoise,
+    camera_model_from_mujoco,
+    deproject,
+    point_cloud,
+    project,
+    set_camera_look_at,
+    valid_fraction,
+)
+from compare.sensing.depth_distance import DepthDistance
+from compare.sensing.exceptions import SensingError, UnknownSceneElement
+from compare.sensing.geometric_distance import GeometricDistance, closest_on_capsules
+from compare.sensing.person import Person, PersonKeyframe, PersonPose
+from compare.sensing.pipeline import (
+    DepthObstacleSource,
+    DepthPipeline,
+    DepthSensingSettings,
+    GeometricObstacleSource,
+    truth_function,
+)
+from compare.sensing.renderer import PERSON_GROUP, ROBOT_VISUAL_GROUP, STATIC_GROUP, DepthCamera
+from compare.sensing.results import DistanceResult, ObstacleReading
+from compare.sensing.scene import (
+    CONTROL_POINTS,
+    arm_qpos_addresses,
+    control_point_positions,
+    load_workcell,
+    make_data,
+    set_arm_configuration,
+    workcell_path,
+)
+from compare.sensing.self_filter import SelfFilter, StaticBackground
+
+__all__ = [
+    "CONTROL_POINTS",
+    "PERSON_GROUP",
+    "ROBOT_VISUAL_GROUP",
+    "STATIC_GROUP",
+    "DepthCamera",
+    "DepthDistance",
+    "DepthNoise",
+    "DepthObstacleSource",
+    "DepthPipeline",
+    "DepthSensingSettings",
+    "DistanceResult",
+    "GeometricDistance",
+    "GeometricObstacleSource",
+    "ObstacleReading",
+    "Person",
+    "PersonKeyframe",
+    "PersonPose",
+    "SelfFilter",
+    "SensingError",
+    "StaticBackground",
+    "UnknownSceneElement",
+    "arm_qpos_addresses",
+    "camera_model_from_mujoco",
+    "closest_on_capsules",
+    "control_point_positions",
+    "deproject",
+    "load_workcell",
+    "make_data",
+    "point_cloud",
+    "project",
+    "set_arm_configuration",
+    "set_camera_look_at",
+    "truth_function",
+    "valid_fraction",
+    "workcell_path",
+]

@@ -1,0 +1,180 @@
+"""Compiled inner loops of the depth-space distance (numba), same arithmetic as the numpy path.
+
+One scan of the union of the control points' surveillance boxes collects the valid pixels;
+each control point then evaluates only the collected pixels inside its own box, with no
+temporaries. Several times faster than the vectorised numpy version
+(``compare.bench.sensing``); the numpy version in :mod:`compare.sensing.depth_distance`
+stays the reference and the tests check that both agree.
+"""
+
+from __future__ import annotations
+
+import numba
+import numpy as np
+
+
+@numba.njit(cache=True, nogil=True)
+def closest_in_boxes(
+    depth: np.ndarray,
+    boxes: np.ndarray,
+    xn: np.ndarray,
+    yn: np.ndarray,
+    inv_rr: np.ndarray,
+    points: np.ndarray,
+    support: int,
+    work_v: np.ndarray,
+    work_u: np.ndarray,
+    work_d: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Per control point, the ``support``-th smallest squared distance to the pixels' occluded half-lines.
+
+    Args:
+        depth: Depth image [m], (H, W); pixels that are not > 0 (0, NaN) are skipped.
+        boxes: Half-open pixel boxes ``(v0, v1, u0, u1)`` per control point, int64 (K, 4); an
+            empty box (v0 >= v1) disables its control point.
+        xn: ``(u - cx) / fx`` per column, (W,).
+        yn: ``(v - cy) / fy`` per row, (H,).
+        inv_rr: ``1 / (1 + xn[u]² + yn[v]²)`` per pixel, (H, W).
+        points: Control points in the sensor frame [m], (K, 3).
+        support: Rank k of the reported distance (1 = minimum).
+        work_v: Scratch, int32 (H·W,).
+        work_u: Scratch, int32 (H·W,).
+        work_d: Scratch, float64 (H·W,).
+
+    Returns:
+        Per control point (arrays of length K): squared distance [m²] (``inf`` when fewer than
+        ``support`` pixels), ``a``, ``b``, ``s`` of the chosen pixel (its point is
+        ``(a s, b s, s)``), and the number of valid pixels in its box.
+    """
+    k_points = boxes.shape[0]
+    v_lo, v_hi, u_lo, u_hi = depth.shape[0], 0, depth.shape[1], 0
+    for k in range(k_points):
+        if boxes[k, 0] < boxes[k, 1] and boxes[k, 2] < boxes[k, 3]:
+            v_lo = min(v_lo, boxes[k, 0])
+            v_hi = max(v_hi, boxes[k, 1])
+            u_lo = min(u_lo, boxes[k, 2])
+            u_hi = max(u_hi, boxes[k, 3])
+    n = 0
+    for v in range(v_lo, v_hi):
+        for u in range(u_lo, u_hi):
+            d = depth[v, u]
+            if d > 0.0:
+                work_v[n] = v
+                work_u[n] = u
+                work_d[n] = d
+                n += 1
+    out_d2 = np.full(k_points, np.inf)
+    out_a = np.zeros(k_points)
+    out_b = np.zeros(k_points)
+    out_s = np.zeros(k_points)
+    count = np.zeros(k_points, dtype=np.int64)
+    best = np.empty(support)
+    best_a = np.empty(support)
+    best_b = np.empty(support)
+    best_s = np.empty(support)
+    last = support - 1
+    for k in range(k_points):
+        v0, v1, u0, u1 = boxes[k, 0], boxes[k, 1], boxes[k, 2], boxes[k, 3]
+        px, py, pz = points[k, 0], points[k, 1], points[k, 2]
+        if support == 1:  # plain minimum in registers: the common case, ~3x faster
+            m, ma, mb, ms, c = np.inf, 0.0, 0.0, 0.0, 0
+            for i in range(n):
+                v = work_v[i]
+                u = work_u[i]
+                if v < v0 or v >= v1 or u < u0 or u >= u1:
+                    continue
+                c += 1
+                a = xn[u]
+                b = yn[v]
+                s = max((a * px + b * py + pz) * inv_rr[v, u], work_d[i])
+                dx = a * s - px
+                dy = b * s - py
+                dz = s - pz
+                d2 = dx * dx + dy * dy + dz * dz
+                if d2 < m:
+                    m, ma, mb, ms = d2, a, b, s
+            count[k] = c
+            out_d2[k], out_a[k], out_b[k], out_s[k] = m, ma, mb, ms
+            continue
+        best[:] = np.inf
+        c = 0
+        for i in range(n):
+            v = work_v[i]
+            u = work_u[i]
+            if v < v0 or v >= v1 or u < u0 or u >= u1:
+                continue
+            c += 1
+            a = xn[u]
+            b = yn[v]
+            # Depth of the ray's closest approach to P, never in front of the measured surface.
+            s = max((a * px + b * py + pz) * inv_rr[v, u], work_d[i])
+            dx = a * s - px
+            dy = b * s - py
+            dz = s - pz
+            d2 = dx * dx + dy * dy + dz * dz
+            if d2 < best[last]:
+                j = last
+                while j > 0 and best[j - 1] > d2:
+                    best[j] = best[j - 1]
+                    best_a[j] = best_a[j - 1]
+                    best_b[j] = best_b[j - 1]
+                    best_s[j] = best_s[j - 1]
+                    j -= 1
+                best[j] = d2
+                best_a[j] = a
+                best_b[j] = b
+                best_s[j] = s
+        count[k] = c
+        out_d2[k] = best[last]
+        out_a[k] = best_a[last]
+        out_b[k] = best_b[last]
+        out_s[k] = best_s[last]
+    return out_d2, out_a, out_b, out_s, count
+
+
+@numba.njit(cache=True, nogil=True)
+def surveillance_boxes(
+    points: np.ndarray,
+    rho: float,
+    fx: float,
+    fy: float,
+    cx: float,
+    cy: float,
+    width: int,
+    height: int,
+    min_range: float,
+) -> np.ndarray:
+    """Pixel boxes ``(v0, v1, u0, u1)`` (half-open) of the cubes of half side ``rho`` around ``points``.
+
+    The box of the projections of the cube's eight corners (exact for a convex polytope in
+    front of the camera), with the cube's depth cut at ``min_range``: nothing nearer can be
+    measured. Points not finite or cubes entirely nearer than ``min_range`` or out of the image
+    get an empty box (all zeros). Shape (K, 4), int64.
+    """
+    k_points = points.shape[0]
+    boxes = np.zeros((k_points, 4), dtype=np.int64)
+    for k in range(k_points):
+        px, py, pz = points[k, 0], points[k, 1], points[k, 2]
+        if not (np.isfinite(px) and np.isfinite(py) and np.isfinite(pz)):
+            continue
+        z_far = pz + rho
+        if z_far < min_range:
+            continue
+        z_near = max(pz - rho, min_range)
+        u_min, u_max, v_min, v_max = np.inf, -np.inf, np.inf, -np.inf
+        for z in (z_near, z_far):
+            for x in (px - rho, px + rho):
+                u = cx + fx * x / z
+                u_min = min(u_min, u)
+                u_max = max(u_max, u)
+            for y in (py - rho, py + rho):
+                v = cy + fy * y / z
+                v_min = min(v_min, v)
+                v_max = max(v_max, v)
+        u0 = max(int(np.floor(u_min)), 0)
+        u1 = min(int(np.ceil(u_max)) + 1, width)
+        v0 = max(int(np.floor(v_min)), 0)
+        v1 = min(int(np.ceil(v_max)) + 1, height)
+        if u0 < u1 and v0 < v1:
+            boxes[k, 0], boxes[k, 1], boxes[k, 2], boxes[k, 3] = v0, v1, u0, u1
+    return boxes

@@ -1,0 +1,204 @@
+r"""Obstacle distance in depth space (Flacco et al. 2012/2015, as used in the paper, sec. III).
+
+For a control point :math:`P` with depth-space coordinates :math:`(p_x, p_y, d_p)` and an
+obstacle pixel :math:`(o_x, o_y, d_o)`, the distance vector in the sensor frame is (paper
+sec. III)
+
+.. math::
+    v_{s,x} = \frac{(o_x - c_x) d_o - (p_x - c_x) d_p}{f s_x},\quad
+    v_{s,y} = \frac{(o_y - c_y) d_o - (p_y - c_y) d_p}{f s_y},\quad
+    v_{s,z} = d_o - d_p .
+
+Only the pixels inside the image box of the surveillance cube of side :math:`2\rho` centred
+on :math:`P` are visited (the box of the cube's eight corners, cut at the camera's minimum
+range), as a numpy crop of the image: no per-pixel Python loop.
+
+**Occluded space (conservative).** A pixel measured at depth :math:`d_o` only says that its
+ray is free up to :math:`d_o`; whatever lies behind is unknown and may be obstacle. Flacco
+et al. therefore evaluate a pixel in front of the control point (:math:`d_o < d_p`) at the
+control point's depth :math:`d_p`. We use the exact version of that rule: each pixel stands
+for its whole occluded half-line :math:`\{ s\,r : s \ge d_o \}` (:math:`r = ((o_x - c_x)/f s_x,
+(o_y - c_y)/f s_y, 1)`, so :math:`s` is the depth), and its distance is the distance from
+:math:`P` to that half-line, reached at depth
+
+.. math:: s^\* = \max\!\left(d_o,\ \frac{r \cdot P_s}{r \cdot r}\right)
+
+which is never larger than Flacco's value (his point at :math:`d_p` lies on the half-line
+when :math:`d_o < d_p`) and equals the measured point's distance when the obstacle is behind
+:math:`P`. The returned closest point is :math:`s^\* r`, mapped to the base frame.
+
+Pixels with no return (0, NaN, out of range) are skipped: they never create an obstacle.
+A frame whose valid fraction is below ``blind_fraction`` is flagged ``blind`` so that the
+controller stops. Readings report "nothing in range" when the minimum exceeds :math:`\rho`.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+
+import numpy as np
+
+from compare.robot_io import CameraModel, DepthFrame
+from compare.sensing._kernels import closest_in_boxes, surveillance_boxes
+from compare.sensing.camera import base_to_sensor, normalized_coordinates, sensor_to_base, valid_fraction
+from compare.sensing.exceptions import SensingError
+from compare.sensing.results import DistanceResult, ObstacleReading
+
+
+class DepthDistance:
+    """Closest obstacle point of each control point from a filtered depth frame (module docstring).
+
+    Args:
+        camera: The depth camera.
+        rho_m: Half side ρ of the surveillance cube [m]; also the largest distance reported.
+        blind_fraction: Valid-pixel fraction under which a frame is blind, in [0, 1].
+        min_support: Report the ``min_support``-th smallest pixel distance instead of the
+            minimum (1 = Flacco's minimum); 2–5 rejects isolated outlier pixels.
+        backend: ``"numba"`` (compiled single pass, default) or ``"numpy"`` (vectorised
+            reference); both give the same result.
+    """
+
+    BACKENDS = ("numba", "numpy")
+
+    def __init__(
+        self,
+        camera: CameraModel,
+        rho_m: float = 0.5,
+        blind_fraction: float = 0.3,
+        min_support: int = 1,
+        backend: str = "numba",
+    ) -> None:
+        if not (math.isfinite(rho_m) and rho_m > 0.0):
+            raise SensingError(f"rho_m must be > 0, got {rho_m}")
+        if not 0.0 <= blind_fraction <= 1.0:
+            raise SensingError(f"blind_fraction must be in [0, 1], got {blind_fraction}")
+        if min_support < 1:
+            raise SensingError(f"min_support must be >= 1, got {min_support}")
+        self.camera = camera
+        self.rho_m = float(rho_m)
+        self.blind_fraction = float(blind_fraction)
+        if backend not in self.BACKENDS:
+            raise SensingError(f"unknown backend '{backend}'; available: {', '.join(self.BACKENDS)}")
+        self.min_support = int(min_support)
+        self.backend = backend
+        xn, yn = normalized_coordinates(camera)
+        self._xn64 = xn
+        self._yn64 = yn
+        self._inv_rr = 1.0 / (1.0 + xn[None, :] ** 2 + yn[:, None] ** 2)
+        size = camera.width * camera.height
+        self._work = (np.empty(size, np.int32), np.empty(size, np.int32), np.empty(size, np.float64))
+
+    def surveillance_boxes(self, p_sensor: np.ndarray) -> np.ndarray:
+        """Pixel boxes ``(v0, v1, u0, u1)`` (half-open) of the cubes around points in the sensor frame.
+
+        The box of the cube's corners with depth cut at the minimum range (nothing nearer can be
+        measured). Shape (K, 4), int64; a cube out of view gets an empty box (all zeros).
+        """
+        cam = self.camera
+        p = np.ascontiguousarray(np.atleast_2d(np.asarray(p_sensor, dtype=float)))
+        return surveillance_boxes(
+            p, self.rho_m, cam.fx, cam.fy, cam.cx, cam.cy, cam.width, cam.height, cam.min_range_m
+        )
+
+    def surveillance_box(self, p_sensor: np.ndarray) -> tuple[int, int, int, int] | None:
+        """Box of one point (see :meth:`surveillance_boxes`); None when out of view."""
+        v0, v1, u0, u1 = (int(v) for v in self.surveillance_boxes(p_sensor)[0])
+        return (v0, v1, u0, u1) if v0 < v1 else None
+
+    def compute(
+        self,
+        frame: DepthFrame,
+        control_points: Mapping[str, np.ndarray],
+        valid_fraction_raw: float | None = None,
+    ) -> DistanceResult:
+        """Closest obstacle of every control point.
+
+        Args:
+            frame: Depth frame with the arm and the static scene removed (0/NaN = nothing).
+            control_points: Control point positions [m] in the base frame, by frame name.
+            valid_fraction_raw: Valid fraction of the unfiltered frame (filtering blanks most of
+                the image on purpose); default: computed from ``frame``.
+
+        Returns:
+            A :class:`DistanceResult`; never raises on invalid pixels.
+        """
+        depth = frame.depth_m
+        if depth.shape != (self.camera.height, self.camera.width):
+            raise SensingError(f"frame shape {depth.shape} != camera ({self.camera.height}, {self.camera.width})")
+        vf = valid_fraction(frame) if valid_fraction_raw is None else float(valid_fraction_raw)
+        names = list(control_points)
+        if not names:
+            return DistanceResult({}, vf, vf < self.blind_fraction, frame.stamp_s)
+        p_base = np.array([np.asarray(control_points[n], dtype=float).reshape(3) for n in names])
+        p = base_to_sensor(self.camera, p_base)  # (K, 3)
+        boxes = self.surveillance_boxes(p)
+        seen = boxes[:, 0] < boxes[:, 1]
+        if self.backend == "numba":
+            img = depth if depth.flags.c_contiguous else np.ascontiguousarray(depth)
+            d2, a, b, s, counts = closest_in_boxes(
+                img, boxes, self._xn64, self._yn64, self._inv_rr, p, self.min_support, *self._work
+            )
+        else:
+            d2, a, b, s, counts = self._closest_numpy(depth, boxes, p)
+        # Closest points (a s, b s, s) in the sensor frame, distances re-evaluated in float64.
+        o = np.stack([a * s, b * s, s], axis=1)
+        dist = np.linalg.norm(o - p, axis=1)
+        found = seen & np.isfinite(d2) & (dist <= self.rho_m)
+        o_base = sensor_to_base(self.camera, o)
+        readings = {
+            name: ObstacleReading(float(dist[i]), o_base[i], True) if found[i] else ObstacleReading.nothing()
+            for i, name in enumerate(names)
+        }
+        return DistanceResult(
+            readings=readings,
+            valid_fraction=vf,
+            blind=vf < self.blind_fraction,
+            stamp_s=frame.stamp_s,
+            pixels_visited=int(counts.sum()),
+            out_of_view=tuple(n for n, ok in zip(names, seen, strict=True) if not ok),
+        )
+
+    def _closest_numpy(
+        self, depth: np.ndarray, boxes: np.ndarray, p: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """Reference implementation of the numba kernel, one control point at a time."""
+        k_points = len(boxes)
+        out = [np.full(k_points, np.inf), np.zeros(k_points), np.zeros(k_points), np.zeros(k_points)]
+        counts = np.zeros(k_points, dtype=np.int64)
+        for k in range(k_points):
+            if boxes[k, 0] >= boxes[k, 1]:
+                continue
+            res, counts[k] = self._closest(depth, p[k], tuple(int(v) for v in boxes[k]))
+            if res is not None:
+                for arr, val in zip(out, res, strict=True):
+                    arr[k] = val
+        return out[0], out[1], out[2], out[3], counts
+
+    def _closest(
+        self, depth: np.ndarray, p: np.ndarray, box: tuple[int, int, int, int]
+    ) -> tuple[tuple[float, float, float, float] | None, int]:
+        """(d², a, b, s) of the chosen pixel in ``box`` (None if too few pixels), and the valid-pixel count."""
+        v0, v1, u0, u1 = box
+        crop = depth[v0:v1, u0:u1]
+        with np.errstate(invalid="ignore"):
+            mask = crop > 0.0  # NaN > 0 is False: invalid pixels drop out here
+        flat = np.flatnonzero(mask)  # 1-D search: ~10x faster than a 2-D nonzero
+        n = int(flat.size)
+        if n < self.min_support:
+            return None, n
+        rows, cols = np.divmod(flat, u1 - u0)
+        d = crop[rows, cols].astype(float)
+        a = self._xn64[u0:u1][cols]  # (o_x - c_x) / f s_x
+        b = self._yn64[v0:v1][rows]  # (o_y - c_y) / f s_y
+        # Depth of the ray's closest approach to P, never in front of the measured surface.
+        s = np.maximum((a * p[0] + b * p[1] + p[2]) * self._inv_rr[v0:v1, u0:u1][rows, cols], d)
+        vx = a * s - p[0]  # v_s (paper sec. III) with d_o replaced by s
+        vy = b * s - p[1]
+        vz = s - p[2]
+        dist2 = vx * vx + vy * vy + vz * vz
+        if self.min_support > 1:
+            k = int(np.argpartition(dist2, self.min_support - 1)[self.min_support - 1])
+        else:
+            k = int(np.argmin(dist2))
+        return (float(dist2[k]), float(a[k]), float(b[k]), float(s[k])), n

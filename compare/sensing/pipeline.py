@@ -1,0 +1,227 @@
+"""The sensing pipelines the loop uses: depth (render → filter → distance) and geometric.
+
+Both produce :class:`~compare.sensing.results.DistanceResult` and both offer an
+``update(t, kin)`` source matching ``compare.loop.ObstacleSource``.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Iterable, Mapping
+from dataclasses import dataclass
+from typing import Any
+
+import mujoco
+import numpy as np
+
+from compare.robot_io import DepthFrame
+from compare.sensing.camera import DepthNoise, valid_fraction
+from compare.sensing.depth_distance import DepthDistance
+from compare.sensing.geometric_distance import GeometricDistance
+from compare.sensing.renderer import DepthCamera
+from compare.sensing.results import DistanceResult, ObstacleReading
+from compare.sensing.scene import CONTROL_POINTS, control_point_positions
+from compare.sensing.self_filter import SelfFilter, StaticBackground
+from robots import Kinematics
+
+
+@dataclass(frozen=True)
+class DepthSensingSettings:
+    """Parameters of the depth pipeline (names as in ``compare.config.SensorConfig``).
+
+    Attributes:
+        rho_m: Half side ρ of the surveillance cubes [m].
+        self_filter_margin_m: Inflation of the arm geoms removed from the image [m].
+        background_margin_m: How much nearer than the static background a pixel must be [m].
+        noise_std_m: Gaussian depth noise σ [m] (at 1 m when ``noise_proportional``).
+        noise_proportional: σ grows linearly with depth.
+        dropout: Fraction of pixels without return.
+        blind_fraction: Valid fraction of the raw frame under which the sensor is blind.
+        min_support: k-th smallest pixel distance reported (1 = minimum, Flacco).
+        noise_allowance: Filters widen their margins by this many σ(d).
+        seed: Seed of the noise.
+        camera: Camera name in the scene.
+        robot_root_body: Root body of the arm (self-filter).
+    """
+
+    rho_m: float = 0.5
+    self_filter_margin_m: float = 0.03
+    background_margin_m: float = 0.04
+    noise_std_m: float = 0.0
+    noise_proportional: bool = False
+    dropout: float = 0.0
+    blind_fraction: float = 0.3
+    min_support: int = 1
+    noise_allowance: float = 5.0
+    seed: int = 0
+    camera: str = "depth_camera"
+    robot_root_body: str = "j2s7s300_link_base"
+
+    @classmethod
+    def from_sensor_config(cls, sensor: Any, seed: int = 0, **overrides: Any) -> DepthSensingSettings:
+        """From a ``compare.config.SensorConfig`` (noise_std_m, dropout, rho_m, self_filter_margin_m, blind_fraction)."""
+        values = {
+            "rho_m": sensor.rho_m,
+            "self_filter_margin_m": sensor.self_filter_margin_m,
+            "noise_std_m": sensor.noise_std_m,
+            "dropout": sensor.dropout,
+            "blind_fraction": sensor.blind_fraction,
+            "seed": seed,
+        }
+        values.update(overrides)
+        return cls(**values)
+
+    @property
+    def noise(self) -> DepthNoise:
+        """The noise model."""
+        return DepthNoise(self.noise_std_m, self.noise_proportional, self.dropout)
+
+
+class DepthPipeline:
+    """Simulated depth sensing: render, remove the static scene and the arm, depth-space distance.
+
+    Args:
+        model: Work-cell model (``compare.sensing.scene.load_workcell``).
+        settings: Pipeline parameters.
+
+    Attributes:
+        renderer: The :class:`DepthCamera` (its ``camera`` is the :class:`CameraModel`).
+        background: Static-scene removal, captured from ``model`` at construction.
+        self_filter: Arm removal.
+        distance: Depth-space distance.
+    """
+
+    def __init__(self, model: mujoco.MjModel, settings: DepthSensingSettings | None = None) -> None:
+        s = settings or DepthSensingSettings()
+        self.settings = s
+        self.model = model
+        noise = s.noise
+        self.renderer = DepthCamera(model, s.camera, noise=noise, seed=s.seed)
+        self.camera = self.renderer.camera
+        self.background = StaticBackground.capture(
+            self.renderer, model, margin_m=s.background_margin_m, noise=noise, noise_allowance=s.noise_allowance
+        )
+        self.self_filter = SelfFilter(
+            model,
+            self.camera,
+            margin_m=s.self_filter_margin_m,
+            noise=noise,
+            noise_allowance=s.noise_allowance,
+            root_body=s.robot_root_body,
+        )
+        self.distance = DepthDistance(self.camera, s.rho_m, s.blind_fraction, s.min_support)
+
+    def render(self, data: mujoco.MjData, stamp_s: float | None = None) -> DepthFrame:
+        """A raw (noisy) depth frame of ``data``; usable as ``SimRobotIO(depth_camera=...)``."""
+        return self.renderer.render(data, stamp_s)
+
+    __call__ = render
+
+    def filter(self, frame: DepthFrame, q: np.ndarray | None = None, data: mujoco.MjData | None = None) -> DepthFrame:
+        """Remove the static scene and the arm (at ``q`` [rad], or as in ``data``) from ``frame``."""
+        depth = np.nan_to_num(frame.depth_m, nan=0.0, posinf=0.0, neginf=0.0).astype(np.float32, copy=False)
+        self.background.apply_inplace(depth)
+        self.self_filter.apply_inplace(depth, q=q, data=data)
+        return DepthFrame(depth, frame.stamp_s, frame.camera)
+
+    def process(
+        self,
+        frame: DepthFrame,
+        control_points: Mapping[str, np.ndarray],
+        q: np.ndarray | None = None,
+        data: mujoco.MjData | None = None,
+    ) -> DistanceResult:
+        """Filter ``frame`` and compute the distance of every control point (base frame [m])."""
+        vf = valid_fraction(frame)
+        return self.distance.compute(self.filter(frame, q=q, data=data), control_points, vf)
+
+    def sense(self, data: mujoco.MjData, control_points: Mapping[str, np.ndarray]) -> DistanceResult:
+        """Render ``data`` and process the frame (the arm's pose taken from ``data``)."""
+        return self.process(self.render(data), control_points, data=data)
+
+    def source(
+        self, read_frame: Callable[[], DepthFrame | None], frames: Iterable[str] = CONTROL_POINTS
+    ) -> DepthObstacleSource:
+        """An ``update(t, kin)`` obstacle source reading frames from ``read_frame`` (e.g. ``io.read_depth``)."""
+        return DepthObstacleSource(self, read_frame, frames)
+
+    def close(self) -> None:
+        """Free the renderer's GL resources."""
+        self.renderer.close()
+
+
+def _blind(frames: Iterable[str], t: float) -> DistanceResult:
+    return DistanceResult({n: ObstacleReading.nothing() for n in frames}, 0.0, True, t)
+
+
+class DepthObstacleSource:
+    """``compare.loop.ObstacleSource`` in depth mode.
+
+    Each update takes the latest frame from ``read_frame``, removes the arm at the current
+    joint positions ``kin.q`` (in simulation the frame was rendered in the same control step),
+    and computes the distances of the control points at ``kin``. A frame already filtered is
+    not filtered again (only the distances are recomputed); no frame yet → blind.
+
+    Args:
+        pipeline: The depth pipeline.
+        read_frame: Returns the latest :class:`DepthFrame`, or None.
+        frames: Control point frame names.
+    """
+
+    def __init__(
+        self,
+        pipeline: DepthPipeline,
+        read_frame: Callable[[], DepthFrame | None],
+        frames: Iterable[str] = CONTROL_POINTS,
+    ) -> None:
+        self.pipeline = pipeline
+        self.read_frame = read_frame
+        self.frames = tuple(frames)
+        self._last: tuple[DepthFrame, DepthFrame, float] | None = None
+
+    def update(self, t: float, kin: Kinematics) -> DistanceResult:
+        """Sense at time ``t`` [s] with the arm at ``kin.q``."""
+        frame = self.read_frame()
+        if frame is None:
+            return _blind(self.frames, t)
+        if self._last is not None and self._last[0] is frame:
+            filtered, vf = self._last[1], self._last[2]
+        else:
+            vf = valid_fraction(frame)
+            filtered = self.pipeline.filter(frame, q=kin.q)
+            self._last = (frame, filtered, vf)
+        return self.pipeline.distance.compute(filtered, control_point_positions(kin, self.frames), vf)
+
+
+class GeometricObstacleSource:
+    """``compare.loop.ObstacleSource`` in geometric mode: exact distances to the person's capsules.
+
+    Args:
+        distance: The geometric distance (its ρ decides "in range").
+        data: The simulation state whose geom poses are read (kept current by ``mj_step``).
+        frames: Control point frame names.
+    """
+
+    def __init__(
+        self, distance: GeometricDistance, data: mujoco.MjData, frames: Iterable[str] = CONTROL_POINTS
+    ) -> None:
+        self.distance = distance
+        self.data = data
+        self.frames = tuple(frames)
+
+    def update(self, t: float, kin: Kinematics) -> DistanceResult:
+        """Closest points at time ``t`` [s] for the control points at ``kin``."""
+        return self.distance.compute(self.data, control_point_positions(kin, self.frames), stamp_s=t)
+
+
+def truth_function(
+    model: mujoco.MjModel, data: mujoco.MjData, frames: Iterable[str] = CONTROL_POINTS
+) -> Callable[[Kinematics], dict[str, float]]:
+    """``truth(kin)`` for ``compare.loop.run_loop``: true distance per control point [m] (no ρ cut)."""
+    geometric = GeometricDistance(model, rho_m=math.inf)
+    names = tuple(frames)
+
+    def truth(kin: Kinematics) -> dict[str, float]:
+        return geometric.distances(data, control_point_positions(kin, names))
+
+    return truth

@@ -1,0 +1,62 @@
+"""What a sensing update returns, in depth and in geometric mode alike."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+
+@dataclass(frozen=True)
+class ObstacleReading:
+    """Closest obstacle point of one control point.
+
+    Attributes:
+        distance_m: Distance from the control point to its closest obstacle point [m]; ``inf``
+            when nothing is in range.
+        closest_point: Closest obstacle point O in the base frame [m], shape (3,); ``None`` when
+            nothing is in range.
+        in_range: Whether an obstacle was found within the surveillance distance ρ.
+    """
+
+    distance_m: float
+    closest_point: np.ndarray | None
+    in_range: bool
+
+    @classmethod
+    def nothing(cls) -> ObstacleReading:
+        """The reading "no obstacle within ρ"."""
+        return cls(math.inf, None, False)
+
+
+@dataclass(frozen=True)
+class DistanceResult:
+    """One sensing update: a reading per control point and the sensor's health.
+
+    Attributes:
+        readings: Reading per control point frame name (``"link_4"``, ``"link_6"``, ``"link_7"``).
+        valid_fraction: Fraction of pixels of the raw depth frame with a return, in [0, 1]
+            (1.0 in geometric mode).
+        blind: ``valid_fraction`` is below the configured threshold (or no frame arrived): the
+            readings must not be trusted and the controller should stop safely.
+        stamp_s: Capture time of the frame (or time of the geometric query) [s]; NaN if unknown.
+        pixels_visited: Valid pixels examined over all surveillance regions (0 in geometric mode).
+        out_of_view: Control points whose surveillance cube lies entirely outside the camera's
+            view or range: their "nothing in range" means "not observed".
+    """
+
+    readings: dict[str, ObstacleReading]
+    valid_fraction: float
+    blind: bool
+    stamp_s: float = math.nan
+    pixels_visited: int = 0
+    out_of_view: tuple[str, ...] = field(default_factory=tuple)
+
+    def distances(self) -> dict[str, float]:
+        """Distance per control point [m] (``inf`` when nothing is in range)."""
+        return {name: r.distance_m for name, r in self.readings.items()}
+
+    def closest_points(self) -> dict[str, np.ndarray | None]:
+        """Closest point per control point in the base frame [m] (``None`` when nothing is in range)."""
+        return {name: r.closest_point for name, r in self.readings.items()}

@@ -1,0 +1,103 @@
+"""MuJoCo implementation of :class:`~compare.robot_io.RobotIO`.
+
+``dynamic`` mode: the arm's velocity servos (with gravity compensation) track the command
+while MuJoCo integrates the dynamics. ``kinematic`` mode: q ← q + q̇·dt exactly, then forward
+kinematics (the pure-kinematics setting the solvers are analysed in).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+import mujoco
+import numpy as np
+
+from compare.robot_io import DepthFrame, JointReading, RobotIO
+
+
+class SimRobotIO(RobotIO):
+    """The arm in a MuJoCo scene, stepped one control period per :meth:`wait`.
+
+    Args:
+        model: Scene model; the arm's n joints are the first n qpos/qvel entries and its
+            velocity servos the first n actuators.
+        nq: Number of arm joints.
+        dt: Control period [s].
+        q0: Start configuration [rad].
+        mode: ``dynamic`` or ``kinematic``.
+        scene_update: Called with (time [s], data) before each physics step to move scripted
+            bodies (the person's mocap bodies).
+        depth_camera: Renders a :class:`DepthFrame` from ``data``; called at most once per
+            ``depth_period_s`` and only when :meth:`read_depth` asks for a newer frame.
+        depth_period_s: Camera frame period [s] (1/30 s).
+    """
+
+    def __init__(
+        self,
+        model: mujoco.MjModel,
+        nq: int,
+        dt: float,
+        q0: np.ndarray,
+        mode: str = "dynamic",
+        scene_update: Callable[[float, mujoco.MjData], None] | None = None,
+        depth_camera: Callable[[mujoco.MjData], DepthFrame] | None = None,
+        depth_period_s: float = 1.0 / 30.0,
+    ) -> None:
+        if mode not in ("dynamic", "kinematic"):
+            raise ValueError(f"mode must be 'dynamic' or 'kinematic', got {mode!r}")
+        self.model = model
+        self.data = mujoco.MjData(model)
+        self.nq = nq
+        self.dt = dt
+        self.mode = mode
+        self._scene_update = scene_update
+        self._depth_camera = depth_camera
+        self._depth_period_s = depth_period_s
+        self._next_depth_t = 0.0
+        self._frame: DepthFrame | None = None
+        self._substeps = max(1, round(dt / model.opt.timestep))
+        self._command = np.zeros(nq)
+        self.data.qpos[:nq] = q0
+        if scene_update is not None:
+            scene_update(0.0, self.data)
+        mujoco.mj_forward(model, self.data)
+
+    def now(self) -> float:
+        """Simulated time [s]."""
+        return float(self.data.time)
+
+    def read_joints(self) -> JointReading:
+        """Exact joint state (no sensor model on encoders)."""
+        d = self.data
+        qdot = self._command.copy() if self.mode == "kinematic" else d.qvel[: self.nq].copy()
+        return JointReading(d.qpos[: self.nq].copy(), qdot, float(d.time))
+
+    def read_depth(self) -> DepthFrame | None:
+        """Latest frame, rendering a new one when the camera period has elapsed."""
+        if self._depth_camera is None:
+            return None
+        if self.data.time + 1e-9 >= self._next_depth_t:
+            self._frame = self._depth_camera(self.data)
+            self._next_depth_t += self._depth_period_s
+        return self._frame
+
+    def send_velocity(self, qdot: np.ndarray) -> None:
+        """Velocity servo references [rad/s] (clipped to ``ctrlrange`` by MuJoCo)."""
+        self._command = np.asarray(qdot, dtype=float).copy()
+        self.data.ctrl[: self.nq] = self._command
+
+    def wait(self) -> None:
+        """Advance one control period."""
+        m, d = self.model, self.data
+        if self.mode == "dynamic":
+            for _ in range(self._substeps):
+                if self._scene_update is not None:
+                    self._scene_update(d.time, d)
+                mujoco.mj_step(m, d)
+        else:
+            d.qpos[: self.nq] += self._command * self.dt
+            d.qvel[: self.nq] = self._command
+            d.time += self.dt
+            if self._scene_update is not None:
+                self._scene_update(d.time, d)
+            mujoco.mj_kinematics(m, d)

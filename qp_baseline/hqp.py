@@ -1,0 +1,731 @@
+r"""Hierarchical QP: the tpik hierarchy solved as a lexicographic cascade of QPs (Kanoun, Escande).
+
+Level :math:`k` (highest first) holds equality tasks, stacked as :math:`J_k,\ r_k` with the CLIK
+reference :math:`r = \dot\sigma_d + K\tilde\sigma` (paper eq. 2), and set-based tasks, whose
+:meth:`~tpik.tasks.SetTask.velocity_bounds` give rows :math:`G_k \dot q \le h_k` (a finite upper
+bound :math:`J\dot q \le \dot\sigma_u`, a finite lower one :math:`-J\dot q \le -\dot\sigma_l`; a
+non-finite σ, e.g. no obstacle, gives no row). Each level solves
+
+.. math::
+    \min_{\dot q,\ w_k}\ \|J_k \dot q - r_k\|^2 + \|w_k\|^2 + \epsilon \|\dot q\|^2
+    \quad\text{s.t.}\quad
+    \begin{cases}
+      G_k \dot q - w_k \le h_k,\ \ w_k \ge 0 & \text{(this level, slack } w_k)\\
+      G_j \dot q \le h_j + w_j^*,\ \ j < k & \text{(earlier set rows, relaxed by their optimal slack)}\\
+      J_j \dot q = J_j \dot q^*_{k-1},\ \ j < k & \text{(earlier equality rows, fixed)}\\
+      \underline{v} \le \dot q \le \overline{v} & \text{(hard)}
+    \end{cases}
+
+with the hard joint box :math:`\underline v = \max(-v_{max}, (q_{min} - q)/dt)`,
+:math:`\overline v = \min(v_{max}, (q_{max} - q)/dt)` (infinite position limits skipped; the
+position part is clipped into :math:`[-v_{max}, v_{max}]` so the box is never empty, even when
+``q`` is already outside its limits). A lower level can therefore never degrade a higher one.
+
+Implementation choices:
+
+* **Equality rows of earlier levels are eliminated**, not passed as constraints: the unknown is
+  :math:`\dot q = \dot q^*_{k-1} + Z z` with :math:`Z` an orthonormal basis of the null space of
+  all earlier equality Jacobians (from an SVD, relative rank tolerance ``rank_tolerance``). No
+  backend ever sees linearly dependent equality constraints, and a level whose null space is
+  empty is not solved at all.
+* **Regularisation** :math:`\epsilon\|\dot q\|^2` (``regularization``, default 1e-9, unitless on
+  squared rad/s) makes every level's Hessian positive definite (quadprog requires it, DAQP fails
+  on near-singular Hessians). Without inequalities the cascade then equals the Siciliano–Slotine
+  null-space solution up to :math:`O(\epsilon/\sigma_{min}^2)`.
+* **Min-norm level**: after the last task level the remaining freedom is fixed by one more level,
+  :math:`\min\|\dot q\|^2` under every earlier constraint. Interior-point and first-order backends
+  (OSQP, ProxQP, Clarabel, PIQP) stop on tolerances far above ε·‖q̇‖², so the null-space
+  component of their answer is otherwise arbitrary; active-set backends (DAQP, quadprog) solve the
+  ε-regularised KKT system exactly and skip it by default (``min_norm_level``).
+* **Slacks** are one per inequality row, bounded :math:`0 \le w \le w_{max}` where
+  :math:`w_{max}` exceeds the largest violation the box allows (a finite bound every backend
+  accepts). Each level's QP is feasible by construction (:math:`\dot q^*_{k-1}` with
+  :math:`w = \max(0, G_k\dot q^*_{k-1} - h_k)` satisfies it), so an "infeasible" report is a
+  backend failure and handled as such.
+* **Rows that cannot bind are dropped**: a row with :math:`\max_{\dot q \in box} g^T\dot q \le h`
+  is redundant given the hard box (exact; most rows of a safe state).
+* **Unconstrained first** (``unconstrained_first``, default on): a level's strictly convex QP
+  has a unique solution; when the unconstrained minimiser (one n×n linear solve) satisfies every
+  inequality it *is* that solution and the backend is not called. ``extras["qp_calls"]`` counts
+  the levels that did call it.
+
+Every backend answer is checked (status, finite, within the hard box and all rows, and no worse
+than a known feasible point, with ``tolerance``) before use; a failed check is retried once with
+the backend's robust settings and extra regularisation, then the level is given up: level 0 →
+FAILED with zero velocity, a later level → DEGRADED keeping the solution of the levels above it.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import math
+import os
+import re
+import sys
+import time
+import warnings
+from collections.abc import Iterator, Mapping
+from dataclasses import dataclass, fields
+from typing import Any
+
+import numpy as np
+import qpsolvers
+import scipy.sparse as spa
+
+from qp_baseline.exceptions import InvalidSettings, NoSolutionFound, UnknownSolver
+from robots import Kinematics, Robot
+from tpik.hierarchy import Hierarchy
+from tpik.step_result import SolveStatus, StepResult, failed
+from tpik.tasks import SetTask, Task
+
+SUPPORTED_SOLVERS: tuple[str, ...] = ("daqp", "quadprog", "osqp", "proxqp", "clarabel", "piqp")
+"""QP backends this module is tested with."""
+
+SOLVER_DEFAULTS: dict[str, dict[str, Any]] = {
+    # Active-set solvers: exact on their active set, defaults are fine.
+    "daqp": {},
+    "quadprog": {},
+    # OSQP's defaults (eps 1e-3, no polish) leave bound violations of ~1e-3: tighten and polish
+    # (a solve of the reduced KKT system on the detected active set).
+    "osqp": {"eps_abs": 1e-8, "eps_rel": 0.0, "polish": True, "max_iter": 20000},
+    # ProxQP's default eps_abs is 1e-3 (qpsolvers documentation); much tighter than 1e-7 and it
+    # reports PRIMAL_INFEASIBLE on feasible problems once its residual stalls above eps_abs.
+    "proxqp": {"eps_abs": 1e-7, "eps_rel": 0.0},
+    "clarabel": {"tol_feas": 1e-9, "tol_gap_abs": 1e-9, "tol_gap_rel": 1e-9},
+    "piqp": {"eps_abs": 1e-9, "eps_rel": 0.0},
+}
+"""Settings each backend starts from; user settings override them key by key."""
+
+RETRY_SETTINGS: dict[str, dict[str, Any]] = {
+    "daqp": {},
+    "quadprog": {},
+    "osqp": {"eps_abs": 1e-7, "eps_rel": 0.0, "polish": True, "max_iter": 200000},
+    # ProxQP's false infeasibility: solve the closest feasible problem instead, then our own
+    # feasibility check decides (every level QP is feasible by construction).
+    "proxqp": {"eps_abs": 1e-7, "eps_rel": 0.0, "max_iter": 100000, "primal_infeasibility_solving": True},
+    "clarabel": {"tol_feas": 1e-7, "tol_gap_abs": 1e-7, "tol_gap_rel": 1e-7, "max_iter": 500},
+    "piqp": {"eps_abs": 1e-7, "eps_rel": 0.0, "max_iter": 1000},
+}
+"""Settings of the one retry after a failed or rejected answer (with :data:`RETRY_REGULARIZATION`)."""
+
+RETRY_REGULARIZATION = 1e-6
+"""Extra diagonal added to the Hessian on the retry (near-singular Hessians: DAQP, quadprog)."""
+
+TOLERANCES: dict[str, float] = {
+    "daqp": 1e-6,
+    "quadprog": 1e-6,
+    "osqp": 1e-5,
+    "proxqp": 1e-6,
+    "clarabel": 1e-6,
+    "piqp": 1e-6,
+}
+"""Default accepted constraint violation [rad/s or m/s] of each backend's answer."""
+
+MIN_NORM_LEVEL: dict[str, bool] = {
+    "daqp": False,
+    "quadprog": False,
+    "osqp": True,
+    "proxqp": True,
+    "clarabel": True,
+    "piqp": True,
+}
+"""Whether the final min-norm level is solved by default (inexact backends need it)."""
+
+_SPARSE_SOLVERS = frozenset({"osqp", "clarabel"})  # qpsolvers converts (and warns) otherwise
+
+
+def available_qp_solvers() -> list[str]:
+    """Backends usable here: :data:`SUPPORTED_SOLVERS` that ``qpsolvers.available_solvers`` lists."""
+    installed = set(qpsolvers.available_solvers)
+    return [name for name in SUPPORTED_SOLVERS if name in installed]
+
+
+def _check_solver(solver: str) -> None:
+    if solver not in available_qp_solvers():
+        raise UnknownSolver(solver, available_qp_solvers())
+
+
+@contextlib.contextmanager
+def _quiet_stdout(enabled: bool) -> Iterator[None]:
+    """Silence the C library's stdout (OSQP prints "Polishing not needed" whatever ``verbose``)."""
+    if not enabled:
+        yield
+        return
+    try:
+        fd = sys.stdout.fileno()
+    except (AttributeError, OSError, ValueError):
+        yield
+        return
+    sys.stdout.flush()
+    saved = os.dup(fd)
+    try:
+        with open(os.devnull, "wb") as devnull:
+            os.dup2(devnull.fileno(), fd)
+        yield
+    finally:
+        os.dup2(saved, fd)
+        os.close(saved)
+
+
+def _solve_quietly(problem: qpsolvers.Problem, solver: str, quiet: bool, **kwargs: Any) -> qpsolvers.Solution:
+    with warnings.catch_warnings(), _quiet_stdout(quiet):
+        warnings.simplefilter("ignore")
+        return qpsolvers.solve_problem(problem, solver=solver, **kwargs)
+
+
+def probe_settings(solver: str, settings: Mapping[str, Any]) -> None:
+    """Fail early on a backend setting the backend rejects.
+
+    A two-variable QP is solved with ``settings``; an exception of the backend, or a failure on
+    this trivial problem, becomes :class:`InvalidSettings`, naming the setting when the backend's
+    message does. PIQP silently ignores unknown names, so those are checked against its settings.
+
+    Raises:
+        UnknownSolver: ``solver`` is not available.
+        InvalidSettings: A setting is unknown or unusable.
+    """
+    _check_solver(solver)
+    if solver == "piqp":
+        import piqp
+
+        known = {a for a in dir(piqp.DenseSolver().settings) if not a.startswith("_")}
+        for key in settings:
+            if key not in known:
+                raise InvalidSettings(solver, f"unknown setting '{key}'; known: {', '.join(sorted(known))}", key)
+    P = np.eye(2)
+    G = np.array([[1.0, 1.0]])
+    if solver in _SPARSE_SOLVERS:
+        problem = qpsolvers.Problem(spa.csc_matrix(P), np.array([-1.0, -1.0]), spa.csc_matrix(G), np.ones(1))
+    else:
+        problem = qpsolvers.Problem(P, np.array([-1.0, -1.0]), G, np.ones(1))
+    try:
+        solution = _solve_quietly(problem, solver, solver == "osqp", **dict(settings))
+    except Exception as exc:  # noqa: BLE001 - whatever the backend raises is a settings error here
+        key = next((k for k in settings if re.search(rf"\b{re.escape(k)}\b", str(exc))), None)
+        named = f"setting '{key}'" if key else f"settings {dict(settings)}"
+        raise InvalidSettings(solver, f"{named} rejected by the backend: {exc}", key) from exc
+    if not solution.found or solution.x is None or not np.allclose(solution.x, [0.5, 0.5], atol=1e-3):
+        raise InvalidSettings(solver, f"settings {dict(settings)} make the backend fail on a trivial QP")
+
+
+@dataclass(frozen=True)
+class HqpSettings:
+    r"""Options of the cascade itself; every other setting goes to the QP backend.
+
+    Attributes:
+        regularization: ε of :math:`\epsilon\|\dot q\|^2` on every task level (unitless, > 0).
+        tolerance: Accepted constraint violation of a backend answer [rad/s or m/s]; the
+            backend's entry of :data:`TOLERANCES` when None.
+        slack_tolerance: A slack above this makes the step DEGRADED; a row within it of its bound
+            is reported binding (active set) [task unit / s].
+        rank_tolerance: Relative singular-value threshold of the null-space bases.
+        unconstrained_first: Skip the backend when a level's unconstrained minimiser is feasible.
+        min_norm_level: Solve the final min-norm level; :data:`MIN_NORM_LEVEL` when None.
+        retry: Retry a failed level once with :data:`RETRY_SETTINGS`.
+    """
+
+    regularization: float = 1e-9
+    tolerance: float | None = None
+    slack_tolerance: float = 1e-6
+    rank_tolerance: float = 1e-9
+    unconstrained_first: bool = True
+    min_norm_level: bool | None = None
+    retry: bool = True
+
+    def check(self, solver: str) -> None:
+        """Raise :class:`InvalidSettings` naming the first bad value."""
+        for key in ("regularization", "slack_tolerance", "rank_tolerance", "tolerance"):
+            value = getattr(self, key)
+            if value is None and key == "tolerance":
+                continue
+            number = isinstance(value, int | float) and not isinstance(value, bool)
+            if not (number and math.isfinite(value) and value > 0):
+                raise InvalidSettings(solver, f"setting '{key}' must be a finite number > 0, got {value!r}", key)
+        for key in ("unconstrained_first", "min_norm_level", "retry"):
+            value = getattr(self, key)
+            if not (isinstance(value, bool) or (value is None and key == "min_norm_level")):
+                raise InvalidSettings(solver, f"setting '{key}' must be true or false, got {value!r}", key)
+
+
+def split_settings(solver: str, settings: Mapping[str, Any] | None) -> tuple[HqpSettings, dict[str, Any]]:
+    """Split one config table into cascade options (:class:`HqpSettings`) and backend arguments.
+
+    Raises:
+        InvalidSettings: A cascade option has a bad value.
+    """
+    own = {f.name for f in fields(HqpSettings)}
+    data = dict(settings or {})
+    options = HqpSettings(**{k: data.pop(k) for k in list(data) if k in own})
+    options.check(solver)
+    return options, data
+
+
+@dataclass
+class _Level:
+    """One priority level: its equality tasks' buffers and its set tasks' range."""
+
+    name: str
+    eq_tasks: tuple[Task, ...]
+    eq_slices: tuple[slice, ...]
+    J: np.ndarray  # (m_eq, n), preallocated
+    r: np.ndarray  # (m_eq,), preallocated
+    set_start: int  # index of its first set task in the solver's flat list
+
+
+class HqpSolver:
+    """Hierarchical QP over a tpik :class:`~tpik.hierarchy.Hierarchy`, any supported backend.
+
+    Args:
+        robot: The robot (velocity and position limits).
+        solver: Backend name, one of :func:`available_qp_solvers`.
+        settings: Cascade options (fields of :class:`HqpSettings`) and backend keyword arguments in
+            one table; backend arguments override :data:`SOLVER_DEFAULTS`.
+        name: Method name reported in results (default ``hqp-<solver>``).
+
+    Raises:
+        UnknownSolver: ``solver`` is not available (the message lists what is).
+        InvalidSettings: A setting is unknown to the backend or has a bad value.
+    """
+
+    def __init__(
+        self,
+        robot: Robot,
+        solver: str = "daqp",
+        settings: Mapping[str, Any] | None = None,
+        name: str | None = None,
+    ) -> None:
+        _check_solver(solver)
+        self.robot = robot
+        self.solver = solver
+        self.name = name or f"hqp-{solver}"
+        self.options, user_kwargs = split_settings(solver, settings)
+        probe_settings(solver, user_kwargs)
+        self.qp_settings: dict[str, Any] = {**SOLVER_DEFAULTS[solver], **user_kwargs}
+        self._retry_settings: dict[str, Any] = {**self.qp_settings, **RETRY_SETTINGS[solver]}
+        self.tolerance = float(self.options.tolerance or TOLERANCES[solver])
+        mnl = self.options.min_norm_level
+        self.min_norm_level = MIN_NORM_LEVEL[solver] if mnl is None else mnl
+        self._sparse = solver in _SPARSE_SOLVERS
+        self._quiet = solver == "osqp"
+        n = robot.nq
+        self._v_max = np.asarray(robot.v_max, dtype=float)
+        self._eye = np.eye(n)
+        self._eps_eye = self.options.regularization * np.eye(n)
+        self._zeros = np.zeros(n)
+        self._hierarchy: Hierarchy | None = None
+        self._levels: list[_Level] = []
+        self._set_tasks: tuple[SetTask, ...] = ()
+        self._set_level: tuple[int, ...] = ()
+        self._no_rows = np.zeros((0, n))
+        self._no_bounds = np.zeros(0)
+        self._no_owner = np.zeros(0, dtype=int)
+        self._G, self._h, self._owner = self._no_rows, self._no_bounds, self._no_owner
+        self._backend_time = 0.0
+
+    def __repr__(self) -> str:
+        return f"HqpSolver(name={self.name!r}, solver={self.solver!r}, settings={self.qp_settings})"
+
+    # ------------------------------------------------------------------ structure
+    def _prepare(self, hierarchy: Hierarchy) -> None:
+        """Allocate the level buffers once per hierarchy object."""
+        if hierarchy is self._hierarchy:
+            return
+        n = self.robot.nq
+        levels: list[_Level] = []
+        set_tasks: list[SetTask] = []
+        set_level: list[int] = []
+        for k, level in enumerate(hierarchy.levels):
+            eq = tuple(t for t in level.tasks if not isinstance(t, SetTask))
+            slices, start = [], 0
+            for task in eq:
+                slices.append(slice(start, start + task.dim))
+                start += task.dim
+            levels.append(_Level(level.name, eq, tuple(slices), np.zeros((start, n)), np.zeros(start), len(set_tasks)))
+            for task in level.tasks:
+                if isinstance(task, SetTask):
+                    set_tasks.append(task)
+                    set_level.append(k)
+        self._levels = levels
+        self._set_tasks = tuple(set_tasks)
+        self._set_level = tuple(set_level)
+        self._hierarchy = hierarchy
+
+    def _box(self, q: np.ndarray, dt: float) -> tuple[np.ndarray, np.ndarray]:
+        r"""Hard bounds :math:`\underline v \le \dot q \le \overline v` [rad/s]."""
+        v, inv_dt = self._v_max, 1.0 / dt
+        lower = (self.robot.q_lower - q) * inv_dt  # −inf on continuous joints
+        upper = (self.robot.q_upper - q) * inv_dt
+        np.maximum(lower, -v, out=lower)
+        np.minimum(lower, v, out=lower)
+        np.minimum(upper, v, out=upper)
+        np.maximum(upper, -v, out=upper)
+        return lower, upper
+
+    def _evaluate(self, kin: Kinematics, dt: float, lb: np.ndarray, ub: np.ndarray) -> list[int]:
+        """Evaluate every task once: equality tasks into their level buffers, set tasks into rows.
+
+        The set rows that can bind (a row that cannot reach its bound inside the hard box is
+        redundant and dropped) are stored compacted in ``self._G``, ``self._h`` (bounds),
+        ``self._owner`` (index into ``self._set_tasks``), level after level.
+
+        Returns:
+            ``cuts``: the rows of level k are ``cuts[k]:cuts[k + 1]``.
+        """
+        finite = True
+        for lv in self._levels:
+            for task, sl in zip(lv.eq_tasks, lv.eq_slices, strict=True):
+                state = task.compute_state(kin)
+                lv.J[sl] = state.jacobian
+                lv.r[sl] = state.feedforward + task.gain * state.error
+            if lv.r.size:
+                finite = finite and bool(np.isfinite(lv.r).all() and np.isfinite(lv.J).all())
+        if not finite:
+            raise ValueError("non-finite equality task Jacobian or reference")
+        jacs: list[np.ndarray] = []
+        bounds: list[float] = []
+        signs: list[float] = []
+        owner: list[int] = []
+        level_end = [0] * (len(self._levels) + 1)
+        for i, (task, k) in enumerate(zip(self._set_tasks, self._set_level, strict=True)):
+            state = task.compute_state(kin)
+            lo, hi = task.velocity_bounds(state, dt)
+            jac = state.jacobian[0]
+            if hi < math.inf:  # J q̇ ≤ hi
+                jacs.append(jac)
+                bounds.append(hi)
+                signs.append(1.0)
+                owner.append(i)
+            if lo > -math.inf:  # −J q̇ ≤ −lo
+                jacs.append(jac)
+                bounds.append(-lo)
+                signs.append(-1.0)
+                owner.append(i)
+            level_end[k + 1] = len(owner)
+        if not jacs:
+            self._G, self._h, self._owner = self._no_rows, self._no_bounds, self._no_owner
+            return [0] * (len(self._levels) + 1)
+        for k in range(1, len(level_end)):
+            level_end[k] = max(level_end[k], level_end[k - 1])
+        G = np.array(jacs)
+        G *= np.array(signs)[:, None]
+        if not np.isfinite(G).all():
+            raise ValueError("non-finite set task Jacobian")
+        h = np.array(bounds)
+        reach = G @ (0.5 * (ub + lb)) + np.abs(G) @ (0.5 * (ub - lb))  # max of g·q̇ over the box
+        keep = np.flatnonzero(reach > h)
+        self._G, self._h, self._owner = G[keep], h[keep], np.array(owner)[keep]
+        return np.searchsorted(keep, level_end).tolist()  # type: ignore[no-any-return]
+
+    # ------------------------------------------------------------------ solve
+    def solve(self, hierarchy: Hierarchy, kin: Kinematics, dt: float) -> StepResult:
+        """One control step of the cascade.
+
+        Args:
+            hierarchy: The shared hierarchy (only read).
+            kin: Kinematics snapshot at the current configuration.
+            dt: Control period [s].
+
+        Returns:
+            OK; DEGRADED (a slack above ``slack_tolerance``, or a lower level given up); or FAILED
+            with zero velocity. ``build_time_s`` covers task evaluation and problem assembly,
+            ``solve_time_s`` the backend calls and the unconstrained linear solves. ``extras``:
+            ``slacks`` {level: {task: slack}}, ``residuals`` {level: ‖J q̇ − r‖}, ``qp_calls``,
+            ``iterations`` {level: backend iterations, where reported}, ``retries``.
+        """
+        n = self.robot.nq
+        if not (math.isfinite(dt) and dt > 0.0):
+            return failed(n, f"dt must be finite and > 0, got {dt}")
+        t_start = time.perf_counter()
+        self._backend_time = 0.0
+        self._prepare(hierarchy)
+        lb, ub = self._box(kin.q, dt)
+        try:
+            cuts = self._evaluate(kin, dt, lb, ub)
+        except Exception as exc:  # noqa: BLE001 - a task that cannot be evaluated fails the step
+            return self._failed(f"{self.name}: task evaluation failed: {type(exc).__name__}: {exc}", t_start, 0)
+        G_all, h_rel = self._G, self._h.copy()  # h_rel: bounds relaxed by the levels' slacks
+        eps = self.options.regularization
+        qd = self._zeros.copy()
+        Z: np.ndarray | None = None  # None: identity (no equality row solved yet)
+        residuals: dict[str, float] = {}
+        iterations: dict[str, int] = {}
+        qp_calls = retries = 0
+        status, message = SolveStatus.OK, ""
+        n_levels = len(self._levels)
+        k_start = 0
+        if self.options.unconstrained_first:
+            # Fast path: leading levels of set tasks only are solved by q̇ = 0 (their regularised
+            # optimum) when zero is feasible: inside the box and every such row has h ≥ 0.
+            first_eq = next((k for k, lv in enumerate(self._levels) if lv.r.size), n_levels)
+            c_pre = cuts[first_eq]
+            if first_eq and not ((lb > 0.0).any() or (ub < 0.0).any()) and (c_pre == 0 or (h_rel[:c_pre] >= 0.0).all()):
+                k_start = first_eq
+        for k in range(k_start, n_levels + 1):
+            if k < n_levels:
+                lv = self._levels[k]
+                J, r, c0, c1 = lv.J, lv.r, cuts[k], cuts[k + 1]
+            elif self.min_norm_level and qp_calls:
+                # min ‖q̇‖² under all rows; without a backend answer q̇ is already the exact
+                # ε-regularised (minimum-norm) solution.
+                J, r, c0, c1 = self._eye, self._zeros, cuts[k], cuts[k]
+            else:
+                break
+            d = n if Z is None else Z.shape[1]
+            if d == 0 or (r.size == 0 and c0 == c1):
+                continue
+            try:
+                qd, used, its, retried = self._solve_level(k, qd, Z, J, r, G_all, h_rel, c0, c1, lb, ub, eps)
+            except NoSolutionFound as exc:
+                if k == 0:
+                    return self._failed(f"{self.name}: {exc}", t_start, k)
+                status = SolveStatus.DEGRADED
+                message = f"{self.name}: {exc}; kept the solution of the levels above"
+                break
+            qp_calls += used
+            retries += retried
+            if its is not None:
+                iterations[lv.name if k < n_levels else "min_norm"] = its
+            if used and c1 > c0:
+                # This level's slack at its own optimum relaxes its rows for every later level.
+                w = G_all[c0:c1] @ qd
+                w -= h_rel[c0:c1]
+                np.maximum(w, 0.0, out=w)
+                h_rel[c0:c1] += w
+            if r.size and k < n_levels:
+                residuals[lv.name] = float(np.linalg.norm(J @ qd - r))
+                if k + 1 < n_levels or (self.min_norm_level and qp_calls):
+                    Z = self._null_space(J, Z)
+        np.maximum(qd, lb, out=qd)
+        np.minimum(qd, ub, out=qd)
+        s_tol = self.options.slack_tolerance
+        slacks: dict[str, dict[str, float]] = {}
+        active: list[str] = []
+        relaxed: list[str] = []
+        if h_rel.size:
+            # Slacks only come from backend answers: without a backend call they are all zero.
+            slack = h_rel - self._h if qp_calls else None
+            binding = (G_all @ qd) >= h_rel - s_tol
+            if slack is not None:
+                binding |= slack > s_tol
+            owners, bind_list = self._owner.tolist(), binding.tolist()
+            slack_list = slack.tolist() if slack is not None else [0.0] * len(owners)
+            for k, lv in enumerate(self._levels):
+                if cuts[k + 1] == cuts[k]:
+                    continue
+                per_task: dict[str, float] = {}
+                for row in range(cuts[k], cuts[k + 1]):
+                    name = self._set_tasks[owners[row]].name
+                    per_task[name] = max(per_task.get(name, 0.0), slack_list[row])
+                    if bind_list[row] and name not in active:
+                        active.append(name)
+                    if slack_list[row] > s_tol and name not in relaxed:
+                        relaxed.append(name)
+                slacks[lv.name] = per_task
+        if relaxed:
+            note = f"set tasks relaxed (slack > {s_tol:g}): {', '.join(relaxed)}"
+            message = f"{message}; {note}" if message else f"{self.name}: {note}"
+            status = SolveStatus.DEGRADED
+        total = time.perf_counter() - t_start
+        return StepResult(
+            qd,
+            status,
+            tuple(active),
+            build_time_s=total - self._backend_time,
+            solve_time_s=self._backend_time,
+            message=message,
+            extras={
+                "slacks": slacks,
+                "residuals": residuals,
+                "qp_calls": qp_calls,
+                "iterations": iterations,
+                "retries": retries,
+            },
+        )
+
+    def _failed(self, message: str, t_start: float, level: int) -> StepResult:
+        res = failed(self.robot.nq, message, level=level)
+        res.solve_time_s = self._backend_time
+        res.build_time_s = time.perf_counter() - t_start - self._backend_time
+        return res
+
+    def _null_space(self, J: np.ndarray, Z: np.ndarray | None) -> np.ndarray:
+        """Orthonormal basis of {Z z : J Z z = 0} (Z = I when None). Shape (n, d')."""
+        M = J if Z is None else J @ Z
+        _, s, Vt = np.linalg.svd(M, full_matrices=True)
+        top = float(s[0]) if s.size else 0.0
+        rank = int(np.count_nonzero(s > self.options.rank_tolerance * max(1.0, top)))
+        basis = Vt[rank:].T
+        return basis if Z is None else Z @ basis
+
+    def _solve_level(
+        self,
+        k: int,
+        qd: np.ndarray,
+        Z: np.ndarray | None,
+        J: np.ndarray,
+        r: np.ndarray,
+        G_all: np.ndarray,
+        h_rel: np.ndarray,
+        c0: int,
+        c1: int,
+        lb: np.ndarray,
+        ub: np.ndarray,
+        eps: float,
+    ) -> tuple[np.ndarray, int, int | None, int]:
+        """Solve level ``k`` for q̇ = qd + Z z.
+
+        Rows ``:c0`` of ``G_all``/``h_rel`` are the earlier levels' (already relaxed), rows
+        ``c0:c1`` this level's (with slack). ``h_rel[:c0]`` is raised in place by any violation
+        within tolerance of the accepted answer, so later levels stay feasible by construction.
+
+        Returns:
+            (q̇, 1 if the backend was called else 0, backend iterations, 1 if retried else 0).
+
+        Raises:
+            NoSolutionFound: Neither attempt gave an answer that passes the checks.
+        """
+        G_acc, h_acc = G_all[:c0], h_rel[:c0]
+        G_own, h_own = G_all[c0:c1], h_rel[c0:c1]
+        at_zero = Z is None and not qd.any()  # start of the cascade: spare the products with qd
+        JZ = qz = Pz = None
+        if r.size:
+            JZ = J if Z is None else J @ Z
+            d = JZ.shape[1]
+            Pz = JZ.T @ JZ
+            Pz += self._eps_eye if d == qd.shape[0] and eps == self.options.regularization else eps * np.eye(d)
+            if at_zero:
+                qz = -(JZ.T @ r)
+            else:
+                qz = JZ.T @ (J @ qd - r)
+                if eps:
+                    qz += eps * (qd if Z is None else Z.T @ qd)
+        if self.options.unconstrained_first:
+            if Pz is not None and qz is not None:
+                t0 = time.perf_counter()
+                z = np.linalg.solve(Pz, -qz)
+                self._backend_time += time.perf_counter() - t0
+                cand = z if at_zero else (qd + z if Z is None else qd + Z @ z)
+            else:
+                # Pz = εI: the minimiser is qd without its component in span(Z).
+                cand = self._zeros.copy() if Z is None else qd - Z @ (Z.T @ qd)
+            if (
+                (cand >= lb).all()
+                and (cand <= ub).all()
+                and (G_acc @ cand <= h_acc).all()
+                and (G_own @ cand <= h_own).all()
+            ):
+                return cand, 0, None, 0
+        n = qd.shape[0]
+        d = n if Z is None else Z.shape[1]
+        if Pz is None or qz is None:
+            Pz = np.eye(d) * eps
+            qz = eps * (qd if Z is None else Z.T @ qd)
+        # The QP in x = [z; w]: rows of earlier levels, this level's rows with slack, the box.
+        m = c1 - c0
+        if at_zero:
+            z_lb, z_ub, G_rows, h = lb, ub, G_all[:c1], h_rel[:c1]
+        elif Z is None:
+            z_lb, z_ub = lb - qd, ub - qd
+            G_rows, h = G_all[:c1], h_rel[:c1] - G_all[:c1] @ qd
+        else:
+            radius = float(np.linalg.norm(ub - lb)) + 1.0  # ‖z‖ = ‖Z z‖ ≤ diameter of the box
+            z_lb, z_ub = np.full(d, -radius), np.full(d, radius)
+            G_rows = np.vstack([G_all[:c1] @ Z, Z, -Z])
+            h = np.concatenate([h_rel[:c1] - G_all[:c1] @ qd, ub - qd, qd - lb])
+        if m == 0:  # no slack variable: x = z
+            G, P, q_vec, x_lb, x_ub = G_rows, Pz, qz, z_lb, z_ub
+            x0 = np.zeros(d)
+            f0 = 0.0
+        else:
+            G = np.zeros((G_rows.shape[0], d + m))
+            G[:, :d] = G_rows
+            G[c0:c1, d:] = -np.eye(m)
+            violation = np.maximum(G_own @ qd - h_own, 0.0)  # slack of the known feasible point
+            reach = G_own @ (0.5 * (ub + lb)) + np.abs(G_own) @ (0.5 * (ub - lb))
+            x_lb = np.concatenate([z_lb, np.zeros(m)])
+            x_ub = np.concatenate([z_ub, np.maximum(reach - h_own, violation) + 1.0])
+            P = np.zeros((d + m, d + m))
+            P[:d, :d] = Pz
+            P.flat[d * (d + m) + d :: d + m + 1] = 1.0
+            q_vec = np.concatenate([qz, np.zeros(m)])
+            x0 = np.concatenate([np.zeros(d), violation])
+            f0 = 0.5 * float(violation @ violation)
+        attempts: list[tuple[dict[str, Any], float]] = [(self.qp_settings, 0.0)]
+        if self.options.retry:
+            attempts.append((self._retry_settings, RETRY_REGULARIZATION))
+        tol = self.tolerance
+        last_solution: Any = None
+        reason = ""
+        for attempt, (kwargs, extra_reg) in enumerate(attempts):
+            P_try = P
+            if extra_reg:
+                P_try = P.copy()
+                P_try.flat[:: d + m + 1] += extra_reg
+            try:
+                solution = self._call_backend(P_try, q_vec, G, h, x_lb, x_ub, x0 if attempt else None, kwargs)
+            except Exception as exc:  # noqa: BLE001 - backend errors are failures of this level
+                last_solution, reason = None, f"{self.solver} raised {type(exc).__name__}: {exc}"
+                continue
+            last_solution = solution
+            x = solution.x
+            if not solution.found or x is None:
+                reason = f"{self.solver} reported no solution"
+                continue
+            x = np.asarray(x, dtype=float)
+            if x.shape != (d + m,) or not np.isfinite(x).all():
+                reason = f"{self.solver} returned a non-finite or misshaped solution"
+                continue
+            viol = max((x_lb - x).max(), (x - x_ub).max(), (G @ x - h).max() if h.size else -math.inf)
+            if viol > tol:
+                reason = f"{self.solver} answer violates its constraints by {viol:.3g} (tolerance {tol:g})"
+                continue
+            f = float(x @ (0.5 * (P @ x) + q_vec))
+            if f > f0 + tol * (1.0 + abs(f0)):
+                reason = f"{self.solver} answer is worse than a known feasible point ({f:.6g} > {f0:.6g})"
+                continue
+            cand = x[:d].copy() if at_zero else (qd + x[:d] if Z is None else qd + Z @ x[:d])
+            np.maximum(cand, lb, out=cand)
+            np.minimum(cand, ub, out=cand)
+            if c0:
+                np.maximum(h_acc, G_acc @ cand, out=h_acc)
+            return cand, 1, backend_iterations(solution), attempt
+        raise NoSolutionFound(k, last_solution, reason)
+
+    def _call_backend(
+        self,
+        P: np.ndarray,
+        q: np.ndarray,
+        G: np.ndarray,
+        h: np.ndarray,
+        lb: np.ndarray,
+        ub: np.ndarray,
+        initvals: np.ndarray | None,
+        kwargs: Mapping[str, Any],
+    ) -> qpsolvers.Solution:
+        """One backend call, timed into ``_backend_time``."""
+        has_rows = h.size > 0
+        if self._sparse:
+            P_arg: Any = spa.csc_matrix(P)
+            G_arg: Any = spa.csc_matrix(G) if has_rows else None
+        else:
+            P_arg, G_arg = P, G if has_rows else None
+        problem = qpsolvers.Problem(P_arg, q, G_arg, h if has_rows else None, lb=lb, ub=ub)
+        t0 = time.perf_counter()
+        try:
+            return _solve_quietly(problem, self.solver, self._quiet, initvals=initvals, **kwargs)
+        finally:
+            self._backend_time += time.perf_counter() - t0
+
+
+def backend_iterations(solution: qpsolvers.Solution) -> int | None:
+    """Backend iteration count, where the backend reports one (not DAQP or Clarabel via qpsolvers)."""
+    extras = solution.extras or {}
+    info = extras.get("info")
+    for key in ("iter", "iters", "iteration"):
+        value = getattr(info, key, None)
+        if isinstance(value, int | np.integer):
+            return int(value)
+    if "iterations" in extras:
+        it = np.asarray(extras["iterations"]).ravel()
+        return int(it[0]) if it.size else None
+    return None

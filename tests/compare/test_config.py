@@ -1,0 +1,88 @@
+"""Config validation: every user mistake is one clear line naming the key, exit code 2."""
+
+from __future__ import annotations
+
+import re
+import tomllib
+from pathlib import Path
+
+import pytest
+import tomli_w
+from typer.testing import CliRunner
+
+from compare.cli import app
+from compare.config import ConfigError, load_config, parse_config
+
+CONFIGS = Path(__file__).resolve().parents[2] / "configs"
+
+
+def _case1() -> dict:
+    with open(CONFIGS / "case1.toml", "rb") as fh:
+        return tomllib.load(fh)
+
+
+def _set(data: dict, dotted: str, value: object) -> dict:
+    node = data
+    *parents, leaf = dotted.split(".")
+    for key in parents:
+        node = node[int(key)] if key.isdigit() else node[key]
+    node[leaf] = value
+    return data
+
+
+BAD_CONFIGS = [
+    ("scenario.duraton_s", 10.0, r"scenario\.duraton_s: unknown key"),
+    ("scenario.duration_s", -1.0, r"scenario\.duration_s: Input should be greater than 0"),
+    ("scenario.duration_s", "long", r"scenario\.duration_s: Input should be a valid number"),
+    ("scenario.sensing", "lidar", r"scenario\.sensing: Input should be 'depth' or 'geometric'"),
+    ("scenario.start_q", [0.0, 1.0], r"scenario\.start_q"),
+    ("sensor.dropout", 1.5, r"sensor\.dropout: Input should be less than 1"),
+    ("methods.names", ["tpik", "hqp-nosuchsolver"], r"methods\.names\[1\]: unknown method 'hqp-nosuchsolver'; available:"),
+    ("methods.names", ["teleport"], r"unknown method 'teleport'"),
+    ("methods.settings", {"mink": {}}, r"settings for 'mink', which is not in names"),
+    ("levels.1.tasks", [{"type": "obstacle_distance", "frames": ["link_4"], "safety_distance": 0.05}],
+     r"levels: .*physical_lower=0.1 must be < safety_lower=0.05"),
+    ("levels.0.tasks", [{"type": "joint_limit", "joints": [1]}], r"levels: .*joint 1 is continuous"),
+    ("levels.2.tasks", [{"type": "position", "frame": "elbow"}], r"levels: .*unknown frame 'elbow'"),
+    ("levels.0.tasks", [{"type": "joint_limit", "joints": [2], "safety_margn": 0.1}], r"unknown key 'safety_margn'"),
+]
+
+
+@pytest.mark.parametrize(("key", "value", "message"), BAD_CONFIGS, ids=[b[0] + "=" + str(b[1])[:20] for b in BAD_CONFIGS])
+def test_bad_config_gives_one_line_naming_the_key(key, value, message):
+    with pytest.raises(ConfigError, match=message) as info:
+        parse_config(_set(_case1(), key, value))
+    assert "\n" not in str(info.value)
+
+
+@pytest.mark.parametrize(("key", "value", "message"), BAD_CONFIGS[:4] + BAD_CONFIGS[6:7] + BAD_CONFIGS[9:10])
+def test_cli_exits_2_with_one_line_and_no_traceback(tmp_path, key, value, message):
+    path = tmp_path / "bad.toml"
+    path.write_text(tomli_w.dumps(_set(_case1(), key, value)))
+    result = CliRunner().invoke(app, ["run", str(path), "--out", str(tmp_path / "out")])
+    assert result.exit_code == 2
+    err = result.stderr.strip()
+    assert len(err.splitlines()) == 1 and "Traceback" not in result.output
+    assert re.search(message, err)
+    assert not (tmp_path / "out").exists()
+
+
+def test_missing_file_and_bad_toml_are_one_line(tmp_path):
+    with pytest.raises(ConfigError, match="cannot read config"):
+        load_config(tmp_path / "nope.toml")
+    bad = tmp_path / "bad.toml"
+    bad.write_text("[scenario\nname = 1")
+    with pytest.raises(ConfigError, match="invalid TOML"):
+        load_config(bad)
+
+
+def test_shipped_configs_are_valid():
+    for path in sorted(CONFIGS.glob("*.toml")):
+        config, _ = load_config(path)
+        assert config.levels, path
+
+
+def test_overrides_apply_dotted_keys():
+    config, _ = load_config(CONFIGS / "case1.toml", {"scenario.time_scale": 0.25, "scenario.sensing": "geometric"})
+    assert config.scenario.sim_time_s == pytest.approx(70.0 * 0.25)
+    assert config.scenario.sensing == "geometric"

@@ -1,0 +1,28 @@
+"""``tpik-compare hw`` checks that need no ROS: they refuse before connecting."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+
+from tests.hardware.conftest import ROOT, write_config
+
+
+def test_start_refused_without_camera_transform(tmp_path):
+    config = write_config(tmp_path / "nocam.toml", scenario={"time_scale": 0.1}, methods={"names": ["tpik"]})
+    res = subprocess.run(
+        [sys.executable, "-m", "compare.cli", "hw", str(config), "--out", str(tmp_path / "hw"), "-q"],
+        cwd=ROOT, capture_output=True, text=True, timeout=120,
+    )  # fmt: skip
+    assert res.returncode == 2, res.stderr
+    assert "camera transform missing" in res.stderr and "Traceback" not in res.stderr
+    assert res.stderr.count("\n") == 1
+
+
+def test_hw_help_lists_the_options():
+    res = subprocess.run(
+        [sys.executable, "-m", "compare.cli", "hw", "--help"], cwd=ROOT, capture_output=True, text=True, timeout=60
+    )
+    assert res.returncode == 0
+    for option in ("--method", "--dry-run", "--duration", "--out"):
+        assert option in res.stdout

@@ -1,0 +1,128 @@
+"""Closed-loop behaviour of the set-based logic (pure kinematics, q += q̇ dt at 100 Hz).
+
+A set-based task driven toward its threshold stops at the safety threshold, and lets go when
+the lower task pulls away (deactivation, eqs. 8–9): the same for a joint limit, a virtual wall,
+an obstacle distance and a corner where three of them are active at once.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from compare.bench.solver_cases import apply_state, case2_hierarchy, case2_states
+from tests.tpik.conftest import JointTargetTask, one_level_each, simulate
+from tpik.hierarchy import Hierarchy, Level
+from tpik.solver import TpikSettings, TpikSolver
+from tpik.tasks import JointLimitTask, ObstacleDistanceTask, PositionTask, Thresholds, VirtualWallTask
+
+TOL = 1e-3  # [rad] or [m]
+WALL = Thresholds(-0.05, 0.0, math.inf, math.inf, 0.03)
+
+
+def _sigma(task):
+    return lambda kin: task.compute_value_and_jacobian(kin)[0]
+
+
+def test_joint_driven_to_its_limit_stops_at_the_safety_threshold_then_leaves(jaco, solver):
+    limit = JointLimitTask.from_robot(jaco, 4, safety_margin=0.1, activation_margin=0.05)
+    safety = limit.thresholds.safety_lower
+    drive = JointTargetTask("drive_q4", 4, jaco.nq, target=jaco.q_lower[3] - 0.5)
+    h = one_level_each(limit, drive)
+    q0 = jaco.home.copy()
+    q0[3] = 1.0
+    q, results, q4 = simulate(jaco, h, solver, q0, 600, watch=lambda kin: float(kin.q[3]))
+    assert q4.min() >= safety - TOL
+    assert abs(q4[-1] - safety) <= TOL
+    assert results[-1].active_set == ("joint_limit_4",)
+    assert all(np.all(np.abs(r.qdot) <= jaco.v_max * (1 + 1e-9)) for r in results)
+    # The lower task now pulls away: the limit is released and the joint leaves it.
+    drive.target = 2.0
+    _, results, q4 = simulate(jaco, h, solver, q, 300, watch=lambda kin: float(kin.q[3]))
+    assert q4.min() >= safety - TOL
+    assert q4[-1] > 1.8
+    assert results[-1].active_set == ()
+
+
+def test_end_effector_stops_at_a_wall_then_leaves(jaco, solver):
+    kin = jaco.kinematics(jaco.home)
+    ee = kin.frame_position("end_effector")
+    wall = VirtualWallTask("wall", "end_effector", np.array([-1.0, 0.0, 0.0]), -(ee[0] + 0.1), WALL)
+    target = PositionTask("ee", target=ee + np.array([0.3, 0.0, 0.0]))
+    h = one_level_each(wall, target)
+    q, results, sigma = simulate(jaco, h, solver, jaco.home, 500, watch=_sigma(wall))
+    assert sigma.min() >= -TOL
+    assert abs(sigma[-1]) <= TOL
+    assert results[-1].active_set == ("wall",)
+    target.set_target(ee - np.array([0.1, 0.0, 0.0]))
+    _, results, sigma = simulate(jaco, h, solver, q, 300, watch=_sigma(wall))
+    assert sigma.min() >= -TOL
+    assert sigma[-1] > 0.15
+    assert results[-1].active_set == ()
+
+
+def test_control_point_keeps_the_safety_distance_then_leaves(jaco, solver):
+    kin = jaco.kinematics(jaco.home)
+    p = kin.frame_position("link_7")
+    ee = kin.frame_position("end_effector")
+    obstacle = p + np.array([0.5, 0.0, 0.0])
+    task = ObstacleDistanceTask("obstacle_link_7", "link_7", Thresholds(0.1, 0.35, math.inf, math.inf, 0.05))
+    task.set_obstacle(obstacle)
+    reach = PositionTask("ee", target=ee + np.array([0.4, 0.0, 0.0]))
+    h = one_level_each(task, reach)
+    q, results, dist = simulate(jaco, h, solver, jaco.home, 600, watch=_sigma(task))
+    assert dist.min() >= 0.35 - TOL
+    assert abs(dist[-1] - 0.35) <= TOL
+    assert results[-1].active_set == ("obstacle_link_7",)
+    reach.set_target(ee - np.array([0.1, 0.0, 0.0]))
+    _, results, dist = simulate(jaco, h, solver, q, 300, watch=_sigma(task))
+    assert dist.min() >= 0.35 - TOL
+    assert dist[-1] > 0.45
+    assert results[-1].active_set == ()
+
+
+def test_corner_of_two_walls_and_a_joint_limit_none_is_crossed(jaco, solver):
+    kin = jaco.kinematics(jaco.home)
+    ee = kin.frame_position("end_effector")
+    q2 = float(jaco.home[1])
+    limit = JointLimitTask("joint_limit_2", 2, jaco.nq, Thresholds(q2 - 0.2, q2 - 0.06, q2 + 0.06, q2 + 0.2, 0.03))
+    wall_x = VirtualWallTask("wall_x_max", "end_effector", np.array([-1.0, 0.0, 0.0]), -(ee[0] + 0.06), WALL)
+    wall_z = VirtualWallTask("wall_z_min", "end_effector", np.array([0.0, 0.0, 1.0]), ee[2] - 0.06, WALL)
+    target = PositionTask("ee", target=ee + np.array([0.4, 0.1, -0.4]))
+    h = Hierarchy(
+        [Level("joint_limits", (limit,)), Level("walls", (wall_x, wall_z)), Level("operational", (target,))]
+    )
+
+    def margins(kin):
+        return [limit.margins(limit.compute_value_and_jacobian(kin)[0])[0]] + [
+            w.compute_value_and_jacobian(kin)[0] for w in (wall_x, wall_z)
+        ]
+
+    _, results, m = simulate(jaco, h, solver, jaco.home, 500, watch=margins)
+    assert m.min() >= -TOL, f"crossed: worst margins {m.min(axis=0)}"
+    assert max(len(r.active_set) for r in results) == 3
+
+
+@pytest.mark.parametrize("variant", ["nsb", "ss"])
+def test_case2_hierarchy_from_the_benchmark_states_stays_safe(jaco, variant):
+    solver = TpikSolver(jaco, TpikSettings(variant=variant))
+    h = case2_hierarchy(jaco)
+    for state in case2_states(jaco):
+        apply_state(h, state)
+        # Push the EE outward toward the walls and beyond.
+        for task in h.tasks:
+            if isinstance(task, PositionTask):
+                task.set_target(np.array([0.9, 0.9, 1.2]))
+
+        def margins(kin):
+            out = []
+            for t in h.set_tasks:
+                sigma = t.compute_value_and_jacobian(kin)[0]
+                out.append(t.margins(sigma)[0] if math.isfinite(sigma) else 1.0)
+            return out
+
+        _, results, m = simulate(jaco, h, solver, state.q, 300, watch=margins)
+        assert m.min() >= -TOL, f"{state.name}: worst safety margins {m.min(axis=0)}"
+        assert all(r.ok for r in results)

@@ -1,0 +1,408 @@
+r"""The paper's analytic solver: set-based task-priority inverse kinematics (Di Lillo et al., sec. II).
+
+One control step (DESIGN §3):
+
+1. Every task is evaluated once at ``kin``. Equality tasks give the CLIK reference of eq. (2),
+   :math:`x = \dot\sigma_d + K\tilde\sigma`. A set-based task whose σ is past an activation
+   threshold is a *candidate*; its reference is :math:`K(\sigma_s - \sigma)` with σ_s the safety
+   threshold it crossed (eq. 7). Tasks with a non-finite σ (no obstacle in range) are inactive.
+   Gains are capped at ``1/dt``: one explicit-Euler step then never overshoots a target or a
+   safety threshold.
+2. For each subset S of the candidate set C (a *mode*), the tasks of S are inserted at their own
+   priority level as equality tasks, stacked with the level's other rows (eq. 5), and the
+   hierarchy is solved by the null-space cascade with damped least squares per level:
+
+   * ``"nsb"`` (default, eq. 4): :math:`\dot q = \dot q_1 + N_{1,1}\dot q_2 + \dots
+     + N_{1,h-1}\dot q_h` with :math:`\dot q_k = J_k^\# x_k`;
+   * ``"ss"`` (Siciliano–Slotine): :math:`\dot q_k = \dot q_{k-1} + (J_k N_{1,k-1})^\#
+     (x_k - J_k \dot q_{k-1})`: each level is compensated for the motion of the levels above.
+
+   :math:`N_{1,k}` is the exact (undamped) projector onto the null space of the augmented
+   Jacobian (eqs. 5–6), so a lower level never disturbs a higher one.
+3. A mode is *admissible* when no left-out candidate moves further out (eqs. 8–9):
+   :math:`J_A\dot q_S \le 0` past an upper threshold, :math:`\ge 0` past a lower one (to a
+   small tolerance). S = C is always admissible.
+4. Among admissible modes the one of largest :math:`\|\dot q_S\|` is taken (the least
+   restricted motion, Moe et al. 2016; ties go to the mode with fewer active tasks), then scaled
+   by one factor so that every joint is within its velocity limit (direction kept). Uniform
+   scaling keeps every sign of step 3 and only slows the convergence of the active tasks to
+   their thresholds, so it never makes a set-based task cross.
+
+Modes are enumerated depth-first over the levels (a level is solved once for all the modes that
+agree above it), in the row space of the tasks (:mod:`tpik.cascade`). Above
+``max_exhaustive_candidates`` candidates, the 2^|C| enumeration is replaced by *greedy release*:
+start from S = C and repeatedly drop the one task whose removal gives the best admissible mode,
+while that improves the selection rule: O(|C|²) cascades. Every mode it returns passes step 3,
+so the safety guarantee is the same; only optimality among modes is given up.
+
+Damping (sec. II-A): λ of each level comes from the smallest singular value of the matrix that
+level inverts — :math:`J_k` in ``nsb`` (eq. 4 inverts each level on its own), :math:`J_k
+N_{1,k-1}` in ``ss`` — with :math:`\sigma^* = \|x\|/\|\dot q\|_{\max}`, x being the level's
+CLIK reference (the paper's :math:`\|\tilde\sigma\|` for K = I and σ̇_d = 0; with a gain the
+reference keeps σ* a ratio of velocities). :math:`\|\dot q\|_{\max}` defaults to
+:math:`\|\dot q_{\max}\|_2`, the norm of the joint velocity limits (the largest joint-velocity
+norm the arm can produce): damping then acts only when a level alone could exceed what the arm
+can do, and the final scaling enforces the per-joint limits. The damping bounds every level's
+contribution by :math:`\|\dot q\|_{\max}`.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import time
+from collections.abc import Mapping
+from dataclasses import dataclass
+from typing import Any, ClassVar
+
+import numpy as np
+
+from robots import Kinematics, Robot
+from tpik.cascade import LevelRows, Mode, ModeSearch
+from tpik.exceptions import InvalidTaskState, TpikError
+from tpik.hierarchy import Hierarchy
+from tpik.step_result import SolveStatus, StepResult, failed
+from tpik.tasks.task import SetTask, Task
+
+VARIANTS: tuple[str, ...] = ("nsb", "ss")
+"""Solver variants; the first is the default."""
+
+SELECTIONS: tuple[str, ...] = ("largest_norm", "fewest_active")
+"""Rules to choose among admissible modes (see :class:`TpikSettings`)."""
+
+
+class InvalidSettings(TpikError, ValueError):
+    """A TPIK setting is unknown or has a bad value (the message names the key)."""
+
+
+@dataclass(frozen=True)
+class TpikSettings:
+    r"""Settings of :class:`TpikSolver`.
+
+    Attributes:
+        variant: ``"nsb"`` (eq. 4, default) or ``"ss"`` (Siciliano–Slotine, compensated).
+        selection: Rule among admissible modes. ``"largest_norm"`` (default; DESIGN §3, Moe
+            et al. 2016): largest :math:`\|\dot q_S\|`, ties to fewer active tasks.
+            ``"fewest_active"`` (a literal reading of the paper's eqs. 8–9: release a task as
+            soon as the solution without it is admissible): fewest active tasks, ties to the
+            largest norm.
+        max_exhaustive_candidates: Largest |C| for which all 2^|C| modes are tried; above it
+            the greedy release search is used.
+        velocity_norm_max: :math:`\|\dot q\|_{\max}` [rad/s] of the dynamic damping; None =
+            the 2-norm of the robot's joint velocity limits.
+        rank_tolerance: Singular values at or below this count as zero (projectors and
+            inverses) [task unit/rad].
+        admissibility_tolerance: Slack on :math:`J_A\dot q` in eqs. 8–9, against round-off
+            [task unit/s].
+    """
+
+    variant: str = VARIANTS[0]
+    selection: str = SELECTIONS[0]
+    max_exhaustive_candidates: int = 6
+    velocity_norm_max: float | None = None
+    rank_tolerance: float = 1e-6
+    admissibility_tolerance: float = 1e-9
+
+    def __post_init__(self) -> None:
+        if self.variant not in VARIANTS:
+            raise InvalidSettings(f"variant: unknown TPIK variant {self.variant!r}; known: {', '.join(VARIANTS)}")
+        if self.selection not in SELECTIONS:
+            raise InvalidSettings(f"selection: unknown rule {self.selection!r}; known: {', '.join(SELECTIONS)}")
+        if isinstance(self.max_exhaustive_candidates, bool) or not isinstance(self.max_exhaustive_candidates, int):
+            raise InvalidSettings(
+                f"max_exhaustive_candidates: must be an integer, got {self.max_exhaustive_candidates!r}"
+            )
+        if not 0 <= self.max_exhaustive_candidates <= 16:
+            raise InvalidSettings(
+                f"max_exhaustive_candidates: must be in 0..16 (2^16 modes), got {self.max_exhaustive_candidates}"
+            )
+        if self.velocity_norm_max is not None:
+            _check_number("velocity_norm_max", self.velocity_norm_max)
+        _check_number("rank_tolerance", self.rank_tolerance)
+        _check_number("admissibility_tolerance", self.admissibility_tolerance, allow_zero=True)
+
+    @classmethod
+    def from_dict(cls, values: Mapping[str, Any] | None) -> TpikSettings:
+        """Build settings from plain data (a config table).
+
+        Raises:
+            InvalidSettings: naming the unknown key or the bad value.
+        """
+        data = dict(values or {})
+        known = [f.name for f in dataclasses.fields(cls)]
+        for key in data:
+            if key not in known:
+                raise InvalidSettings(f"unknown TPIK setting '{key}'; known: {', '.join(known)}")
+        for key in ("variant", "selection"):
+            if key in data and not isinstance(data[key], str):
+                raise InvalidSettings(f"{key}: must be a string, got {data[key]!r}")
+        for key in ("velocity_norm_max", "rank_tolerance", "admissibility_tolerance"):
+            if data.get(key) is not None:
+                _check_number(key, data[key], allow_zero=True)
+                data[key] = float(data[key])
+        return cls(**data)
+
+
+def _check_number(key: str, value: object, allow_zero: bool = False) -> None:
+    if isinstance(value, bool) or not isinstance(value, int | float):
+        raise InvalidSettings(f"{key}: must be a number, got {value!r}")
+    ok = math.isfinite(value) and (value >= 0.0 if allow_zero else value > 0.0)
+    if not ok:
+        raise InvalidSettings(f"{key}: must be finite and {'>=' if allow_zero else '>'} 0, got {value!r}")
+
+
+@dataclass
+class _SetEntry:
+    """A set-based task of the plan, with its thresholds read once."""
+
+    task: SetTask
+    name: str
+    gain: float
+    act_lower: float
+    act_upper: float
+    safe_lower: float
+    safe_upper: float
+    fast: bool  # SetTask.compute_state not overridden: read (σ, J) directly
+
+
+@dataclass
+class _LevelPlan:
+    name: str
+    equality: list[Task]
+    set_tasks: list[_SetEntry]
+
+
+class TpikSolver:
+    """Set-based task-priority inverse kinematics (the paper's solver); see the module docstring.
+
+    Args:
+        robot: The robot (``nq`` and the joint velocity limits ``v_max`` are read from it).
+        settings: :class:`TpikSettings`; None = defaults.
+        name: Method name shown in reports (``"tpik"``, ``"tpik-ss"``).
+
+    Example::
+
+        solver = TpikSolver(robot)
+        qdot, report = solver.solve(hierarchy, robot.kinematics(q), dt=0.01)
+    """
+
+    VARIANTS: ClassVar[tuple[str, ...]] = VARIANTS
+
+    def __init__(self, robot: Robot, settings: TpikSettings | None = None, name: str = "tpik") -> None:
+        self.robot = robot
+        self.settings = settings if settings is not None else TpikSettings()
+        self.name = name
+        self.nq = int(robot.nq)
+        v_max = np.asarray(robot.v_max, dtype=float)
+        if v_max.shape != (self.nq,) or not np.all(np.isfinite(v_max)) or np.any(v_max <= 0.0):
+            raise InvalidSettings(f"robot '{robot.name}': joint velocity limits must be finite and > 0, got {v_max}")
+        self._inv_v_max = 1.0 / v_max
+        s = self.settings
+        self.velocity_norm_max = (
+            float(np.linalg.norm(v_max)) if s.velocity_norm_max is None else float(s.velocity_norm_max)
+        )
+        self._plan_for: Hierarchy | None = None
+        self._plan: list[_LevelPlan] = []
+
+    def __repr__(self) -> str:
+        return f"TpikSolver(name={self.name!r}, settings={self.settings})"
+
+    def _compile(self, hierarchy: Hierarchy) -> list[_LevelPlan]:
+        """Sort each level's tasks into equality and set-based ones, once per hierarchy object."""
+        if self._plan_for is hierarchy:
+            return self._plan
+        if not isinstance(hierarchy, Hierarchy):
+            raise TpikError(f"{self.name}: expected a tpik Hierarchy, got {type(hierarchy).__name__}")
+        plan: list[_LevelPlan] = []
+        for level in hierarchy.levels:
+            eq: list[Task] = []
+            st: list[_SetEntry] = []
+            for task in level.tasks:
+                if isinstance(task, SetTask):
+                    th = task.thresholds
+                    fast = type(task).compute_state is SetTask.compute_state
+                    st.append(
+                        _SetEntry(
+                            task,
+                            task.name,
+                            task.gain,
+                            th.activation_lower,
+                            th.activation_upper,
+                            th.safety_lower,
+                            th.safety_upper,
+                            fast,
+                        )
+                    )
+                else:
+                    eq.append(task)
+            plan.append(_LevelPlan(level.name, eq, st))
+        self._plan_for, self._plan = hierarchy, plan
+        return plan
+
+    def solve(self, hierarchy: Hierarchy, kin: Kinematics, dt: float) -> StepResult:
+        """One control step: joint velocities for ``hierarchy`` at ``kin.q`` over ``dt``.
+
+        Args:
+            hierarchy: Priority levels, highest first (the same object every step).
+            kin: Kinematics snapshot of the robot at the current ``q``.
+            dt: Control period [s].
+
+        Returns:
+            :class:`~tpik.step_result.StepResult`: ``qdot`` [rad/s] (finite, within the
+            velocity limits; zero and FAILED if the computation gave non-finite numbers), the
+            inserted set-based tasks (``active_set``), λ per level (``damping``), build/solve
+            times, and ``extras``: ``candidates`` (|C|), ``modes_evaluated``, ``search``
+            (``none``/``exhaustive``/``greedy``), ``velocity_scale`` (≤ 1), ``variant``.
+            DEGRADED (with a ``message``) when a level was damped, the velocity was scaled or
+            the greedy search was used.
+
+        Raises:
+            InvalidTaskState: a task returned a wrong shape or a non-finite Jacobian.
+            TpikError: ``kin`` is of a robot with another number of joints, ``dt`` is not a
+                finite number > 0, or ``hierarchy`` is not a :class:`~tpik.hierarchy.Hierarchy`.
+        """
+        t0 = time.perf_counter()
+        n = self.nq
+        if kin.nq != n:
+            raise TpikError(f"{self.name}: kinematics of a {kin.nq}-joint robot given to a solver for {n} joints")
+        if not (type(dt) is float or isinstance(dt, int | float)) or not (math.isfinite(dt) and dt > 0.0):
+            raise TpikError(f"{self.name}: dt must be a finite number > 0 [s], got {dt!r}")
+        plan = self._compile(hierarchy)
+        k_max = 1.0 / dt
+
+        # ---- 1. evaluate every task once; CLIK references (eq. 2) and candidates (eq. 7).
+        blocks: list[np.ndarray] = []  # the rows of A, level by level
+        x: list[float] = []
+        levels: list[LevelRows] = []
+        cand_row: list[int] = []
+        cand_side: list[float] = []
+        cand_names: list[str] = []
+        block_names: list[str] = []
+        for lp in plan:
+            eq_rows: list[int] = []
+            for task in lp.equality:
+                state = task.compute_state(kin)
+                m = state.value.shape[0]
+                if (
+                    state.jacobian.shape != (m, n)
+                    or state.error.shape != (m,)
+                    or state.feedforward.shape != (m,)
+                    or state.desired.shape != (m,)
+                ):
+                    state.validate(task.name, n)  # raises InvalidTaskState naming the array
+                gain = task.gain if task.gain < k_max else k_max
+                first = len(x)
+                x.extend((state.feedforward + gain * state.error).tolist())
+                eq_rows.extend(range(first, len(x)))
+                blocks.append(state.jacobian)
+                block_names.append(task.name)
+            cands: list[int] = []
+            for entry in lp.set_tasks:
+                if entry.fast:
+                    sigma_raw, jac = entry.task.compute_value_and_jacobian(kin)
+                    sigma = float(sigma_raw)
+                else:
+                    state = entry.task.compute_state(kin)
+                    state.validate(entry.name, n)
+                    sigma, jac = float(state.value[0]), state.jacobian
+                if jac.shape != (1, n):
+                    raise InvalidTaskState(f"task '{entry.name}': jacobian has shape {jac.shape}, expected (1, {n})")
+                if entry.act_upper <= sigma < math.inf:
+                    side, target = 1.0, entry.safe_upper
+                elif -math.inf < sigma <= entry.act_lower:
+                    side, target = -1.0, entry.safe_lower
+                else:
+                    continue  # inside the activation thresholds, or non-finite σ: inactive
+                gain = entry.gain if entry.gain < k_max else k_max
+                cands.append(len(cand_row))
+                cand_row.append(len(x))
+                cand_side.append(side)
+                cand_names.append(entry.name)
+                x.append(gain * (target - sigma))
+                blocks.append(jac)
+                block_names.append(entry.name)
+            if eq_rows or cands:
+                levels.append(LevelRows(lp.name, eq_rows, cands))
+        n_cand = len(cand_row)
+        extras: dict[str, Any] = {"candidates": n_cand, "variant": self.settings.variant}
+        if not blocks:
+            # Only set-based tasks, all inside their activation thresholds: nothing to do.
+            extras.update(modes_evaluated=0, search="none", velocity_scale=1.0)
+            return StepResult(np.zeros(n), SolveStatus.OK, (), time.perf_counter() - t0, 0.0, {}, "", extras)
+        A = blocks[0] if len(blocks) == 1 else np.concatenate(blocks)
+        if not np.isfinite(A).all():
+            _raise_non_finite(block_names, blocks)
+        t1 = time.perf_counter()
+
+        # ---- 2–4. mode search (cascade per mode, admissibility, selection).
+        s = self.settings
+        search = ModeSearch(
+            A,
+            x,
+            levels,
+            cand_row,
+            cand_side,
+            ss=s.variant == "ss",
+            velocity_norm_max=self.velocity_norm_max,
+            rank_tol=s.rank_tolerance,
+            admissibility_tol=s.admissibility_tolerance,
+            largest_norm=s.selection == "largest_norm",
+        )
+        mode: Mode | None
+        if n_cand == 0:
+            mode, how = search.single(0), "none"
+        elif n_cand <= s.max_exhaustive_candidates:
+            mode, how = search.exhaustive(), "exhaustive"
+        else:
+            mode, how = search.greedy(), "greedy"
+        extras["modes_evaluated"] = search.evaluated
+        extras["search"] = how
+        if mode is None:
+            return failed(n, f"{self.name}: every mode gave a non-finite velocity", **extras)
+        qdot = search.velocity(mode)
+        # ---- joint velocity limits: one scale factor, direction kept.
+        ratio = float((np.abs(qdot) * self._inv_v_max).max())
+        if not math.isfinite(ratio):  # NaN or inf anywhere in q̇
+            return failed(n, f"{self.name}: the cascade produced a non-finite velocity", **extras)
+        scale = 1.0
+        if ratio > 1.0:
+            scale = 1.0 / ratio
+            qdot *= scale
+        t2 = time.perf_counter()
+        extras["velocity_scale"] = scale
+
+        damping = {lv.name: lam for lv, lam in zip(levels, mode.damping, strict=True)}
+        active = tuple(cand_names[c] for c in range(n_cand) if mode.mask >> c & 1)
+        reasons = []
+        if scale < 1.0:
+            reasons.append(f"velocity scaled by {scale:.3g} to the joint limits")
+        damped = [name for name, lam in damping.items() if lam > 0.0]
+        if damped:
+            reasons.append(f"damped level(s): {', '.join(damped)}")
+        if how == "greedy":
+            reasons.append(f"greedy active-set search over {n_cand} candidates")
+        return StepResult(
+            qdot,
+            SolveStatus.DEGRADED if reasons else SolveStatus.OK,
+            active,
+            t1 - t0,
+            t2 - t1,
+            damping,
+            "; ".join(reasons),
+            extras,
+        )
+
+
+def _raise_non_finite(names: list[str], blocks: list[np.ndarray]) -> None:
+    """Name the task whose Jacobian has non-finite entries (the slow path of the check)."""
+    for name, block in zip(names, blocks, strict=True):
+        if not np.isfinite(block).all():
+            raise InvalidTaskState(f"task '{name}': jacobian has non-finite entries")
+
+
+def solve_tpik(hierarchy: Hierarchy, kin: Kinematics, dt: float, settings: TpikSettings | None = None) -> StepResult:
+    """Functional form of :meth:`TpikSolver.solve` for ``kin.robot`` (builds a solver per call)."""
+    return TpikSolver(kin.robot, settings).solve(hierarchy, kin, dt)
+
+
+__all__ = ["SELECTIONS", "VARIANTS", "InvalidSettings", "TpikSettings", "TpikSolver", "solve_tpik"]
