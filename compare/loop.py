@@ -233,8 +233,8 @@ def run_loop(
         except Exception as exc:  # a solver bug must not kill the run: log it, use the fallback
             qdot, status, active, message = np.zeros(robot.nq), SolveStatus.FAILED, (), f"{type(exc).__name__}: {exc}"
         solve_us = (time.perf_counter_ns() - wall0) * 1e-3
-        # Each step takes a fresh snapshot; the solver's one is stale once we take ours.
-        kin = robot.kinematics(reading.q)
+        if not kin.is_current:  # a solver computed kinematics of its own: take a fresh snapshot
+            kin = robot.kinematics(reading.q)
 
         reason = message if status is SolveStatus.FAILED else _guard(np.asarray(qdot, dtype=float), v_max)
         fallback = reason is not None

@@ -82,27 +82,36 @@ SUPPORTED_SOLVERS: tuple[str, ...] = ("daqp", "quadprog", "osqp", "proxqp", "cla
 """QP backends this module is tested with."""
 
 SOLVER_DEFAULTS: dict[str, dict[str, Any]] = {
-    # Active-set solvers: exact on their active set, defaults are fine.
+    # Active-set solvers: exact on their active set, defaults are fine (near-singular Hessians
+    # are the regularisation's business).
     "daqp": {},
     "quadprog": {},
-    # OSQP's defaults (eps 1e-3, no polish) leave bound violations of ~1e-3: tighten and polish
-    # (a solve of the reduced KKT system on the detected active set).
-    "osqp": {"eps_abs": 1e-8, "eps_rel": 0.0, "polish": True, "max_iter": 20000},
-    # ProxQP's default eps_abs is 1e-3 (qpsolvers documentation); much tighter than 1e-7 and it
-    # reports PRIMAL_INFEASIBLE on feasible problems once its residual stalls above eps_abs.
-    "proxqp": {"eps_abs": 1e-7, "eps_rel": 0.0},
+    # OSQP's defaults (eps 1e-3, no polish) leave bound violations of ~1e-3. Polishing solves the
+    # KKT system of the detected active set (exact when it succeeds); eps 1e-6 for when it does
+    # not. Tighter eps mostly ends in "maximum iterations reached" on our problems.
+    "osqp": {"eps_abs": 1e-6, "eps_rel": 0.0, "polish": True, "max_iter": 20000},
+    # ProxQP's default eps_abs is 1e-3 (qpsolvers documentation). Its default equality-constrained
+    # initial guess ends in PROXQP_PRIMAL_INFEASIBLE on many of our (feasible) level QPs.
+    "proxqp": {"eps_abs": 1e-9, "eps_rel": 0.0, "initial_guess": "NO_INITIAL_GUESS"},
     "clarabel": {"tol_feas": 1e-9, "tol_gap_abs": 1e-9, "tol_gap_rel": 1e-9},
     "piqp": {"eps_abs": 1e-9, "eps_rel": 0.0},
 }
-"""Settings each backend starts from; user settings override them key by key."""
+"""Settings each backend starts from; user settings override them key by key. ProxQP's
+``initial_guess`` may be given by name (``"NO_INITIAL_GUESS"``, ``"WARM_START"``, ...)."""
 
 RETRY_SETTINGS: dict[str, dict[str, Any]] = {
     "daqp": {},
     "quadprog": {},
     "osqp": {"eps_abs": 1e-7, "eps_rel": 0.0, "polish": True, "max_iter": 200000},
-    # ProxQP's false infeasibility: solve the closest feasible problem instead, then our own
-    # feasibility check decides (every level QP is feasible by construction).
-    "proxqp": {"eps_abs": 1e-7, "eps_rel": 0.0, "max_iter": 100000, "primal_infeasibility_solving": True},
+    # ProxQP's false infeasibility: solve the closest feasible problem instead; our own feasibility
+    # check decides (every level QP is feasible by construction).
+    "proxqp": {
+        "eps_abs": 1e-7,
+        "eps_rel": 0.0,
+        "max_iter": 100000,
+        "initial_guess": "NO_INITIAL_GUESS",
+        "primal_infeasibility_solving": True,
+    },
     "clarabel": {"tol_feas": 1e-7, "tol_gap_abs": 1e-7, "tol_gap_rel": 1e-7, "max_iter": 500},
     "piqp": {"eps_abs": 1e-7, "eps_rel": 0.0, "max_iter": 1000},
 }
@@ -114,7 +123,7 @@ RETRY_REGULARIZATION = 1e-6
 TOLERANCES: dict[str, float] = {
     "daqp": 1e-6,
     "quadprog": 1e-6,
-    "osqp": 1e-5,
+    "osqp": 1e-5,  # polishing may fail: then OSQP's own eps (scaled) applies
     "proxqp": 1e-6,
     "clarabel": 1e-6,
     "piqp": 1e-6,
@@ -167,6 +176,24 @@ def _quiet_stdout(enabled: bool) -> Iterator[None]:
         os.close(saved)
 
 
+def backend_kwargs(solver: str, settings: Mapping[str, Any]) -> dict[str, Any]:
+    """Settings as the backend takes them: ProxQP's ``initial_guess`` name becomes its enum.
+
+    Raises:
+        InvalidSettings: Unknown ``initial_guess`` name.
+    """
+    kwargs = dict(settings)
+    guess = kwargs.get("initial_guess")
+    if solver == "proxqp" and isinstance(guess, str):
+        from proxsuite import proxqp
+
+        names = proxqp.InitialGuess.__members__
+        if guess not in names:
+            raise InvalidSettings(solver, f"setting 'initial_guess' must be one of {', '.join(names)}, got {guess!r}")
+        kwargs["initial_guess"] = names[guess]
+    return kwargs
+
+
 def _solve_quietly(problem: qpsolvers.Problem, solver: str, quiet: bool, **kwargs: Any) -> qpsolvers.Solution:
     with warnings.catch_warnings(), _quiet_stdout(quiet):
         warnings.simplefilter("ignore")
@@ -199,7 +226,7 @@ def probe_settings(solver: str, settings: Mapping[str, Any]) -> None:
     else:
         problem = qpsolvers.Problem(P, np.array([-1.0, -1.0]), G, np.ones(1))
     try:
-        solution = _solve_quietly(problem, solver, solver == "osqp", **dict(settings))
+        solution = _solve_quietly(problem, solver, solver == "osqp", **backend_kwargs(solver, settings))
     except Exception as exc:  # noqa: BLE001 - whatever the backend raises is a settings error here
         key = next((k for k in settings if re.search(rf"\b{re.escape(k)}\b", str(exc))), None)
         named = f"setting '{key}'" if key else f"settings {dict(settings)}"
@@ -217,7 +244,7 @@ class HqpSettings:
         tolerance: Accepted constraint violation of a backend answer [rad/s or m/s]; the
             backend's entry of :data:`TOLERANCES` when None.
         slack_tolerance: A slack above this makes the step DEGRADED; a row within it of its bound
-            is reported binding (active set) [task unit / s].
+            is reported binding (active set) [task unit / s]. ``max(1e-6, tolerance)`` when None.
         rank_tolerance: Relative singular-value threshold of the null-space bases.
         unconstrained_first: Skip the backend when a level's unconstrained minimiser is feasible.
         min_norm_level: Solve the final min-norm level; :data:`MIN_NORM_LEVEL` when None.
@@ -226,7 +253,7 @@ class HqpSettings:
 
     regularization: float = 1e-9
     tolerance: float | None = None
-    slack_tolerance: float = 1e-6
+    slack_tolerance: float | None = None
     rank_tolerance: float = 1e-9
     unconstrained_first: bool = True
     min_norm_level: bool | None = None
@@ -236,7 +263,7 @@ class HqpSettings:
         """Raise :class:`InvalidSettings` naming the first bad value."""
         for key in ("regularization", "slack_tolerance", "rank_tolerance", "tolerance"):
             value = getattr(self, key)
-            if value is None and key == "tolerance":
+            if value is None and key in ("tolerance", "slack_tolerance"):
                 continue
             number = isinstance(value, int | float) and not isinstance(value, bool)
             if not (number and math.isfinite(value) and value > 0):
@@ -301,8 +328,10 @@ class HqpSolver:
         self.options, user_kwargs = split_settings(solver, settings)
         probe_settings(solver, user_kwargs)
         self.qp_settings: dict[str, Any] = {**SOLVER_DEFAULTS[solver], **user_kwargs}
-        self._retry_settings: dict[str, Any] = {**self.qp_settings, **RETRY_SETTINGS[solver]}
+        self._kwargs = backend_kwargs(solver, self.qp_settings)
+        self._retry_kwargs = backend_kwargs(solver, {**self.qp_settings, **RETRY_SETTINGS[solver]})
         self.tolerance = float(self.options.tolerance or TOLERANCES[solver])
+        self.slack_tolerance = float(self.options.slack_tolerance or max(1e-6, self.tolerance))
         mnl = self.options.min_norm_level
         self.min_norm_level = MIN_NORM_LEVEL[solver] if mnl is None else mnl
         self._sparse = solver in _SPARSE_SOLVERS
@@ -451,6 +480,7 @@ class HqpSolver:
         iterations: dict[str, int] = {}
         qp_calls = retries = 0
         status, message = SolveStatus.OK, ""
+        min_norm_failure = ""
         n_levels = len(self._levels)
         k_start = 0
         if self.options.unconstrained_first:
@@ -478,6 +508,10 @@ class HqpSolver:
             except NoSolutionFound as exc:
                 if k == 0:
                     return self._failed(f"{self.name}: {exc}", t_start, k)
+                if k == n_levels:
+                    # The min-norm level only picks among equally good answers: keep the one we have.
+                    min_norm_failure = str(exc)
+                    break
                 status = SolveStatus.DEGRADED
                 message = f"{self.name}: {exc}; kept the solution of the levels above"
                 break
@@ -497,7 +531,7 @@ class HqpSolver:
                     Z = self._null_space(J, Z)
         np.maximum(qd, lb, out=qd)
         np.minimum(qd, ub, out=qd)
-        s_tol = self.options.slack_tolerance
+        s_tol = self.slack_tolerance
         slacks: dict[str, dict[str, float]] = {}
         active: list[str] = []
         relaxed: list[str] = []
@@ -539,6 +573,7 @@ class HqpSolver:
                 "qp_calls": qp_calls,
                 "iterations": iterations,
                 "retries": retries,
+                "min_norm_failure": min_norm_failure,
             },
         )
 
@@ -650,9 +685,9 @@ class HqpSolver:
             q_vec = np.concatenate([qz, np.zeros(m)])
             x0 = np.concatenate([np.zeros(d), violation])
             f0 = 0.5 * float(violation @ violation)
-        attempts: list[tuple[dict[str, Any], float]] = [(self.qp_settings, 0.0)]
+        attempts: list[tuple[dict[str, Any], float]] = [(self._kwargs, 0.0)]
         if self.options.retry:
-            attempts.append((self._retry_settings, RETRY_REGULARIZATION))
+            attempts.append((self._retry_kwargs, RETRY_REGULARIZATION))
         tol = self.tolerance
         last_solution: Any = None
         reason = ""

@@ -42,6 +42,11 @@ class Kinematics:
             raise StaleKinematics("this Kinematics snapshot is stale: robot.kinematics() was called again since")
 
     @property
+    def is_current(self) -> bool:
+        """Whether this snapshot is still the robot's latest (not stale)."""
+        return self.robot.is_current(self._generation)
+
+    @property
     def nq(self) -> int:
         """Number of joints ``n``."""
         return self.robot.nq

@@ -22,11 +22,13 @@ One control step (DESIGN §3):
 3. A mode is *admissible* when no left-out candidate moves further out (eqs. 8–9):
    :math:`J_A\dot q_S \le 0` past an upper threshold, :math:`\ge 0` past a lower one (to a
    small tolerance). S = C is always admissible.
-4. Among admissible modes the one of largest :math:`\|\dot q_S\|` is taken (the least
-   restricted motion, Moe et al. 2016; ties go to the mode with fewer active tasks), then scaled
-   by one factor so that every joint is within its velocity limit (direction kept). Uniform
-   scaling keeps every sign of step 3 and only slows the convergence of the active tasks to
-   their thresholds, so it never makes a set-based task cross.
+4. Among admissible modes, ``nsb`` takes the one of largest :math:`\|\dot q_S\|` (the least
+   restricted motion, Moe et al. 2016; ties go to the mode with fewer active tasks); ``ss``
+   takes the one with the fewest active tasks (ties to the largest norm), see
+   :attr:`TpikSettings.selection`. The result is then scaled by one factor so that every joint
+   is within its velocity limit (direction kept). Uniform scaling keeps every sign of step 3 and
+   only slows the convergence of the active tasks to their thresholds, so it never makes a
+   set-based task cross.
 
 Modes are enumerated depth-first over the levels (a level is solved once for all the modes that
 agree above it), in the row space of the tasks (:mod:`tpik.cascade`). Above
@@ -67,8 +69,10 @@ from tpik.tasks.task import SetTask, Task
 VARIANTS: tuple[str, ...] = ("nsb", "ss")
 """Solver variants; the first is the default."""
 
-SELECTIONS: tuple[str, ...] = ("largest_norm", "fewest_active")
+SELECTIONS: tuple[str, ...] = ("auto", "largest_norm", "fewest_active")
 """Rules to choose among admissible modes (see :class:`TpikSettings`)."""
+
+_AUTO_SELECTION = {"nsb": "largest_norm", "ss": "fewest_active"}
 
 
 class InvalidSettings(TpikError, ValueError):
@@ -81,11 +85,16 @@ class TpikSettings:
 
     Attributes:
         variant: ``"nsb"`` (eq. 4, default) or ``"ss"`` (Siciliano–Slotine, compensated).
-        selection: Rule among admissible modes. ``"largest_norm"`` (default; DESIGN §3, Moe
-            et al. 2016): largest :math:`\|\dot q_S\|`, ties to fewer active tasks.
+        selection: Rule among admissible modes. ``"largest_norm"`` (DESIGN §3, Moe et al.
+            2016): largest :math:`\|\dot q_S\|`, ties to fewer active tasks.
             ``"fewest_active"`` (a literal reading of the paper's eqs. 8–9: release a task as
             soon as the solution without it is admissible): fewest active tasks, ties to the
-            largest norm.
+            largest norm. ``"auto"`` (default): ``largest_norm`` for ``nsb``, ``fewest_active``
+            for ``ss`` — in NSB the projections only shrink the lower levels' terms, so the
+            least restricted mode has the largest norm; in SS the compensated
+            :math:`(J_kN_{1,k-1})^\#` grows as more tasks are inserted, so the largest norm
+            would keep a task held at its threshold although releasing it is admissible
+            (a task sticks; ``tests/tpik/test_solver_closed_loop.py`` shows it).
         max_exhaustive_candidates: Largest |C| for which all 2^|C| modes are tried; above it
             the greedy release search is used.
         velocity_norm_max: :math:`\|\dot q\|_{\max}` [rad/s] of the dynamic damping; None =
@@ -97,7 +106,7 @@ class TpikSettings:
     """
 
     variant: str = VARIANTS[0]
-    selection: str = SELECTIONS[0]
+    selection: str = "auto"
     max_exhaustive_candidates: int = 6
     velocity_norm_max: float | None = None
     rank_tolerance: float = 1e-6
@@ -120,6 +129,11 @@ class TpikSettings:
             _check_number("velocity_norm_max", self.velocity_norm_max)
         _check_number("rank_tolerance", self.rank_tolerance)
         _check_number("admissibility_tolerance", self.admissibility_tolerance, allow_zero=True)
+
+    @property
+    def selection_rule(self) -> str:
+        """The rule actually used: ``selection`` with ``"auto"`` resolved for the variant."""
+        return _AUTO_SELECTION[self.variant] if self.selection == "auto" else self.selection
 
     @classmethod
     def from_dict(cls, values: Mapping[str, Any] | None) -> TpikSettings:
@@ -324,7 +338,11 @@ class TpikSolver:
             if eq_rows or cands:
                 levels.append(LevelRows(lp.name, eq_rows, cands))
         n_cand = len(cand_row)
-        extras: dict[str, Any] = {"candidates": n_cand, "variant": self.settings.variant}
+        extras: dict[str, Any] = {
+            "candidates": n_cand,
+            "variant": self.settings.variant,
+            "selection": self.settings.selection_rule,
+        }
         if not blocks:
             # Only set-based tasks, all inside their activation thresholds: nothing to do.
             extras.update(modes_evaluated=0, search="none", velocity_scale=1.0)
@@ -346,7 +364,7 @@ class TpikSolver:
             velocity_norm_max=self.velocity_norm_max,
             rank_tol=s.rank_tolerance,
             admissibility_tol=s.admissibility_tolerance,
-            largest_norm=s.selection == "largest_norm",
+            largest_norm=s.selection_rule == "largest_norm",
         )
         mode: Mode | None
         if n_cand == 0:

@@ -79,57 +79,43 @@ class World:
     close: Callable[[], None]
 
 
-def build_world(config: Config, robot: robots.Robot, dt: float) -> World:
-    """The scenario's simulation (scene, person, camera) for the stand-in."""
+def build_world(config: Config, robot: robots.Robot) -> World:
+    """The scenario's simulation (scene, scripted person, raw depth camera) for the stand-in."""
+    from compare.simulation import build_simulation
+
     sc = config.scenario
     q0 = np.array(sc.start_q) if sc.start_q is not None else robot.home.copy()
-    try:
-        from compare.simulation import build_simulation
-    except ImportError:  # pragma: no cover - only while compare.simulation is not there
-        log.warning("compare.simulation not available: arm alone, no scene, no camera")
-        io = SimRobotIO(robot.mj_model, robot.nq, dt, q0, mode="kinematic")
-        return World(io, None, None, None, lambda: None)
     sim = build_simulation(config, robot, q0)
     io = sim.io
-    camera_obj = _depth_camera(config, io)
+    if sim.pipeline is not None:  # depth mode: its camera renders the raw frames (arm included)
+        renderer = sim.pipeline.renderer
+        own = False
+    else:
+        from compare.sensing.pipeline import DepthSensingSettings
+        from compare.sensing.renderer import DepthCamera
+
+        settings = DepthSensingSettings.from_sensor_config(config.sensor, seed=sc.seed)
+        renderer = DepthCamera(io.model, settings.camera, noise=settings.noise, seed=sc.seed)
+        own = True
 
     def render() -> DepthFrame:
-        return camera_obj.render(io.data)
+        return renderer.render(io.data)
 
     def close() -> None:
-        if hasattr(camera_obj, "close"):
-            camera_obj.close()
+        if own:
+            renderer.close()
         sim.close()
 
-    return World(
-        io=io,
-        render_depth=render if camera_obj is not None else None,
-        truth=getattr(sim, "truth", None),
-        camera=camera_obj.camera if camera_obj is not None else None,
-        close=close,
-    )
+    return World(io=io, render_depth=render, truth=sim.truth, camera=renderer.camera, close=close)
 
 
-def _depth_camera(config: Config, io: SimRobotIO) -> Any:
-    """A raw depth camera on the scene (no self-filter: a real sensor sees the arm)."""
-    from compare.sensing.camera import DepthNoise
-    from compare.sensing.renderer import DepthCamera
-
-    noise = DepthNoise(std_m=config.sensor.noise_std_m, dropout=config.sensor.dropout)
-    return DepthCamera(io.model, noise=noise, seed=config.scenario.seed)
-
-
-def camera_calibration(config: Config) -> dict[str, list[float]]:
-    """The ``[hardware]`` camera pose of the simulated camera: what a perfect calibration gives."""
+def camera_calibration() -> dict[str, list[float]]:
+    """The ``[hardware]`` camera pose of the work cell's camera: what a perfect calibration gives."""
     from compare.sensing.camera import camera_model_from_mujoco
+    from compare.sensing.scene import load_workcell
 
-    robot = robots.load("jaco2")
-    world = build_world(config, robot, config.scenario.dt)
-    try:
-        cam = world.camera or camera_model_from_mujoco(world.io.model)
-        t, q = translation_quaternion_from_transform(cam.transform_base_to_camera)
-    finally:
-        world.close()
+    model = load_workcell()
+    t, q = translation_quaternion_from_transform(camera_model_from_mujoco(model).transform_base_to_camera)
     return {"camera_translation_m": list(t), "camera_quaternion_xyzw": list(q)}
 
 
@@ -335,14 +321,14 @@ def main(argv: list[str] | None = None) -> int:
     robot = robots.load("jaco2")
     config = realize(config, robot)
     if args.print_calibration:
-        print(json.dumps(camera_calibration(config)))
+        print(json.dumps(camera_calibration()))
         return 0
     ros = load_ros()
     uri = ros.rosgraph.get_master_uri()
     if not master_online(uri, 2.0):
         print(f"error: no ROS master at {uri}", file=sys.stderr)
         return 2
-    world = build_world(config, robot, config.scenario.dt)
+    world = build_world(config, robot)
     if args.no_depth:
         world.render_depth = None
     init_node(ros, "j2s7s300_driver_standin")

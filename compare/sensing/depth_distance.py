@@ -97,9 +97,7 @@ class DepthDistance:
         """
         cam = self.camera
         p = np.ascontiguousarray(np.atleast_2d(np.asarray(p_sensor, dtype=float)))
-        return surveillance_boxes(
-            p, self.rho_m, cam.fx, cam.fy, cam.cx, cam.cy, cam.width, cam.height, cam.min_range_m
-        )
+        return surveillance_boxes(p, self.rho_m, cam.fx, cam.fy, cam.cx, cam.cy, cam.width, cam.height, cam.min_range_m)
 
     def surveillance_box(self, p_sensor: np.ndarray) -> tuple[int, int, int, int] | None:
         """Box of one point (see :meth:`surveillance_boxes`); None when out of view."""

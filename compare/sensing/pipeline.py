@@ -59,7 +59,7 @@ class DepthSensingSettings:
 
     @classmethod
     def from_sensor_config(cls, sensor: Any, seed: int = 0, **overrides: Any) -> DepthSensingSettings:
-        """From a ``compare.config.SensorConfig`` (noise_std_m, dropout, rho_m, self_filter_margin_m, blind_fraction)."""
+        """From a ``compare.config.SensorConfig`` (its noise, dropout, ρ, self-filter margin, blind fraction)."""
         values = {
             "rho_m": sensor.rho_m,
             "self_filter_margin_m": sensor.self_filter_margin_m,
@@ -118,8 +118,11 @@ class DepthPipeline:
     __call__ = render
 
     def filter(self, frame: DepthFrame, q: np.ndarray | None = None, data: mujoco.MjData | None = None) -> DepthFrame:
-        """Remove the static scene and the arm (at ``q`` [rad], or as in ``data``) from ``frame``."""
-        depth = np.nan_to_num(frame.depth_m, nan=0.0, posinf=0.0, neginf=0.0).astype(np.float32, copy=False)
+        """Remove the static scene and the arm (at ``q`` [rad], or as in ``data``) from ``frame``.
+
+        Returns a new frame; NaN pixels (no return) stay NaN, which no later stage reads as obstacle.
+        """
+        depth = np.array(frame.depth_m, dtype=np.float32, copy=True)
         self.background.apply_inplace(depth)
         self.self_filter.apply_inplace(depth, q=q, data=data)
         return DepthFrame(depth, frame.stamp_s, frame.camera)

@@ -42,7 +42,7 @@ def make_data(model: mujoco.MjModel, q: np.ndarray | None = None, keyframe: str 
 
 
 def arm_qpos_addresses(model: mujoco.MjModel, prefix: str = "j2s7s300_joint_") -> np.ndarray:
-    """qpos addresses of the arm joints, in joint order."""
+    """Addresses in ``qpos`` of the arm joints, in joint order."""
     joints = [j for j in range(model.njnt) if model.joint(j).name.startswith(prefix)]
     return model.jnt_qposadr[joints]
 

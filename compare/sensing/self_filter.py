@@ -122,9 +122,7 @@ class SelfFilter:
         """World positions (n, 3) and rotation matrices (n, 3, 3) of the arm geoms in ``data``."""
         return data.geom_xpos[self.geom_ids].copy(), data.geom_xmat[self.geom_ids].reshape(-1, 3, 3).copy()
 
-    def apply(
-        self, frame: DepthFrame, q: np.ndarray | None = None, data: mujoco.MjData | None = None
-    ) -> DepthFrame:
+    def apply(self, frame: DepthFrame, q: np.ndarray | None = None, data: mujoco.MjData | None = None) -> DepthFrame:
         """A copy of ``frame`` without the arm's pixels (0 = removed).
 
         Args:
@@ -133,58 +131,59 @@ class SelfFilter:
             data: Simulation state at capture time (after ``mj_kinematics``).
 
         Returns:
-            The filtered frame (NaN pixels become 0).
+            The filtered frame (a copy; NaN pixels stay NaN = no return).
         """
-        depth = np.nan_to_num(frame.depth_m, nan=0.0, posinf=0.0, neginf=0.0).astype(np.float32, copy=False)
-        if depth is frame.depth_m:
-            depth = depth.copy()
+        depth = np.array(frame.depth_m, dtype=np.float32, copy=True)
         self.apply_inplace(depth, q=q, data=data)
         return DepthFrame(depth, frame.stamp_s, frame.camera)
 
     def apply_inplace(self, depth: np.ndarray, q: np.ndarray | None = None, data: mujoco.MjData | None = None) -> int:
-        """Zero the arm's pixels of a float32 depth image (no NaN) in place; return how many."""
+        """Zero the arm's pixels of a float32 depth image in place (NaN pixels are left alone); return how many."""
         if (q is None) == (data is None):
             raise SensingError("pass exactly one of q (joint positions) or data (MuJoCo state)")
         pos, rot = self.geom_poses_from_q(q) if q is not None else self.geom_poses(data)  # type: ignore[arg-type]
-        cam = self.camera
-        T = cam.transform_base_to_camera
+        T = self.camera.transform_base_to_camera
         R_bc, t_bc = T[:3, :3], T[:3, 3]
         centres = (pos - t_bc) @ R_bc  # (n, 3) in the sensor frame
         rots = np.einsum("ji,njk->nik", R_bc, rot)  # geom axes in the sensor frame, (n, 3, 3)
         height, width = depth.shape
         removed = 0
-        for i in range(self.geom_ids.size):
-            c = centres[i]
-            reach = float(self._rbound[i] + self._margin(max(c[2] + self._rbound[i], 0.0)))
-            box = _sphere_box(cam, c, reach, width, height)
-            if box is None:
-                continue
-            v0, v1, u0, u1 = box
-            crop = depth[v0:v1, u0:u1]
-            d = crop
-            # Sensor-frame points of the crop, relative to the geom centre, in geom axes.
-            x = self._xn[u0:u1][None, :] * d - np.float32(c[0])
-            y = self._yn[v0:v1][:, None] * d - np.float32(c[1])
-            z = d - np.float32(c[2])
-            r = rots[i].astype(np.float32)
-            lx = x * r[0, 0] + y * r[1, 0] + z * r[2, 0]
-            ly = x * r[0, 1] + y * r[1, 1] + z * r[2, 1]
-            lz = x * r[0, 2] + y * r[1, 2] + z * r[2, 2]
-            if self._exact[i]:
-                sd = _signed_distance(int(self._types[i]), self._sizes[i], lx, ly, lz)
-            else:
-                sd = np.sqrt(lx * lx + ly * ly + lz * lz) - np.float32(self._rbound[i])
-            hit = (sd <= self._margin(d)) & (d > 0)
-            n = int(np.count_nonzero(hit))
-            if n:
-                crop[hit] = 0.0
-                removed += n
+        with np.errstate(invalid="ignore", over="ignore"):  # inf/NaN pixels: comparisons are False
+            for i in range(self.geom_ids.size):
+                removed += self._remove_near_geom(depth, i, centres[i], rots[i], width, height)
         return removed
 
+    def _remove_near_geom(
+        self, depth: np.ndarray, i: int, c: np.ndarray, rot: np.ndarray, width: int, height: int
+    ) -> int:
+        """Zero the pixels of ``depth`` within the inflated geom ``i`` (centre/axes in the sensor frame)."""
+        reach = float(self._rbound[i] + self._margin(max(c[2] + self._rbound[i], 0.0)))
+        box = _sphere_box(self.camera, c, reach, width, height)
+        if box is None:
+            return 0
+        v0, v1, u0, u1 = box
+        crop = depth[v0:v1, u0:u1]
+        d = crop  # a view: zeroing hits below edits ``depth``
+        # Sensor-frame points of the crop, relative to the geom centre, in geom axes.
+        x = self._xn[u0:u1][None, :] * d - np.float32(c[0])
+        y = self._yn[v0:v1][:, None] * d - np.float32(c[1])
+        z = d - np.float32(c[2])
+        r = rot.astype(np.float32)
+        lx = x * r[0, 0] + y * r[1, 0] + z * r[2, 0]
+        ly = x * r[0, 1] + y * r[1, 1] + z * r[2, 1]
+        lz = x * r[0, 2] + y * r[1, 2] + z * r[2, 2]
+        if self._exact[i]:
+            sd = _signed_distance(int(self._types[i]), self._sizes[i], lx, ly, lz)
+        else:
+            sd = np.sqrt(lx * lx + ly * ly + lz * lz) - np.float32(self._rbound[i])
+        hit = (sd <= self._margin(d)) & (d > 0)
+        n = int(np.count_nonzero(hit))
+        if n:
+            crop[hit] = 0.0
+        return n
 
-def _sphere_box(
-    cam: CameraModel, c: np.ndarray, r: float, width: int, height: int
-) -> tuple[int, int, int, int] | None:
+
+def _sphere_box(cam: CameraModel, c: np.ndarray, r: float, width: int, height: int) -> tuple[int, int, int, int] | None:
     """Pixel box [v0, v1) x [u0, u1) covering the sphere (centre ``c`` in the sensor frame, radius r)."""
     z_far = c[2] + r
     if z_far <= cam.min_range_m * 0.5:
@@ -262,13 +261,13 @@ class StaticBackground:
         return cls(camera.render_static(data), **kwargs)  # type: ignore[attr-defined, arg-type]
 
     def apply_inplace(self, depth: np.ndarray) -> None:
-        """Zero the background pixels of a float32 depth image (no NaN) in place."""
+        """Zero the background pixels of a float32 depth image in place (NaN pixels are left alone)."""
         if depth.shape != self.threshold_m.shape:
             raise SensingError(f"frame shape {depth.shape} != background shape {self.threshold_m.shape}")
         depth[depth >= self.threshold_m] = 0.0
 
     def apply(self, frame: DepthFrame) -> DepthFrame:
-        """A copy of ``frame`` without background pixels (NaN pixels become 0)."""
-        depth = np.nan_to_num(frame.depth_m, nan=0.0, posinf=0.0, neginf=0.0).astype(np.float32, copy=True)
+        """A copy of ``frame`` without background pixels."""
+        depth = np.array(frame.depth_m, dtype=np.float32, copy=True)
         self.apply_inplace(depth)
         return DepthFrame(depth, frame.stamp_s, frame.camera)

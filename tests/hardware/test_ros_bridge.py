@@ -6,7 +6,6 @@ processes, so the stand-in's record gives rates and watchdog reaction times dire
 
 from __future__ import annotations
 
-import json
 import signal
 import subprocess
 import sys
@@ -27,25 +26,13 @@ CONTROL_PERIOD_S = 0.01
 TIMEOUT_S = 90.0
 
 
-def _calibration(env: dict[str, str], config: Path) -> dict[str, list[float]]:
-    out = subprocess.run(
-        [sys.executable, "-m", "compare.hardware.standin", str(config), "--print-calibration"],
-        env=env, cwd=ROOT, capture_output=True, text=True, timeout=TIMEOUT_S, check=True,
-    )  # fmt: skip
-    return json.loads(out.stdout.strip().splitlines()[-1])
-
-
 @pytest.fixture(scope="module")
 def case1_config(ros_env: dict[str, str], tmp_path_factory: pytest.TempPathFactory) -> Path:
     """configs/case1.toml, short form (time_scale 0.1), tpik only, camera pose = the simulated camera's."""
+    from compare.hardware.standin import camera_calibration
+
     d = tmp_path_factory.mktemp("cfg")
-    base = write_config(
-        d / "base.toml",
-        scenario={"time_scale": 0.1},
-        methods={"names": ["tpik"]},
-        hardware={"startup_timeout_s": 60.0, "background_capture_s": 0.5},
-    )
-    calib = _calibration(ros_env, base)
+    calib = camera_calibration()
     return write_config(
         d / "case1_hw.toml",
         scenario={"time_scale": 0.1},

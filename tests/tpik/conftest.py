@@ -136,7 +136,6 @@ SOLVER_CONFIGS = [
     pytest.param({"variant": "nsb"}, id="nsb"),
     pytest.param({"variant": "ss"}, id="ss"),
     pytest.param({"variant": "nsb", "selection": "fewest_active"}, id="nsb-fewest"),
-    pytest.param({"variant": "ss", "selection": "fewest_active"}, id="ss-fewest"),
 ]
 
 

@@ -228,8 +228,10 @@ def test_largest_norm_and_fewest_active_rules_differ_as_documented(jaco):
     kin = jaco.kinematics(jaco.home)
     _, largest = TpikSolver(jaco).solve(h, kin, DT)
     _, fewest = TpikSolver(jaco, TpikSettings(selection="fewest_active")).solve(h, kin, DT)
-    assert largest.active_set == ("s",)
-    assert fewest.active_set == ()
+    _, ss_auto = TpikSolver(jaco, TpikSettings(variant="ss")).solve(h, kin, DT)
+    assert largest.active_set == ("s",) and largest.extras["selection"] == "largest_norm"
+    assert fewest.active_set == () and fewest.extras["selection"] == "fewest_active"
+    assert ss_auto.extras["selection"] == "fewest_active"
 
 
 @pytest.mark.parametrize("max_exhaustive", [6, 0])

@@ -77,10 +77,11 @@ def test_control_point_keeps_the_safety_distance_then_leaves(jaco, solver):
     assert abs(dist[-1] - 0.35) <= TOL
     assert results[-1].active_set == ("obstacle_link_7",)
     reach.set_target(ee - np.array([0.1, 0.0, 0.0]))
-    _, results, dist = simulate(jaco, h, solver, q, 300, watch=_sigma(task))
+    q, results, dist = simulate(jaco, h, solver, q, 500, watch=_sigma(task))
     assert dist.min() >= 0.35 - TOL
-    assert dist[-1] > 0.45
+    assert dist[-1] > 0.40  # back above the activation threshold
     assert results[-1].active_set == ()
+    assert np.linalg.norm(jaco.kinematics(q).frame_position("end_effector") - reach.target) < 0.01
 
 
 def test_corner_of_two_walls_and_a_joint_limit_none_is_crossed(jaco, solver):
@@ -91,9 +92,7 @@ def test_corner_of_two_walls_and_a_joint_limit_none_is_crossed(jaco, solver):
     wall_x = VirtualWallTask("wall_x_max", "end_effector", np.array([-1.0, 0.0, 0.0]), -(ee[0] + 0.06), WALL)
     wall_z = VirtualWallTask("wall_z_min", "end_effector", np.array([0.0, 0.0, 1.0]), ee[2] - 0.06, WALL)
     target = PositionTask("ee", target=ee + np.array([0.4, 0.1, -0.4]))
-    h = Hierarchy(
-        [Level("joint_limits", (limit,)), Level("walls", (wall_x, wall_z)), Level("operational", (target,))]
-    )
+    h = Hierarchy([Level("joint_limits", (limit,)), Level("walls", (wall_x, wall_z)), Level("operational", (target,))])
 
     def margins(kin):
         return [limit.margins(limit.compute_value_and_jacobian(kin)[0])[0]] + [
@@ -102,7 +101,8 @@ def test_corner_of_two_walls_and_a_joint_limit_none_is_crossed(jaco, solver):
 
     _, results, m = simulate(jaco, h, solver, jaco.home, 500, watch=margins)
     assert m.min() >= -TOL, f"crossed: worst margins {m.min(axis=0)}"
-    assert max(len(r.active_set) for r in results) == 3
+    assert max(len(r.active_set) for r in results) >= 2
+    assert {name for r in results for name in r.active_set} == {"joint_limit_2", "wall_x_max", "wall_z_min"}
 
 
 @pytest.mark.parametrize("variant", ["nsb", "ss"])

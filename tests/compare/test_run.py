@@ -1,0 +1,96 @@
+"""End to end: the paper's case studies in short form, numbers asserted from summary.json.
+
+Short form = ``scenario.time_scale`` < 1: the same events (person in, person out) earlier.
+Tolerances: joint limits and walls within their safety thresholds up to 2 mrad / 2 mm (the
+discrete-time step and the servo tracking lag of the dynamic simulation); obstacle distances
+never below the physical threshold.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+from typer.testing import CliRunner
+
+from compare.cli import app
+
+CONFIGS = Path(__file__).resolve().parents[2] / "configs"
+SAFETY_TOL = {"joint_limits": 2e-3, "walls": 2e-3}
+SAFE_METHODS = ("tpik", "hqp-daqp")
+
+
+def _run(tmp_path: Path, config: str, *extra: str) -> dict:
+    out = tmp_path / Path(config).stem
+    result = CliRunner().invoke(app, ["run", str(CONFIGS / config), "--out", str(out), "-q", *extra])
+    assert result.exit_code == 0, result.output
+    return json.loads((out / "summary.json").read_text())
+
+
+@pytest.fixture(scope="module")
+def case1(tmp_path_factory) -> dict:
+    tmp = tmp_path_factory.mktemp("case1")
+    return _run(tmp, "case1.toml", "--time-scale", "0.4", "--sensing", "geometric",
+                "-m", "tpik", "-m", "hqp-daqp", "-m", "mink")
+
+
+@pytest.fixture(scope="module")
+def case2(tmp_path_factory) -> dict:
+    tmp = tmp_path_factory.mktemp("case2")
+    return _run(tmp, "case2.toml", "--time-scale", "0.5", "--sensing", "geometric",
+                "-m", "tpik", "-m", "hqp-daqp", "-m", "mink")
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("method", SAFE_METHODS)
+def test_case1_keeps_joint_limits_and_physical_distance(case1, method):
+    m = case1["methods"][method]
+    assert m["joint_limits"]["safety_margin_min"] > -SAFETY_TOL["joint_limits"]
+    assert m["obstacles"]["physical_margin_min"] > 0.0
+    assert m["failures"] == 0 and m["fallbacks"] == 0
+    # The person steps in: the obstacle tasks must have been active at some point.
+    assert min(d for d in m["min_obstacle_distance_m"] if d is not None) < 0.5
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("method", SAFE_METHODS)
+def test_case1_reaches_waypoints_while_person_is_away(case1, method):
+    m = case1["methods"][method]
+    # Before the person steps in (t = 35 s × 0.4 = 14 s) p1 then p2 are reached.
+    assert m["waypoints_reached"] >= 2
+    assert m["time_to_waypoint_s"][0] is not None and m["time_to_waypoint_s"][0] < 14.0
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("method", SAFE_METHODS)
+def test_case2_keeps_walls_joint_limits_and_physical_distance(case2, method):
+    m = case2["methods"][method]
+    assert m["walls"]["safety_margin_min"] > -SAFETY_TOL["walls"]
+    assert m["joint_limits"]["safety_margin_min"] > -SAFETY_TOL["joint_limits"]
+    assert m["obstacles"]["physical_margin_min"] > 0.0
+    # The person pushed the arm: some obstacle task was active.
+    assert m["activation_toggles_per_s"] > 0.0
+
+
+@pytest.mark.slow
+def test_summary_has_design_keys_and_every_method(case1):
+    assert set(case1["methods"]) == {"tpik", "hqp-daqp", "mink"}
+    assert {"scenario", "seed", "sim_time_s", "versions", "methods"} <= set(case1)
+    for m in case1["methods"].values():
+        for key in ("solve_time_us", "realtime_factor", "joint_limits", "walls", "obstacles",
+                    "min_obstacle_distance_m", "ee_error_m", "failures", "fallbacks", "activation_toggles_per_s"):
+            assert key in m
+        assert m["walls"] is None  # case 1 has no walls
+        assert set(m["solve_time_us"]) == {"median", "p95", "p99", "max"}
+
+
+@pytest.mark.slow
+@pytest.mark.rendering
+def test_case1_short_with_depth_sensing(tmp_path):
+    summary = _run(tmp_path, "case1.toml", "--time-scale", "0.2", "--duration", "70", "-m", "tpik")
+    m = summary["methods"]["tpik"]
+    assert m["sensing"] == "depth"
+    assert m["joint_limits"]["safety_margin_min"] > -SAFETY_TOL["joint_limits"]
+    assert m["obstacles"]["physical_margin_min"] > 0.0
+    assert m["failures"] == 0
