@@ -93,6 +93,8 @@ def _print_summary(summary: dict[str, object], out_dir: Path) -> None:
     from compare.report import summary_table
 
     console = Console()
+    if not console.is_terminal or console.width < 140:
+        console = Console(width=160)
     console.print(summary_table(summary))
     console.print(f"results: {out_dir}/summary.json   plots: {out_dir}/plots/")
 

@@ -332,6 +332,7 @@ class HqpSolver:
         self._retry_kwargs = backend_kwargs(solver, {**self.qp_settings, **RETRY_SETTINGS[solver]})
         self.tolerance = float(self.options.tolerance or TOLERANCES[solver])
         self.slack_tolerance = float(self.options.slack_tolerance or max(1e-6, self.tolerance))
+        self.slack_margin = 0.1 * self.tolerance
         mnl = self.options.min_norm_level
         self.min_norm_level = MIN_NORM_LEVEL[solver] if mnl is None else mnl
         self._sparse = solver in _SPARSE_SOLVERS
@@ -481,6 +482,7 @@ class HqpSolver:
         qp_calls = retries = 0
         status, message = SolveStatus.OK, ""
         min_norm_failure = ""
+        slack: np.ndarray | None = None  # per row, set by the first backend answer
         n_levels = len(self._levels)
         k_start = 0
         if self.options.unconstrained_first:
@@ -520,11 +522,17 @@ class HqpSolver:
             if its is not None:
                 iterations[lv.name if k < n_levels else "min_norm"] = its
             if used and c1 > c0:
-                # This level's slack at its own optimum relaxes its rows for every later level.
+                # This level's slack at its own optimum relaxes its rows for every later level; a
+                # relaxed row sits on the best value reachable, so it gets a margin δ: without it
+                # the later feasible set has no interior and quadprog and the interior-point
+                # backends report it infeasible.
                 w = G_all[c0:c1] @ qd
                 w -= h_rel[c0:c1]
                 np.maximum(w, 0.0, out=w)
-                h_rel[c0:c1] += w
+                if slack is None:
+                    slack = np.zeros(h_rel.shape[0])
+                slack[c0:c1] = w
+                h_rel[c0:c1] += w + self.slack_margin * (w > 0.0)
             if r.size and k < n_levels:
                 residuals[lv.name] = float(np.linalg.norm(J @ qd - r))
                 if k + 1 < n_levels or (self.min_norm_level and qp_calls):
@@ -537,7 +545,6 @@ class HqpSolver:
         relaxed: list[str] = []
         if h_rel.size:
             # Slacks only come from backend answers: without a backend call they are all zero.
-            slack = h_rel - self._h if qp_calls else None
             binding = (G_all @ qd) >= h_rel - s_tol
             if slack is not None:
                 binding |= slack > s_tol

@@ -1,0 +1,237 @@
+"""Solver micro-benchmarks: one full control step per call, kinematics included.
+
+Two tables:
+
+* **case 2** (:func:`run_solver_bench`): every method of :mod:`compare.methods` on the paper's
+  case-2 hierarchy at the states of :func:`compare.bench.solver_cases.case2_states` (cases
+  ``case2-active0/1/3``);
+* **TPIK vs |C|** (:func:`run_candidate_bench`): the same four levels (3 joint limits > 6
+  walls > 3 obstacle distances > EE position) with thresholds, walls and obstacle points placed
+  around one configuration so that exactly ``k`` set-based tasks are candidates (cases
+  ``tpik-candidates-<k>``): the cost of the 2^|C| mode search, and of greedy release above
+  ``max_exhaustive_candidates``.
+
+A timed call is ``kin = robot.kinematics(q); solver.solve(hierarchy, kin, dt)``. Methods are
+timed in interleaved blocks of 10 calls, so a slow phase of a shared machine hits every method
+alike and the ratios to the reference (mink) stay meaningful.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Mapping, Sequence
+from typing import Any
+
+import numpy as np
+
+import robots
+from compare.bench.solver_cases import CONTROL_POINTS, apply_state, case2_hierarchy, case2_states
+from compare.bench.timing import BenchRow, summarize, time_calls
+from robots import Robot
+from tpik.hierarchy import Hierarchy, Level
+from tpik.step_result import IkSolver
+from tpik.tasks import JointLimitTask, ObstacleDistanceTask, PositionTask, Task, Thresholds, VirtualWallTask
+
+DT = 0.01
+"""Control period of the benchmark steps [s] (100 Hz, as the loop)."""
+
+DEFAULT_METHODS = ["tpik", "tpik-ss", "hqp-daqp", "mink"]
+REFERENCE = "mink"
+BLOCK = 10
+
+
+def build_methods(
+    names: Sequence[str], robot: Robot, settings: Mapping[str, Mapping[str, Any]] | None = None
+) -> dict[str, IkSolver]:
+    """Build the named methods; a method that cannot be built is skipped with a printed note."""
+    from compare.methods import make_method
+
+    built: dict[str, IkSolver] = {}
+    for name in names:
+        try:
+            built[name] = make_method(name, robot, (settings or {}).get(name))
+        except Exception as exc:  # ImportError, UnknownMethod, a backend's own error
+            print(f"note: skipping method '{name}': {type(exc).__name__}: {exc}")
+    return built
+
+
+def interleaved(fns: Mapping[str, Callable[[], object]], repeats: int, block: int = BLOCK) -> dict[str, np.ndarray]:
+    """Time several functions in alternating blocks of ``block`` calls; durations per call [µs]."""
+    for fn in fns.values():
+        time_calls(fn, 1, warmup=20)
+    out: dict[str, list[np.ndarray]] = {name: [] for name in fns}
+    for _ in range(max(1, math.ceil(repeats / block))):
+        for name, fn in fns.items():
+            out[name].append(time_calls(fn, block, warmup=0))
+    return {name: np.concatenate(chunks)[:repeats] for name, chunks in out.items()}
+
+
+def _step(robot: Robot, solver: IkSolver, hierarchy: Hierarchy, q: np.ndarray) -> Callable[[], object]:
+    def call() -> object:
+        return solver.solve(hierarchy, robot.kinematics(q), DT)
+
+    return call
+
+
+def _split(robot: Robot, solver: IkSolver, hierarchy: Hierarchy, q: np.ndarray, calls: int) -> dict[str, float]:
+    """Median build/solve split [µs] and what the solver reported (untimed pass)."""
+    build, solve, ok = [], [], 0
+    result = None
+    for _ in range(calls):
+        result = solver.solve(hierarchy, robot.kinematics(q), DT)
+        build.append(result.build_time_s)
+        solve.append(result.solve_time_s)
+        ok += bool(result.ok)
+    assert result is not None
+    extra = {
+        "build_us": float(np.median(build)) * 1e6,
+        "solve_us": float(np.median(solve)) * 1e6,
+        "ok_fraction": ok / calls,
+        "active": float(len(result.active_set)),
+    }
+    for key in ("candidates", "modes_evaluated"):
+        value = result.extras.get(key)
+        if isinstance(value, int | float):
+            extra[key] = float(value)
+    return extra
+
+
+def _rows_for(
+    robot: Robot,
+    solvers: Mapping[str, IkSolver],
+    hierarchies: Mapping[str, Hierarchy],
+    q: np.ndarray,
+    case: str,
+    repeats: int,
+) -> list[BenchRow]:
+    fns: dict[str, Callable[[], object]] = {}
+    for name, solver in solvers.items():
+        try:
+            solver.solve(hierarchies[name], robot.kinematics(q), DT)
+        except Exception as exc:
+            print(f"note: skipping method '{name}' on {case}: {type(exc).__name__}: {exc}")
+            continue
+        fns[name] = _step(robot, solver, hierarchies[name], q)
+    samples = interleaved(fns, repeats)
+    rows = []
+    for name, us in samples.items():
+        extra = _split(robot, solvers[name], hierarchies[name], q, min(repeats, 50))
+        rows.append(summarize(name, case, us, **extra))
+    return _with_ratios(rows)
+
+
+def _with_ratios(rows: list[BenchRow]) -> list[BenchRow]:
+    """Add ``ratio_to_mink`` (median / median of the reference in the same case) to each row."""
+    ref = {r.case: r.median_us for r in rows if r.name == REFERENCE}
+    out = []
+    for r in rows:
+        extra = dict(r.extra)
+        if r.case in ref:
+            extra["ratio_to_mink"] = r.median_us / ref[r.case]
+        out.append(BenchRow(r.name, r.case, r.median_us, r.p95_us, r.samples, extra))
+    return out
+
+
+def run_solver_bench(method_names: list[str], repeats: int) -> list[BenchRow]:
+    """Time one control step of each method on the case-2 states (``case2-active0/1/3``).
+
+    Args:
+        method_names: Names for :func:`compare.methods.make_method` (``tpik``, ``mink``, ...);
+            a method whose import or construction fails is skipped with a printed note.
+        repeats: Timed calls per method and case.
+
+    Returns:
+        One row per (method, case): median and p95 [µs], ``extra`` with the build/solve split
+        reported by the solver (``build_us``, ``solve_us``), the active set size, and
+        ``ratio_to_mink`` when mink ran.
+    """
+    robot = robots.load("jaco2")
+    solvers = build_methods(method_names, robot)
+    hierarchies = {name: case2_hierarchy(robot) for name in solvers}  # one per method: solvers may cache
+    rows: list[BenchRow] = []
+    for state in case2_states(robot):
+        for h in hierarchies.values():
+            apply_state(h, state)
+        rows += _rows_for(robot, solvers, hierarchies, state.q, state.name, repeats)
+    return rows
+
+
+def candidate_hierarchy(robot: Robot, q: np.ndarray, k: int) -> Hierarchy:
+    """Case-2 levels around ``q`` with exactly ``k`` candidate set-based tasks (0 ≤ k ≤ 12).
+
+    Activated in this order: obstacle points 0.37 m from the control points (safety 0.35,
+    ε = 0.05), walls 0.02 m from the EE (ε = 0.03; opposite walls make a narrow box), then
+    joint limits whose upper safety threshold is 0.02 rad above q (ε = 0.05). The others are
+    far from their thresholds, so every k evaluates the same 13 tasks.
+    """
+    if not 0 <= k <= 12:
+        raise ValueError(f"k must be in 0..12, got {k}")
+    kin = robot.kinematics(q)
+    ee = kin.frame_position("end_effector")
+    obstacles: list[Task] = []
+    for i, frame in enumerate(CONTROL_POINTS):
+        task = ObstacleDistanceTask(f"obstacle_{frame}", frame, Thresholds(0.1, 0.35, math.inf, math.inf, 0.05))
+        offset = 0.37 if i < k else 1.5
+        task.set_obstacle(kin.frame_position(frame) + offset * np.array([0.0, 0.6, 0.8]))
+        obstacles.append(task)
+    walls: list[Task] = []
+    wall_th = Thresholds(-0.05, 0.0, math.inf, math.inf, 0.03)
+    for i, (axis, sign) in enumerate((a, s) for a in range(3) for s in (1.0, -1.0)):
+        normal = np.zeros(3)
+        normal[axis] = sign
+        gap = 0.02 if 3 + i < k else 0.5
+        walls.append(
+            VirtualWallTask(
+                f"wall_{'xyz'[axis]}_{'min' if sign > 0 else 'max'}",
+                "end_effector",
+                normal,
+                sign * ee[axis] - gap,
+                wall_th,
+            )
+        )
+    limits: list[Task] = []
+    for i, joint in enumerate((2, 4, 6)):
+        qj = float(q[joint - 1])
+        above = 0.02 if 9 + i < k else 1.0
+        th = Thresholds(qj - 2.0, qj - 1.0, qj + above, qj + above + 0.1, 0.05)
+        limits.append(JointLimitTask(f"joint_limit_{joint}", joint, robot.nq, th))
+    target = PositionTask("position_end_effector", target=ee + np.array([0.05, -0.05, 0.05]))
+    return Hierarchy(
+        [
+            Level("joint_limits", tuple(limits)),
+            Level("walls", tuple(walls)),
+            Level("obstacles", tuple(obstacles)),
+            Level("operational", (target,)),
+        ]
+    )
+
+
+def run_candidate_bench(
+    repeats: int, max_candidates: int = 8, method_names: Sequence[str] = ("tpik", "tpik-ss", REFERENCE)
+) -> list[BenchRow]:
+    """TPIK step time against the number of candidate set tasks |C| (cases ``tpik-candidates-<k>``).
+
+    Besides the named methods, ``tpik-exhaustive`` is TPIK with ``max_exhaustive_candidates``
+    = 12, so the 2^|C| growth shows past the default greedy threshold.
+
+    Args:
+        repeats: Timed calls per method and case.
+        max_candidates: Largest |C| (≤ 12).
+        method_names: Methods timed at every |C| (mink as the reference).
+    """
+    robot = robots.load("jaco2")
+    q = case2_states(robot)[0].q
+    solvers = _candidate_methods(robot, method_names)
+    rows: list[BenchRow] = []
+    for k in range(max_candidates + 1):
+        hierarchies = {name: candidate_hierarchy(robot, q, k) for name in solvers}
+        rows += _rows_for(robot, solvers, hierarchies, q, f"tpik-candidates-{k}", repeats)
+    return rows
+
+
+def _candidate_methods(robot: Robot, method_names: Sequence[str]) -> dict[str, IkSolver]:
+    from tpik.solver import TpikSettings, TpikSolver
+
+    solvers = build_methods(list(method_names), robot)
+    solvers["tpik-exhaustive"] = TpikSolver(robot, TpikSettings(max_exhaustive_candidates=12), name="tpik-exhaustive")
+    return solvers
