@@ -44,7 +44,9 @@ def _overrides(duration: float | None, time_scale: float | None, sensing: str | 
 ConfigArg = Annotated[Path, typer.Argument(help="Scenario TOML file (see configs/).", show_default=False)]
 MethodsOpt = Annotated[
     list[str] | None,
-    typer.Option("--methods", "-m", help="Methods to run instead of the config's (repeatable): tpik, hqp-daqp, mink..."),
+    typer.Option(
+        "--methods", "-m", help="Methods to run instead of the config's (repeatable): tpik, hqp-daqp, mink..."
+    ),
 ]
 DurationOpt = Annotated[float | None, typer.Option("--duration", help="Override scenario.duration_s [s].")]
 ScaleOpt = Annotated[
@@ -74,8 +76,10 @@ def run(
             from compare.config import parse_config
 
             data = cfg.model_dump(mode="python")
-            data["methods"] = {"names": list(methods), "settings": {k: v for k, v in cfg.methods.settings.items()
-                                                                    if k in methods}}
+            data["methods"] = {
+                "names": list(methods),
+                "settings": {k: v for k, v in cfg.methods.settings.items() if k in methods},
+            }
             cfg = parse_config(data)
     except ConfigError as exc:
         _fail(str(exc))

@@ -204,7 +204,9 @@ def run_loop(
         kin = robot.kinematics(reading.q)
 
         if obstacles is not None and obstacle_tasks and t + 1e-9 >= next_sense_t:
-            next_sense_t = t + settings.sensing_period_s if next_sense_t < 0 else next_sense_t + settings.sensing_period_s
+            next_sense_t = (
+                t + settings.sensing_period_s if next_sense_t < 0 else next_sense_t + settings.sensing_period_s
+            )
             result = obstacles.update(t, kin)
             if not result.blind:
                 last_good_sense_t = t
@@ -229,7 +231,12 @@ def run_loop(
         wall0 = time.perf_counter_ns()
         try:
             result_step = solver.solve(hierarchy, kin, dt)
-            qdot, status, active, message = result_step.qdot, result_step.status, result_step.active_set, result_step.message
+            qdot, status, active, message = (
+                result_step.qdot,
+                result_step.status,
+                result_step.active_set,
+                result_step.message,
+            )
         except Exception as exc:  # a solver bug must not kill the run: log it, use the fallback
             qdot, status, active, message = np.zeros(robot.nq), SolveStatus.FAILED, (), f"{type(exc).__name__}: {exc}"
         solve_us = (time.perf_counter_ns() - wall0) * 1e-3

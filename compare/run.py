@@ -38,8 +38,9 @@ def set_task_infos(hierarchy: Hierarchy) -> tuple[SetTaskInfo, ...]:
         else:
             group = "other"
         th = task.thresholds
-        infos.append(SetTaskInfo(task.name, group, th.physical_lower, th.safety_lower, th.safety_upper,
-                                 th.physical_upper))
+        infos.append(
+            SetTaskInfo(task.name, group, th.physical_lower, th.safety_lower, th.safety_upper, th.physical_upper)
+        )
     return tuple(infos)
 
 
@@ -107,8 +108,12 @@ def run_scenario(
     config = realize(config, robot)
     sc = config.scenario
     writer = ResultsWriter(Path(out_dir), sc.name, sc.seed, sc.sim_time_s, config_text)
-    columns = (TextColumn("[bold]{task.description:<12}"), BarColumn(), TextColumn("{task.completed:5.1f}/{task.total:.0f} s"),
-               TimeElapsedColumn())
+    columns = (
+        TextColumn("[bold]{task.description:<12}"),
+        BarColumn(),
+        TextColumn("{task.completed:5.1f}/{task.total:.0f} s"),
+        TimeElapsedColumn(),
+    )
     bar = Progress(*columns, disable=not progress)
     with bar:
         for method in config.methods.names:
@@ -142,11 +147,19 @@ def view_scenario(config: Config, method: str) -> None:
     sim = build_simulation(config, robot, q0)
     hierarchy = config.build_hierarchy(robot)
     solver = make_method(method, robot, config.methods.settings.get(method))
-    schedule = WaypointSchedule(config.waypoints.positions, robot.frame_position(q0, "end_effector"),
-                                config.waypoints.tolerance_m, config.waypoints.dwell_s * sc.time_scale,
-                                config.waypoints.cycle)
-    settings = LoopSettings(dt=sc.dt, duration_s=sc.sim_time_s, sensing_period_s=1.0 / sc.sensing_rate_hz,
-                            max_sensing_age_s=config.sensor.max_age_s)
+    schedule = WaypointSchedule(
+        config.waypoints.positions,
+        robot.frame_position(q0, "end_effector"),
+        config.waypoints.tolerance_m,
+        config.waypoints.dwell_s * sc.time_scale,
+        config.waypoints.cycle,
+    )
+    settings = LoopSettings(
+        dt=sc.dt,
+        duration_s=sc.sim_time_s,
+        sensing_period_s=1.0 / sc.sensing_rate_hz,
+        max_sensing_age_s=config.sensor.max_age_s,
+    )
     with mujoco.viewer.launch_passive(sim.io.model, sim.io.data) as viewer:
         clock = {"tick": time.perf_counter()}
 

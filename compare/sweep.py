@@ -19,7 +19,10 @@ def _seeded(config: Config, seed: int, methods: list[str] | None) -> Config:
     data = config.model_dump(mode="python")
     data["scenario"]["seed"] = seed
     if methods:
-        data["methods"] = {"names": methods, "settings": {k: v for k, v in config.methods.settings.items() if k in methods}}
+        data["methods"] = {
+            "names": methods,
+            "settings": {k: v for k, v in config.methods.settings.items() if k in methods},
+        }
     return parse_config(data)
 
 

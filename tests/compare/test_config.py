@@ -37,18 +37,27 @@ BAD_CONFIGS = [
     ("scenario.sensing", "lidar", r"scenario\.sensing: Input should be 'depth' or 'geometric'"),
     ("scenario.start_q", [0.0, 1.0], r"scenario\.start_q"),
     ("sensor.dropout", 1.5, r"sensor\.dropout: Input should be less than 1"),
-    ("methods.names", ["tpik", "hqp-nosuchsolver"], r"methods\.names\[1\]: unknown method 'hqp-nosuchsolver'; available:"),
+    (
+        "methods.names",
+        ["tpik", "hqp-nosuchsolver"],
+        r"methods\.names\[1\]: unknown method 'hqp-nosuchsolver'; available:",
+    ),
     ("methods.names", ["teleport"], r"unknown method 'teleport'"),
     ("methods.settings", {"mink": {}}, r"settings for 'mink', which is not in names"),
-    ("levels.1.tasks", [{"type": "obstacle_distance", "frames": ["link_4"], "safety_distance": 0.05}],
-     r"levels: .*physical_lower=0.1 must be < safety_lower=0.05"),
+    (
+        "levels.1.tasks",
+        [{"type": "obstacle_distance", "frames": ["link_4"], "safety_distance": 0.05}],
+        r"levels: .*physical_lower=0.1 must be < safety_lower=0.05",
+    ),
     ("levels.0.tasks", [{"type": "joint_limit", "joints": [1]}], r"levels: .*joint 1 is continuous"),
     ("levels.2.tasks", [{"type": "position", "frame": "elbow"}], r"levels: .*unknown frame 'elbow'"),
     ("levels.0.tasks", [{"type": "joint_limit", "joints": [2], "safety_margn": 0.1}], r"unknown key 'safety_margn'"),
 ]
 
 
-@pytest.mark.parametrize(("key", "value", "message"), BAD_CONFIGS, ids=[b[0] + "=" + str(b[1])[:20] for b in BAD_CONFIGS])
+@pytest.mark.parametrize(
+    ("key", "value", "message"), BAD_CONFIGS, ids=[b[0] + "=" + str(b[1])[:20] for b in BAD_CONFIGS]
+)
 def test_bad_config_gives_one_line_naming_the_key(key, value, message):
     with pytest.raises(ConfigError, match=message) as info:
         parse_config(_set(_case1(), key, value))

@@ -31,15 +31,17 @@ def _run(tmp_path: Path, config: str, *extra: str) -> dict:
 @pytest.fixture(scope="module")
 def case1(tmp_path_factory) -> dict:
     tmp = tmp_path_factory.mktemp("case1")
-    return _run(tmp, "case1.toml", "--time-scale", "0.4", "--sensing", "geometric",
-                "-m", "tpik", "-m", "hqp-daqp", "-m", "mink")
+    return _run(
+        tmp, "case1.toml", "--time-scale", "0.4", "--sensing", "geometric", "-m", "tpik", "-m", "hqp-daqp", "-m", "mink"
+    )
 
 
 @pytest.fixture(scope="module")
 def case2(tmp_path_factory) -> dict:
     tmp = tmp_path_factory.mktemp("case2")
-    return _run(tmp, "case2.toml", "--time-scale", "0.5", "--sensing", "geometric",
-                "-m", "tpik", "-m", "hqp-daqp", "-m", "mink")
+    return _run(
+        tmp, "case2.toml", "--time-scale", "0.5", "--sensing", "geometric", "-m", "tpik", "-m", "hqp-daqp", "-m", "mink"
+    )
 
 
 @pytest.mark.slow
@@ -78,8 +80,18 @@ def test_summary_has_design_keys_and_every_method(case1):
     assert set(case1["methods"]) == {"tpik", "hqp-daqp", "mink"}
     assert {"scenario", "seed", "sim_time_s", "versions", "methods"} <= set(case1)
     for m in case1["methods"].values():
-        for key in ("solve_time_us", "realtime_factor", "joint_limits", "walls", "obstacles",
-                    "min_obstacle_distance_m", "ee_error_m", "failures", "fallbacks", "activation_toggles_per_s"):
+        for key in (
+            "solve_time_us",
+            "realtime_factor",
+            "joint_limits",
+            "walls",
+            "obstacles",
+            "min_obstacle_distance_m",
+            "ee_error_m",
+            "failures",
+            "fallbacks",
+            "activation_toggles_per_s",
+        ):
             assert key in m
         assert m["walls"] is None  # case 1 has no walls
         assert set(m["solve_time_us"]) == {"median", "p95", "p99", "max"}

@@ -18,8 +18,22 @@ CONFIGS = Path(__file__).resolve().parents[2] / "configs"
 @pytest.mark.slow
 def test_sweep_runs_four_seeds_then_skips_them(tmp_path):
     out = tmp_path / "sweep"
-    args = ["sweep", str(CONFIGS / "random.toml"), "--n", "4", "--workers", "2", "--out", str(out),
-            "--duration", "3", "-m", "tpik", "-m", "hqp-daqp"]
+    args = [
+        "sweep",
+        str(CONFIGS / "random.toml"),
+        "--n",
+        "4",
+        "--workers",
+        "2",
+        "--out",
+        str(out),
+        "--duration",
+        "3",
+        "-m",
+        "tpik",
+        "-m",
+        "hqp-daqp",
+    ]
     first = CliRunner().invoke(app, args)
     assert first.exit_code == 0, first.output
     runs = sorted((out / "runs").iterdir())
