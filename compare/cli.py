@@ -202,6 +202,13 @@ def hw(
     time_scale: ScaleOpt = None,
     plots: Annotated[bool, typer.Option(help="Write the plots after the run.")] = True,
     quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress bar.")] = False,
+    capture_background: Annotated[
+        Path | None,
+        typer.Option(
+            "--capture-background",
+            help="Only record the static background for --duration s (default 10) into this .npz; publishes nothing.",
+        ),
+    ] = None,
 ) -> None:
     """Drive the real Jaco² and depth camera through the Kinova ROS 1 driver (docs/hardware.md)."""
     from compare.config import ConfigError, load_config
@@ -224,6 +231,16 @@ def hw(
             _fail(str(exc))
             return
     logging.getLogger("compare.hardware").setLevel(logging.INFO)
+    if capture_background is not None:
+        from compare.hardware.run import capture_background_file
+
+        try:
+            covered = capture_background_file(cfg, capture_background, duration if duration is not None else 10.0)
+        except HardwareError as exc:
+            _fail(str(exc))
+            return
+        typer.echo(f"background: {capture_background} ({100.0 * covered:.0f}% of the pixels)")
+        return
     out_dir = out or Path("results") / f"hw-{cfg.scenario.name}"
     from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 

@@ -222,8 +222,11 @@ class HardwareConfig(_Strict):
         depth_min_range_m: Closest valid depth [m].
         depth_max_range_m: Farthest valid depth [m].
         use_depth: Use the depth camera (required when the hierarchy has obstacle tasks).
-        background_capture_s: Time spent at start capturing the static scene (table, floor) from
-            live frames, removed from every later frame; nobody may be in view [s]. 0 = none.
+        background_file: Background depth image of the static scene (``.npz`` written by
+            ``tpik-compare hw --capture-background``); when set, no capture at start.
+        background_capture_s: Otherwise, time spent at start capturing the static scene (table,
+            floor) from live frames, removed from every later frame; nobody may be in view [s].
+            0 = no background removal.
         startup_timeout_s: Time to wait for the first joint state, camera info and depth [s].
     """
 
@@ -246,6 +249,7 @@ class HardwareConfig(_Strict):
     depth_min_range_m: float = Field(0.5, ge=0.0)
     depth_max_range_m: float = Field(4.5, gt=0.0)
     use_depth: bool = True
+    background_file: str | None = None
     background_capture_s: float = Field(1.0, ge=0.0, le=30.0)
     startup_timeout_s: float = Field(5.0, gt=0.0, le=120.0)
 

@@ -47,7 +47,8 @@ Implementation choices:
 * **Unconstrained first** (``unconstrained_first``, default on): a level's strictly convex QP
   has a unique solution; when the unconstrained minimiser (one n×n linear solve) satisfies every
   inequality it *is* that solution and the backend is not called. ``extras["qp_calls"]`` counts
-  the levels that did call it.
+  the levels that did call it. A level that needed the backend at the previous step goes
+  straight to it (its active set usually persists; the answer is the same either way).
 
 Every backend answer is checked (status, finite, within the hard box and all rows, and no worse
 than a known feasible point, with ``tolerance``) before use; a failed check is retried once with
@@ -87,9 +88,9 @@ SOLVER_DEFAULTS: dict[str, dict[str, Any]] = {
     "daqp": {},
     "quadprog": {},
     # OSQP's defaults (eps 1e-3, no polish) leave bound violations of ~1e-3. Polishing solves the
-    # KKT system of the detected active set (exact when it succeeds); eps 1e-6 for when it does
-    # not. Tighter eps mostly ends in "maximum iterations reached" on our problems.
-    "osqp": {"eps_abs": 1e-6, "eps_rel": 0.0, "polish": True, "max_iter": 20000},
+    # KKT system of the detected active set (exact when it succeeds), but OSQP skips it when no
+    # constraint is active: eps 1e-8 is what gets q̇ within 1e-6 then (1e-6 leaves ~1e-4).
+    "osqp": {"eps_abs": 1e-8, "eps_rel": 0.0, "polish": True, "max_iter": 10000},
     # ProxQP's default eps_abs is 1e-3 (qpsolvers documentation). Its default equality-constrained
     # initial guess ends in PROXQP_PRIMAL_INFEASIBLE on many of our (feasible) level QPs.
     "proxqp": {"eps_abs": 1e-9, "eps_rel": 0.0, "initial_guess": "NO_INITIAL_GUESS"},
@@ -102,7 +103,8 @@ SOLVER_DEFAULTS: dict[str, dict[str, Any]] = {
 RETRY_SETTINGS: dict[str, dict[str, Any]] = {
     "daqp": {},
     "quadprog": {},
-    "osqp": {"eps_abs": 1e-7, "eps_rel": 0.0, "polish": True, "max_iter": 200000},
+    # A looser retry converges where 1e-8 ran out of iterations; TOLERANCES["osqp"] still checks it.
+    "osqp": {"eps_abs": 1e-6, "eps_rel": 0.0, "polish": True, "max_iter": 10000},
     # ProxQP's false infeasibility: solve the closest feasible problem instead; our own feasibility
     # check decides (every level QP is feasible by construction).
     "proxqp": {
@@ -194,7 +196,13 @@ def backend_kwargs(solver: str, settings: Mapping[str, Any]) -> dict[str, Any]:
     return kwargs
 
 
+_WARNING_SOLVERS = frozenset({"osqp", "quadprog", "clarabel"})  # qpsolvers warns on their failures
+
+
 def _solve_quietly(problem: qpsolvers.Problem, solver: str, quiet: bool, **kwargs: Any) -> qpsolvers.Solution:
+    """``qpsolvers.solve_problem`` without the failure warnings (failures are reported in StepResult)."""
+    if solver not in _WARNING_SOLVERS:
+        return qpsolvers.solve_problem(problem, solver=solver, **kwargs)
     with warnings.catch_warnings(), _quiet_stdout(quiet):
         warnings.simplefilter("ignore")
         return qpsolvers.solve_problem(problem, solver=solver, **kwargs)
@@ -228,9 +236,9 @@ def probe_settings(solver: str, settings: Mapping[str, Any]) -> None:
     try:
         solution = _solve_quietly(problem, solver, solver == "osqp", **backend_kwargs(solver, settings))
     except Exception as exc:  # noqa: BLE001 - whatever the backend raises is a settings error here
-        key = next((k for k in settings if re.search(rf"\b{re.escape(k)}\b", str(exc))), None)
-        named = f"setting '{key}'" if key else f"settings {dict(settings)}"
-        raise InvalidSettings(solver, f"{named} rejected by the backend: {exc}", key) from exc
+        bad_key = next((k for k in settings if re.search(rf"\b{re.escape(k)}\b", str(exc))), None)
+        named = f"setting '{bad_key}'" if bad_key else f"settings {dict(settings)}"
+        raise InvalidSettings(solver, f"{named} rejected by the backend: {exc}", bad_key) from exc
     if not solution.found or solution.x is None or not np.allclose(solution.x, [0.5, 0.5], atol=1e-3):
         raise InvalidSettings(solver, f"settings {dict(settings)} make the backend fail on a trivial QP")
 
@@ -351,6 +359,9 @@ class HqpSolver:
         self._no_owner = np.zeros(0, dtype=int)
         self._G, self._h, self._owner = self._no_rows, self._no_bounds, self._no_owner
         self._backend_time = 0.0
+        # Levels whose unconstrained minimiser was infeasible at the previous step: their active
+        # set usually persists, so they go straight to the backend (same unique solution).
+        self._needed_backend: dict[int, bool] = {}
 
     def __repr__(self) -> str:
         return f"HqpSolver(name={self.name!r}, solver={self.solver!r}, settings={self.qp_settings})"
@@ -360,6 +371,7 @@ class HqpSolver:
         """Allocate the level buffers once per hierarchy object."""
         if hierarchy is self._hierarchy:
             return
+        self._needed_backend = {}
         n = self.robot.nq
         levels: list[_Level] = []
         set_tasks: list[SetTask] = []
@@ -517,6 +529,7 @@ class HqpSolver:
                 status = SolveStatus.DEGRADED
                 message = f"{self.name}: {exc}; kept the solution of the levels above"
                 break
+            self._needed_backend[k] = bool(used)
             qp_calls += used
             retries += retried
             if its is not None:
@@ -641,7 +654,7 @@ class HqpSolver:
                 qz = JZ.T @ (J @ qd - r)
                 if eps:
                     qz += eps * (qd if Z is None else Z.T @ qd)
-        if self.options.unconstrained_first:
+        if self.options.unconstrained_first and not self._needed_backend.get(k, False):
             if Pz is not None and qz is not None:
                 t0 = time.perf_counter()
                 z = np.linalg.solve(Pz, -qz)
@@ -672,8 +685,16 @@ class HqpSolver:
         else:
             radius = float(np.linalg.norm(ub - lb)) + 1.0  # ‖z‖ = ‖Z z‖ ≤ diameter of the box
             z_lb, z_ub = np.full(d, -radius), np.full(d, radius)
-            G_rows = np.vstack([G_all[:c1] @ Z, Z, -Z])
-            h = np.concatenate([h_rel[:c1] - G_all[:c1] @ qd, ub - qd, qd - lb])
+            # The box as rows on z; a joint the earlier equality rows fix entirely gives a zero
+            # row "0 ≤ 0" that some backends take for an infeasibility: drop those.
+            box_G, box_h = np.vstack([Z, -Z]), np.concatenate([ub - qd, qd - lb])
+            live = np.abs(box_G).max(axis=1) > 1e-12
+            G_rows = np.vstack([G_all[:c1] @ Z, box_G[live]])
+            h = np.concatenate([h_rel[:c1] - G_all[:c1] @ qd, box_h[live]])
+        if r is self._zeros:
+            # Min-norm level: its optimum sits on the constraints of the levels above; a margin δ
+            # gives the feasible set an interior (ProxQP reports "infeasible" without it).
+            h = h + self.slack_margin
         if m == 0:  # no slack variable: x = z
             G, P, q_vec, x_lb, x_ub = G_rows, Pz, qz, z_lb, z_ub
             x0 = np.zeros(d)
@@ -692,6 +713,57 @@ class HqpSolver:
             q_vec = np.concatenate([qz, np.zeros(m)])
             x0 = np.concatenate([np.zeros(d), violation])
             f0 = 0.5 * float(violation @ violation)
+        x, solution, retried = self.solve_qp(P, q_vec, G, h, x_lb, x_ub, x0, f0, level=k)
+        cand = x[:d].copy() if at_zero else (qd + x[:d] if Z is None else qd + Z @ x[:d])
+        np.maximum(cand, lb, out=cand)
+        np.minimum(cand, ub, out=cand)
+        if c0:
+            # Absorb violations within tolerance, so later levels stay feasible by construction.
+            np.maximum(h_acc, G_acc @ cand, out=h_acc)
+        return cand, 1, backend_iterations(solution), retried
+
+    def solve_qp(
+        self,
+        P: np.ndarray,
+        q: np.ndarray,
+        G: np.ndarray | None,
+        h: np.ndarray | None,
+        lb: np.ndarray,
+        ub: np.ndarray,
+        x0: np.ndarray,
+        f0: float | None = None,
+        level: int = 0,
+    ) -> tuple[np.ndarray, qpsolvers.Solution, int]:
+        r"""Solve :math:`\min \tfrac12 x^TPx + q^Tx` s.t. :math:`Gx \le h,\ lb \le x \le ub`, checked.
+
+        An answer is accepted only if the backend reports success, it is finite, it satisfies
+        every constraint within ``tolerance`` and its objective is no worse than that of the
+        known feasible point ``x0``. Otherwise the QP is solved once more with
+        :data:`RETRY_SETTINGS`, :data:`RETRY_REGULARIZATION` added to the diagonal of P and
+        ``x0`` as warm start (when ``retry`` is on).
+
+        Args:
+            P: Positive definite cost matrix. Shape (d, d).
+            q: Cost vector. Shape (d,).
+            G: Inequality matrix, or None. Shape (m, d).
+            h: Inequality bounds, or None. Shape (m,).
+            lb: Lower bounds of x (finite). Shape (d,).
+            ub: Upper bounds of x (finite). Shape (d,).
+            x0: A feasible point. Shape (d,).
+            f0: Objective at ``x0`` (computed when None).
+            level: Priority level reported by :class:`NoSolutionFound`.
+
+        Returns:
+            (x, the backend's solution, 1 if the retry gave it else 0).
+
+        Raises:
+            NoSolutionFound: No attempt passed the checks (``solution`` holds the last answer).
+        """
+        if G is None or h is None:
+            G, h = np.zeros((0, q.shape[0])), np.zeros(0)
+        if f0 is None:
+            f0 = float(x0 @ (0.5 * (P @ x0) + q))
+        d = q.shape[0]
         attempts: list[tuple[dict[str, Any], float]] = [(self._kwargs, 0.0)]
         if self.options.retry:
             attempts.append((self._retry_kwargs, RETRY_REGULARIZATION))
@@ -702,10 +774,10 @@ class HqpSolver:
             P_try = P
             if extra_reg:
                 P_try = P.copy()
-                P_try.flat[:: d + m + 1] += extra_reg
+                P_try.flat[:: d + 1] += extra_reg
             try:
-                solution = self._call_backend(P_try, q_vec, G, h, x_lb, x_ub, x0 if attempt else None, kwargs)
-            except Exception as exc:  # noqa: BLE001 - backend errors are failures of this level
+                solution = self._call_backend(P_try, q, G, h, lb, ub, x0 if attempt else None, kwargs)
+            except Exception as exc:  # noqa: BLE001 - a backend error is a failure of this QP
                 last_solution, reason = None, f"{self.solver} raised {type(exc).__name__}: {exc}"
                 continue
             last_solution = solution
@@ -714,24 +786,19 @@ class HqpSolver:
                 reason = f"{self.solver} reported no solution"
                 continue
             x = np.asarray(x, dtype=float)
-            if x.shape != (d + m,) or not np.isfinite(x).all():
+            if x.shape != (d,) or not np.isfinite(x).all():
                 reason = f"{self.solver} returned a non-finite or misshaped solution"
                 continue
-            viol = max((x_lb - x).max(), (x - x_ub).max(), (G @ x - h).max() if h.size else -math.inf)
+            viol = max((lb - x).max(), (x - ub).max(), (G @ x - h).max() if h.size else -math.inf)
             if viol > tol:
                 reason = f"{self.solver} answer violates its constraints by {viol:.3g} (tolerance {tol:g})"
                 continue
-            f = float(x @ (0.5 * (P @ x) + q_vec))
+            f = float(x @ (0.5 * (P @ x) + q))
             if f > f0 + tol * (1.0 + abs(f0)):
                 reason = f"{self.solver} answer is worse than a known feasible point ({f:.6g} > {f0:.6g})"
                 continue
-            cand = x[:d].copy() if at_zero else (qd + x[:d] if Z is None else qd + Z @ x[:d])
-            np.maximum(cand, lb, out=cand)
-            np.minimum(cand, ub, out=cand)
-            if c0:
-                np.maximum(h_acc, G_acc @ cand, out=h_acc)
-            return cand, 1, backend_iterations(solution), attempt
-        raise NoSolutionFound(k, last_solution, reason)
+            return x, solution, attempt
+        raise NoSolutionFound(level, last_solution, reason)
 
     def _call_backend(
         self,

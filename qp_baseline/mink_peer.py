@@ -229,8 +229,11 @@ class MinkSolver:
         self._hierarchy = hierarchy
 
     def _adapter(self, task: Task, cost: float) -> _Adapter:
-        frame_kinds = ((PoseTask, "pose", cost, cost), (PositionTask, "position", cost, 0.0))
-        frame_kinds += ((OrientationTask, "orientation", 0.0, cost),)
+        frame_kinds: list[tuple[type[Task], str, float, float]] = [
+            (PoseTask, "pose", cost, cost),
+            (PositionTask, "position", cost, 0.0),
+            (OrientationTask, "orientation", 0.0, cost),
+        ]
         for cls, kind, pos_cost, rot_cost in frame_kinds:
             if isinstance(task, cls):
                 frame = str(task.frame)  # type: ignore[attr-defined]

@@ -11,6 +11,7 @@ from tpik.exceptions import (
     TpikError,
 )
 from tpik.hierarchy import Hierarchy, Level, build_tasks
+from tpik.solver import TpikSettings, TpikSolver, solve_tpik
 from tpik.step_result import IkSolver, SolveStatus, StepResult
 
 __all__ = [
@@ -25,5 +26,8 @@ __all__ = [
     "TaskDefinitionError",
     "ThresholdOrderError",
     "TpikError",
+    "TpikSettings",
+    "TpikSolver",
     "build_tasks",
+    "solve_tpik",
 ]

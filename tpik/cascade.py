@@ -16,8 +16,9 @@ with :math:`z \in \mathbb{R}^R`; projections and inverses only need entries of `
   projected as above;
 * a mode's checks: :math:`J_C\dot q = G_{C\cdot}z` (eqs. 8–9) and :math:`\|\dot q\|^2 = z^TGz`.
 
-Only the chosen mode is mapped back to joint space. With R ≈ 6 rows in the paper's case 2
-this does a mode in a few microseconds of plain float arithmetic.
+Only the chosen mode is mapped back to joint space. A level costs O(R²) float operations on
+Python lists (R ≈ 6 in the paper's case 2): at these sizes that is cheaper than the fixed cost
+of NumPy calls, and it lets the depth-first mode search share every prefix of the cascade.
 """
 
 from __future__ import annotations
@@ -118,10 +119,6 @@ class ModeSearch:
         self.adm_tol = admissibility_tol
         self.largest_norm = largest_norm
         self.level_bits = [sum(1 << c for c in level.candidates) for level in levels]
-        if self.n_cand:
-            # (R, |C|) selector: column c picks row cand_row[c] with the sign of its side.
-            self._outward = np.zeros((self.R, self.n_cand))
-            self._outward[cand_row, range(self.n_cand)] = cand_side
         self.evaluated = 0
         self._own: dict[tuple[int, int], tuple[list[int], list[float], float, list[float]]] = {}
 
@@ -143,14 +140,21 @@ class ModeSearch:
             G = self.G
             K = self._rows(li, mask)
             y, lam = gram_dls([[G[a][b] for b in K] for a in K], [self.x[k] for k in K], self.vnorm, self.tol)
-            c = [0.0] * self.R
-            for yb, kb in zip(y, K, strict=True):
-                if yb != 0.0:
-                    for j, Gj in enumerate(G):
-                        c[j] += Gj[kb] * yb
-            hit = (K, y, lam, c)
+            hit = (K, y, lam, [])  # G_{·K} y is filled in when a projection first needs it
             self._own[key] = hit
         return hit
+
+    def _own_image(self, own: tuple[list[int], list[float], float, list[float]]) -> list[float]:
+        r"""NSB: :math:`c = G_{\cdot K}\,y = A\,\dot q_K` of a cached own solution (computed once)."""
+        K, y, _, c = own
+        if not c:
+            pairs = [(kb, yb) for kb, yb in zip(K, y, strict=True) if yb != 0.0]
+            for Gj in self.G:
+                acc = 0.0
+                for kb, yb in pairs:
+                    acc += Gj[kb] * yb
+                c.append(acc)
+        return c
 
     def _add_rows(self, P: list[int], L: list[list[float]], K: list[int]) -> tuple[list[int], list[list[float]]]:
         """Extend the independent rows P and the Cholesky factor of G_PP with the rows K."""
@@ -183,8 +187,13 @@ class ModeSearch:
         z2 = z.copy()
         if not self.ss:
             # NSB (eq. 4): q̇_K = J_K^# x_K = A_Kᵀ y, then projected on the null space above.
-            K, y, lam, c = self._own_solution(li, mask)
-            g = forward(L, [c[p] for p in P]) if P else None
+            own = self._own_solution(li, mask)
+            K, y, lam, _ = own
+            if P:
+                c = self._own_image(own)
+                g = forward(L, [c[p] for p in P])
+            else:
+                g = None
         else:
             # SS: B = J_K N, BBᵀ = G_KK − WᵀW with W = L⁻¹ G_PK; reference compensated.
             K = self._rows(li, mask)
@@ -240,10 +249,14 @@ class ModeSearch:
 
     def _select(self, leaves: list[_Leaf], incumbent: Mode | None = None) -> Mode | None:
         """Check the leaves (finite, eqs. 8–9) and return the best of them and ``incumbent``."""
+        if len(leaves) <= 64:
+            return self._select_small(leaves, incumbent)
         Z = np.array([leaf[1] for leaf in leaves])
         GZ = Z @ self.G_np
         norms = (Z * GZ).sum(axis=1).tolist()
-        moves = (GZ @ self._outward).tolist() if self.n_cand else None  # J_C q̇, signed outward
+        moves = None
+        if self.n_cand:  # J_C q̇, signed so that "further out" is positive
+            moves = (GZ[:, self.cand_row] * np.array(self.cand_side)).tolist()
         adm_tol, n_cand = self.adm_tol, self.n_cand
         best = incumbent
         for i, (mask, z, lams) in enumerate(leaves):
@@ -257,6 +270,41 @@ class ModeSearch:
                 row = moves[i]
                 if any(row[c] > adm_tol and not mask >> c & 1 for c in range(n_cand)):
                     continue  # a left-out task would move further out (eqs. 8–9)
+            best = mode
+        return best
+
+    def _select_small(self, leaves: list[_Leaf], incumbent: Mode | None) -> Mode | None:
+        """:meth:`_select` in plain floats (faster than NumPy calls for a few small leaves)."""
+        G, adm_tol, full = self.G, self.adm_tol, self.full
+        cands = list(enumerate(zip(self.cand_row, self.cand_side, strict=True)))
+        best = incumbent
+        for mask, z, lams in leaves:
+            nz = [(j, zj) for j, zj in enumerate(z) if zj != 0.0]
+            norm2 = 0.0
+            for i, zi in nz:
+                Gi = G[i]
+                acc = 0.0
+                for j, zj in nz:
+                    acc += Gi[j] * zj
+                norm2 += zi * acc
+            if not math.isfinite(norm2):
+                continue
+            mode = Mode(mask, z, norm2, mask.bit_count(), lams)
+            if not self.better(mode, best):
+                continue
+            if mask != full:
+                outward = False
+                for c, (row, side) in cands:
+                    if not mask >> c & 1:
+                        Gr = G[row]
+                        move = 0.0
+                        for j, zj in nz:
+                            move += Gr[j] * zj
+                        if move * side > adm_tol:
+                            outward = True  # a left-out task would move further out (eqs. 8–9)
+                            break
+                if outward:
+                    continue
             best = mode
         return best
 

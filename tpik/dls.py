@@ -137,6 +137,45 @@ def backward(L: list[list[float]], w: list[float]) -> list[float]:
     return u
 
 
+def _solve_small(S: list[list[float]], shift: float, r: list[float]) -> list[float] | None:
+    """Straight-line Cholesky solve of ``(S + shift I) y = r`` for m = 2 or 3; None if not PD."""
+    if len(r) == 2:
+        a = S[0][0] + shift
+        if not a > 0.0:
+            return None
+        l00 = math.sqrt(a)
+        l10 = S[1][0] / l00
+        d = S[1][1] + shift - l10 * l10
+        if not d > 0.0:
+            return None
+        l11 = math.sqrt(d)
+        w0 = r[0] / l00
+        w1 = (r[1] - l10 * w0) / l11
+        y1 = w1 / l11
+        return [(w0 - l10 * y1) / l00, y1]
+    a = S[0][0] + shift
+    if not a > 0.0:
+        return None
+    l00 = math.sqrt(a)
+    l10 = S[1][0] / l00
+    l20 = S[2][0] / l00
+    d = S[1][1] + shift - l10 * l10
+    if not d > 0.0:
+        return None
+    l11 = math.sqrt(d)
+    l21 = (S[2][1] - l20 * l10) / l11
+    d = S[2][2] + shift - l20 * l20 - l21 * l21
+    if not d > 0.0:
+        return None
+    l22 = math.sqrt(d)
+    w0 = r[0] / l00
+    w1 = (r[1] - l10 * w0) / l11
+    w2 = (r[2] - l20 * w0 - l21 * w1) / l22
+    y2 = w2 / l22
+    y1 = (w1 - l21 * y2) / l11
+    return [(w0 - l10 * y1 - l20 * y2) / l00, y1, y2]
+
+
 def gram_dls(
     S: list[list[float]], r: list[float], velocity_norm_max: float, rank_tol: float
 ) -> tuple[list[float], float]:
@@ -171,7 +210,7 @@ def gram_dls(
         sigma_min = math.sqrt(max(min_eigenvalue(S), 0.0))
         lam = dynamic_damping(sigma_min, math.sqrt(rn2) / velocity_norm_max)
         if sigma_min > rank_tol:
-            y = cholesky_solve(S, lam * lam, r)
+            y = _solve_small(S, lam * lam, r)
             if y is not None:
                 return y, lam
     # Larger, or (near) singular: eigendecomposition with the rank tolerance (LAPACK dsyevd

@@ -165,18 +165,9 @@ def _check_number(key: str, value: object, allow_zero: bool = False) -> None:
         raise InvalidSettings(f"{key}: must be finite and {'>=' if allow_zero else '>'} 0, got {value!r}")
 
 
-@dataclass
-class _SetEntry:
-    """A set-based task of the plan, with its thresholds read once."""
-
-    task: SetTask
-    name: str
-    gain: float
-    act_lower: float
-    act_upper: float
-    safe_lower: float
-    safe_upper: float
-    fast: bool  # SetTask.compute_state not overridden: read (σ, J) directly
+_SetEntry = tuple[Any, SetTask, str, float, float, float, float, float]
+"""A set-based task of the plan, thresholds read once: (σ-and-J method or None, task, name, gain,
+σ_{a,l}, σ_{a,u}, σ_{s,l}, σ_{s,u}). The method is None when ``compute_state`` is overridden."""
 
 
 @dataclass
@@ -193,6 +184,11 @@ class TpikSolver:
         robot: The robot (``nq`` and the joint velocity limits ``v_max`` are read from it).
         settings: :class:`TpikSettings`; None = defaults.
         name: Method name shown in reports (``"tpik"``, ``"tpik-ss"``).
+
+    Which tasks are set-based, their gains and thresholds are read once per hierarchy object
+    (the first time it is solved); targets and obstacle points are read every step, as the
+    tasks evaluate them. Build a new :class:`~tpik.hierarchy.Hierarchy` to change gains or
+    thresholds.
 
     Example::
 
@@ -234,9 +230,13 @@ class TpikSolver:
             for task in level.tasks:
                 if isinstance(task, SetTask):
                     th = task.thresholds
-                    fast = type(task).compute_state is SetTask.compute_state
+                    # σ and J are read directly unless the task customises its TaskState.
+                    direct = (
+                        task.compute_value_and_jacobian if type(task).compute_state is SetTask.compute_state else None
+                    )
                     st.append(
-                        _SetEntry(
+                        (
+                            direct,
                             task,
                             task.name,
                             task.gain,
@@ -244,7 +244,6 @@ class TpikSolver:
                             th.activation_upper,
                             th.safety_lower,
                             th.safety_upper,
-                            fast,
                         )
                     )
                 else:
@@ -292,6 +291,8 @@ class TpikSolver:
         cand_side: list[float] = []
         cand_names: list[str] = []
         block_names: list[str] = []
+        row_shape = (1, n)
+        inf = math.inf
         for lp in plan:
             eq_rows: list[int] = []
             for task in lp.equality:
@@ -311,30 +312,31 @@ class TpikSolver:
                 blocks.append(state.jacobian)
                 block_names.append(task.name)
             cands: list[int] = []
-            for entry in lp.set_tasks:
-                if entry.fast:
-                    sigma_raw, jac = entry.task.compute_value_and_jacobian(kin)
+            for direct, set_task, name, gain, act_lower, act_upper, safe_lower, safe_upper in lp.set_tasks:
+                if direct is not None:
+                    sigma_raw, jac = direct(kin)
                     sigma = float(sigma_raw)
                 else:
-                    state = entry.task.compute_state(kin)
-                    state.validate(entry.name, n)
+                    state = set_task.compute_state(kin)
+                    state.validate(name, n)
                     sigma, jac = float(state.value[0]), state.jacobian
-                if jac.shape != (1, n):
-                    raise InvalidTaskState(f"task '{entry.name}': jacobian has shape {jac.shape}, expected (1, {n})")
-                if entry.act_upper <= sigma < math.inf:
-                    side, target = 1.0, entry.safe_upper
-                elif -math.inf < sigma <= entry.act_lower:
-                    side, target = -1.0, entry.safe_lower
+                if jac.shape != row_shape:
+                    raise InvalidTaskState(f"task '{name}': jacobian has shape {jac.shape}, expected (1, {n})")
+                if act_upper <= sigma < inf:
+                    side, target = 1.0, safe_upper
+                elif -inf < sigma <= act_lower:
+                    side, target = -1.0, safe_lower
                 else:
                     continue  # inside the activation thresholds, or non-finite σ: inactive
-                gain = entry.gain if entry.gain < k_max else k_max
+                if gain > k_max:
+                    gain = k_max
                 cands.append(len(cand_row))
                 cand_row.append(len(x))
                 cand_side.append(side)
-                cand_names.append(entry.name)
+                cand_names.append(name)
                 x.append(gain * (target - sigma))
                 blocks.append(jac)
-                block_names.append(entry.name)
+                block_names.append(name)
             if eq_rows or cands:
                 levels.append(LevelRows(lp.name, eq_rows, cands))
         n_cand = len(cand_row)
@@ -348,11 +350,6 @@ class TpikSolver:
             extras.update(modes_evaluated=0, search="none", velocity_scale=1.0)
             return StepResult(np.zeros(n), SolveStatus.OK, (), time.perf_counter() - t0, 0.0, {}, "", extras)
         A = blocks[0] if len(blocks) == 1 else np.concatenate(blocks)
-        if not np.isfinite(A).all():
-            _raise_non_finite(block_names, blocks)
-        t1 = time.perf_counter()
-
-        # ---- 2–4. mode search (cascade per mode, admissibility, selection).
         s = self.settings
         search = ModeSearch(
             A,
@@ -366,6 +363,11 @@ class TpikSolver:
             admissibility_tol=s.admissibility_tolerance,
             largest_norm=s.selection_rule == "largest_norm",
         )
+        if not math.isfinite(sum(map(sum, search.G))):  # G = AAᵀ: NaN/inf anywhere in A shows here
+            _raise_non_finite(block_names, blocks)
+        t1 = time.perf_counter()
+
+        # ---- 2–4. mode search (cascade per mode, admissibility, selection).
         mode: Mode | None
         if n_cand == 0:
             mode, how = search.single(0), "none"
@@ -379,9 +381,10 @@ class TpikSolver:
             return failed(n, f"{self.name}: every mode gave a non-finite velocity", **extras)
         qdot = search.velocity(mode)
         # ---- joint velocity limits: one scale factor, direction kept.
-        ratio = float((np.abs(qdot) * self._inv_v_max).max())
-        if not math.isfinite(ratio):  # NaN or inf anywhere in q̇
+        rel = (qdot * self._inv_v_max).tolist()
+        if not math.isfinite(sum(rel)):  # NaN or inf anywhere in q̇
             return failed(n, f"{self.name}: the cascade produced a non-finite velocity", **extras)
+        ratio = max(map(abs, rel))
         scale = 1.0
         if ratio > 1.0:
             scale = 1.0 / ratio
@@ -412,7 +415,11 @@ class TpikSolver:
 
 
 def _raise_non_finite(names: list[str], blocks: list[np.ndarray]) -> None:
-    """Name the task whose Jacobian has non-finite entries (the slow path of the check)."""
+    """Name the task whose Jacobian has non-finite entries (the slow path of the check).
+
+    Returns without raising when every Jacobian is finite (AAᵀ overflowed): the velocity check
+    then reports the failure.
+    """
     for name, block in zip(names, blocks, strict=True):
         if not np.isfinite(block).all():
             raise InvalidTaskState(f"task '{name}': jacobian has non-finite entries")

@@ -101,7 +101,7 @@ def main(argv: list[str] | None = None) -> int:
     if not -1 <= args.max_candidates <= 12:
         print("--max-candidates must be in -1..12", file=sys.stderr)
         return 2
-    console = Console()
+    console = Console(width=max(Console().width, 132))
     info = versions()
     console.print(
         f"python {info.get('python')} · numpy {info.get('numpy')} · pin {info.get('pin')} · "

@@ -6,12 +6,15 @@ Data flow (one process; rospy's receive threads fill the latest values, the cont
   the 7 arm joints are picked by name, fingers are ignored;
 * ``hardware.depth_topic`` + ``hardware.camera_info_topic`` → :meth:`RosRobotIO.read_depth`, a
   :class:`~compare.robot_io.DepthFrame` with the calibrated camera pose from the config;
-* :meth:`RosRobotIO.send_velocity` [rad/s] → clamps → watchdog → ``hardware.velocity_topic``
-  (``kinova_msgs/JointVelocity``, **deg/s**), published at once.
+* :meth:`RosRobotIO.send_velocity` [rad/s] holds the command; the *command stream* thread
+  publishes it on ``hardware.velocity_topic`` (``kinova_msgs/JointVelocity``, **deg/s**) on a
+  fixed 100 Hz schedule, through the clamps and the :class:`~compare.hardware.safety.Watchdog`.
 
-A *pump* thread keeps the 100 Hz stream the driver needs when the loop is late (it republishes
-the held command) and stops it safely when the loop stalls or the data goes stale (zero
-velocity). Every published command passes the :class:`~compare.hardware.safety.Watchdog`.
+The stream thread is the loop's clock (:meth:`RosRobotIO.wait` returns at its ticks), so the
+driver gets exactly one message per 10 ms (faster fills its buffer and the arm keeps moving
+after the stream stops; slower starves it), the held command is re-sent if the loop misses a
+tick, zero goes out when the loop stalls for 3 periods, and zero goes out *at once* (not at the
+next tick) when joint state or depth goes stale while the arm moves.
 
 Times are on this process's monotonic clock, in seconds since :meth:`RosRobotIO.start_clock`
 (arrival times, not the senders' header stamps: machines' clocks may differ).
@@ -164,10 +167,12 @@ class RosRobotIO(RobotIO):
         self._sent = np.zeros(self.nq)
         self._last_publish_t = -math.inf
         self._halt_reason: str | None = None
-        self._next_tick: float | None = None
         self._closed = False
         self._pump: threading.Thread | None = None
         self._pump_stop = threading.Event()
+        self._tick = threading.Condition()
+        self._tick_count = 0
+        self.pump_overruns = 0
         self._subs: list[Any] = []
         self._pub: Any = None
         self._nodelay_done: set[int] = set()
@@ -260,7 +265,6 @@ class RosRobotIO(RobotIO):
             shift = time.monotonic() - self._epoch
             self._epoch += shift
             self._clock_start = self._epoch
-            self._next_tick = None
             self.startup_events.extend(self.watchdog.events)
             self.watchdog.events.clear()
             self.watchdog.quiet = False
@@ -278,8 +282,10 @@ class RosRobotIO(RobotIO):
             return
         self.halt(self._halt_reason or "closing", level=logging.INFO)
         end = time.monotonic() + _STOP_REPEAT_S
-        while time.monotonic() < end:
-            self._publish(time.monotonic())
+        pump_alive = self._pump is not None and self._pump.is_alive()
+        while time.monotonic() < end:  # the stream keeps sending the latched zero
+            if not pump_alive:
+                self._publish(time.monotonic())
             time.sleep(self.dt)
         self._closed = True
         self._pump_stop.set()
@@ -337,25 +343,32 @@ class RosRobotIO(RobotIO):
         return DepthFrame(depth, stamp - self._epoch, camera)
 
     def send_velocity(self, qdot: np.ndarray) -> None:
-        """Clamp, watchdog, then publish ``qdot`` [rad/s] (converted to deg/s on the wire)."""
+        """Hold ``qdot`` [rad/s] for the next tick of the command stream (clamped and watched there).
+
+        An all-zero command is also published at once: stopping never waits for a tick.
+        """
         now = time.monotonic()
         with self._lock:
             self._command = np.array(qdot, dtype=float, copy=True)
             self._command_t = now
-            self._publish(now)
+            if not np.any(self._command) and np.any(self._sent):
+                self._publish(now)
 
     def wait(self) -> None:
-        """Sleep until the next control tick (absolute schedule; a late loop restarts it)."""
-        now = time.monotonic()
-        if self._next_tick is None:
-            self._next_tick = now
-        self._next_tick += self.dt
-        delay = self._next_tick - now
-        if delay > 0.0:
-            time.sleep(delay)
-        elif -delay > self.dt:
-            self.overruns += 1
-            self._next_tick = now
+        """Block until the next tick of the 100 Hz command stream (the loop's clock).
+
+        The loop then reads the latest joint state, solves, and its command goes out at the
+        following tick: one period of latency, exactly one message per period.
+        """
+        with self._tick:
+            seen = self._tick_count
+            if self._pump is None or not self._pump.is_alive():
+                self._tick.wait(self.dt)
+                return
+            if not self._tick.wait_for(lambda: self._tick_count > seen, timeout=5.0 * self.dt):
+                self.overruns += 1
+            elif self._tick_count > seen + 1:
+                self.overruns += self._tick_count - seen - 1  # the loop missed ticks (the held command was re-sent)
 
     def stop(self) -> None:
         """Command zero velocity (published at once)."""
@@ -402,20 +415,31 @@ class RosRobotIO(RobotIO):
                 log.error("publishing the velocity command failed: %s", exc)
 
     def _pump_loop(self) -> None:
-        """Watch the stream every millisecond.
+        """The command stream: one message per period on a fixed schedule, plus immediate zeros.
 
-        Zero goes out at once when the data goes stale while the arm is commanded to move; the
-        held command is republished when the loop is 1.5 periods late (the stream stays at
-        100 Hz; zero if the loop stalled).
+        At each tick the held command goes out (through clamps and watchdog) and the control
+        loop is woken. Between ticks the data ages are checked every millisecond: zero is sent at
+        once when the arm is commanded to move and the watchdog trips.
         """
-        while not self._pump_stop.wait(0.001):
+        next_tick = time.monotonic()
+        while not self._pump_stop.is_set():
             now = time.monotonic()
-            with self._lock:
-                moving = bool(np.any(self._sent))
-                stale = moving and self.watchdog.reason_at(*self._times(now)) is not None
-            if stale or now - self._last_publish_t >= 1.5 * self.dt:
+            if now >= next_tick:
                 self._publish(now)
-            self._set_nodelay()
+                with self._tick:
+                    self._tick_count += 1
+                    self._tick.notify_all()
+                next_tick += self.dt
+                if now - next_tick > self.dt:  # this thread was starved: restart the schedule
+                    self.pump_overruns += 1
+                    next_tick = now + self.dt
+                self._set_nodelay()
+                continue
+            with self._lock:
+                stale = bool(np.any(self._sent)) and self.watchdog.reason_at(*self._times(now)) is not None
+            if stale:
+                self._publish(now)
+            self._pump_stop.wait(min(0.001, max(0.0, next_tick - time.monotonic())))
 
     def _set_nodelay(self) -> None:
         """Set TCP_NODELAY on our command sockets.
@@ -509,6 +533,7 @@ class RosRobotIO(RobotIO):
             "clamped_commands": self.clamp_count,
             "zero_commands": self.zero_commands,
             "loop_overruns": self.overruns,
+            "stream_overruns": self.pump_overruns,
             "ignored_messages": dict(self.bad_messages),
             "state_timeout_s": self.hw.state_timeout_s,
             "depth_timeout_s": self.hw.depth_timeout_s if self.use_depth else None,

@@ -73,22 +73,48 @@ def _signals(io: RosRobotIO, state: Interrupted) -> Iterator[None]:
 
 
 def make_obstacle_source(config: Config, robot: robots.Robot, io: RosRobotIO) -> ObstacleSource:
-    """Depth-space obstacle distance on the live frames: background capture, self-filter, distance."""
-    from compare.hardware.sensing import HardwareDepthSensing, capture_background
+    """Depth-space obstacle distance on the live frames: static background, self-filter, distance."""
+    from compare.hardware.sensing import HardwareDepthSensing, capture_background, load_background, static_background
 
     frame = io.read_depth()
     if frame is None:
         raise StartRefused("no depth frame to build the obstacle sensing from")
-
-    def q_now() -> np.ndarray | None:
-        reading = io.read_joints()
-        return None if reading is None else reading.q
-
-    seconds = config.hardware.background_capture_s
-    if seconds > 0:
-        log.info("capturing the static background for %.1f s: keep people out of the camera's view", seconds)
-    background = capture_background(io.read_depth, q_now, robot, config, seconds)
+    hw = config.hardware
+    if hw.background_file is not None:
+        depth = load_background(Path(hw.background_file), frame.camera)
+    elif hw.background_capture_s > 0:
+        log.info("capturing the static background for %.1f s: keep people out of view", hw.background_capture_s)
+        depth = capture_background(io.read_depth, io.q_at, robot, config, hw.background_capture_s)
+    else:
+        depth = None
+    background = static_background(depth, config) if depth is not None else None
     return HardwareDepthSensing(robot, frame.camera, io.read_depth, io.q_at, config, background)
+
+
+def capture_background_file(config: Config, path: Path, duration_s: float) -> float:
+    """Record the static background on the real setup and save it (nothing is published).
+
+    Move the arm through its workspace meanwhile (joystick, Kinova GUI) so every pixel is seen
+    unhidden at least once; keep people out of the camera's view.
+
+    Returns:
+        Fraction of pixels that got a background.
+    """
+    from compare.hardware.sensing import capture_background, save_background
+
+    robot = robots.load("jaco2")
+    hw = config.hardware.model_copy(update={"startup_timeout_s": max(config.hardware.startup_timeout_s, 5.0)})
+    io = RosRobotIO(hw, robot.v_max, config.scenario.dt, use_depth=True, dry_run=True)
+    try:
+        io.connect()
+        io.wait_ready()
+        depth = capture_background(io.read_depth, io.q_at, robot, config, duration_s)
+    finally:
+        io.close()
+    if depth is None:
+        raise StartRefused("no depth frame during the capture")
+    save_background(path, depth)
+    return float(np.mean(depth > 0))
 
 
 def _apply_sensing(hierarchy: Hierarchy, result: Any) -> None:

@@ -22,10 +22,12 @@ import math
 import time
 import warnings
 from collections.abc import Callable
+from pathlib import Path
 
 import numpy as np
 
 from compare.config import Config
+from compare.hardware.exceptions import HardwareError
 from compare.robot_io import CameraModel, DepthFrame
 from compare.sensing.camera import valid_fraction
 from compare.sensing.depth_distance import DepthDistance
@@ -110,44 +112,86 @@ class HardwareDepthSensing:
 
 def capture_background(
     frames: Callable[[], DepthFrame | None],
-    q_now: Callable[[], np.ndarray | None],
+    q_at: Callable[[float], np.ndarray | None],
     robot: Robot,
     config: Config,
     duration_s: float,
-) -> StaticBackground | None:
-    """Capture the static scene from live frames (nobody may be in view), arm pixels left out.
+) -> np.ndarray | None:
+    """Depth of the static scene from live frames (nobody may be in view), the arm left out.
 
-    The per-pixel median of the valid returns over ``duration_s`` is the background; pixels
-    measuring the arm (self-filter at the current joint positions) get no background, so
-    anything seen there later is kept. Returns None if ``duration_s`` <= 0 or no frame came.
+    Every frame is self-filtered with the joint positions measured when it arrived; the
+    background of a pixel is the median of its arm-free valid returns, provided it had one in at
+    least half of the frames where the arm did not hide it. Pixels the arm hid in every frame get
+    no background (0: anything seen there later is kept, conservatively — move the arm during the
+    capture to uncover them, or load a background file).
+
+    Returns:
+        Background depth [m], float32 (H, W), 0 = none; None if ``duration_s`` <= 0 or no frame came.
     """
     if duration_s <= 0.0:
         return None
+    settings = sensing_settings(config)
+    filters: dict[int, SelfFilter] = {}
     stack: list[np.ndarray] = []
+    seen: list[np.ndarray] = []
     last_stamp = -math.inf
-    camera: CameraModel | None = None
     end = time.monotonic() + duration_s
     while time.monotonic() < end:
         frame = frames()
         if frame is not None and frame.stamp_s > last_stamp:
             last_stamp = frame.stamp_s
-            stack.append(np.nan_to_num(frame.depth_m, nan=0.0).astype(np.float32))
-            camera = frame.camera
+            depth = np.nan_to_num(frame.depth_m, nan=0.0, posinf=0.0, neginf=0.0).astype(np.float32)
+            valid = depth > 0.0
+            q = q_at(frame.stamp_s)
+            if q is not None:
+                key = id(frame.camera)
+                if key not in filters:
+                    filters[key] = make_self_filter(robot, frame.camera, settings)
+                filters[key].apply_inplace(depth, q=q)
+            arm = valid & (depth <= 0.0)  # returns the self-filter removed
+            stack.append(depth)
+            seen.append(~arm)
         time.sleep(0.005)
-    if not stack or camera is None:
+    if not stack:
         return None
     depth = np.stack(stack)
+    unhidden = np.stack(seen)
     valid = depth > 0.0
-    masked = np.where(valid, depth, np.nan)
     with warnings.catch_warnings():  # pixels never valid: all-NaN columns, handled by `keep`
         warnings.simplefilter("ignore", RuntimeWarning)
-        median = np.nanmedian(masked, axis=0) if depth.shape[0] > 1 else masked[0]
-    keep = valid.mean(axis=0) >= 0.5
+        median = np.nanmedian(np.where(valid, depth, np.nan), axis=0)
+    n_unhidden = unhidden.sum(axis=0)
+    keep = (n_unhidden > 0) & (valid.sum(axis=0) >= 0.5 * n_unhidden)
     background = np.where(keep & np.isfinite(median), median, 0.0).astype(np.float32)
-    settings = sensing_settings(config)
-    q = q_now()
-    if q is not None:
-        make_self_filter(robot, camera, settings).apply_inplace(background, q=q)
     log.info("background captured from %d frames (%.0f%% pixels)", len(stack), 100.0 * float(np.mean(background > 0)))
+    return background
+
+
+def static_background(depth_m: np.ndarray, config: Config) -> StaticBackground:
+    """The static-scene filter for a background depth image, with the simulation's margins."""
+    settings = sensing_settings(config)
     margin, noise, allowance = settings.background_margin_m, settings.noise, settings.noise_allowance
-    return StaticBackground(background, margin_m=margin, noise=noise, noise_allowance=allowance)
+    return StaticBackground(depth_m, margin_m=margin, noise=noise, noise_allowance=allowance)
+
+
+def save_background(path: Path, depth_m: np.ndarray) -> None:
+    """Write a background depth image [m] (0 = none) to an ``.npz`` file."""
+    np.savez_compressed(Path(path), depth_m=np.asarray(depth_m, dtype=np.float32))
+
+
+def load_background(path: Path, camera: CameraModel) -> np.ndarray:
+    """Read a background written by :func:`save_background`; its size must match ``camera``.
+
+    Raises:
+        HardwareError: unreadable file or a size different from the camera's.
+    """
+    try:
+        with np.load(Path(path)) as data:
+            depth = np.asarray(data["depth_m"], dtype=np.float32)
+    except (OSError, KeyError, ValueError) as exc:
+        raise HardwareError(f"background file {path}: cannot read ({exc})") from None
+    if depth.shape != (camera.height, camera.width):
+        raise HardwareError(
+            f"background file {path} is {depth.shape[1]}x{depth.shape[0]} px, the camera {camera.width}x{camera.height}"
+        )
+    return depth

@@ -119,6 +119,20 @@ def camera_calibration() -> dict[str, list[float]]:
     return {"camera_translation_m": list(t), "camera_quaternion_xyzw": list(q)}
 
 
+def write_background(path: Path) -> None:
+    """Save the work cell's static scene as a background file: what a perfect capture gives."""
+    from compare.hardware.sensing import save_background
+    from compare.sensing.renderer import DepthCamera
+    from compare.sensing.scene import load_workcell, make_data
+
+    model = load_workcell()
+    camera = DepthCamera(model)
+    try:
+        save_background(path, camera.render_static(make_data(model)))
+    finally:
+        camera.close()
+
+
 class StandIn:
     """The stand-in node.
 
@@ -308,6 +322,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--no-depth", action="store_true", help="Publish no camera.")
     parser.add_argument("--record", type=Path, default=None, help="Write a JSON record here at the end.")
     parser.add_argument("--print-calibration", action="store_true", help="Print the [hardware] camera pose; exit.")
+    parser.add_argument(
+        "--write-background", type=Path, default=None, help="Save the static scene's depth (background file); exit."
+    )
     args = parser.parse_args(argv)
     logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
     overrides: dict[str, object] = {}
@@ -322,6 +339,9 @@ def main(argv: list[str] | None = None) -> int:
     config = realize(config, robot)
     if args.print_calibration:
         print(json.dumps(camera_calibration()))
+        return 0
+    if args.write_background is not None:
+        write_background(args.write_background)
         return 0
     ros = load_ros()
     uri = ros.rosgraph.get_master_uri()

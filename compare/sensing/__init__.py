@@ -12,9 +12,10 @@ camera, capsule person on mocap bodies). Two sensing modes with one result type
 
 Example (headless: ``MUJOCO_GL=egl``)::
 
+    import mujoco
+    import robots
     from compare.sensing import (DepthPipeline, GeometricDistance, Person, PersonKeyframe,
                                  control_point_positions, load_workcell, make_data)
-    import robots
 
     model = load_workcell()
     data = make_data(model)                       # arm at "home"
@@ -27,6 +28,12 @@ Example (headless: ``MUJOCO_GL=egl``)::
     depth = DepthPipeline(model)                  # default DepthSensingSettings (rho 0.5 m)
     result = depth.sense(data, points)            # render + filter + distance
     exact = GeometricDistance(model).compute(data, points)
+    depth.close()
+
+In the closed loop (``compare.simulation``): ``person.apply`` is the ``scene_update`` of
+``compare.sim_io.SimRobotIO``, ``DepthPipeline.render`` its ``depth_camera``,
+``DepthPipeline.source(io.read_depth)`` or ``GeometricObstacleSource`` the loop's obstacle
+source, and ``truth_function(model, io.data)`` its ground truth.
 """
 
 from __future__ import annotations

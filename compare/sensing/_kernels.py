@@ -22,6 +22,8 @@ def closest_in_boxes(
     inv_rr: np.ndarray,
     points: np.ndarray,
     support: int,
+    min_range: float,
+    max_range: float,
     work_v: np.ndarray,
     work_u: np.ndarray,
     work_d: np.ndarray,
@@ -29,7 +31,7 @@ def closest_in_boxes(
     """Per control point, the ``support``-th smallest squared distance to the pixels' occluded half-lines.
 
     Args:
-        depth: Depth image [m], (H, W); pixels that are not > 0 (0, NaN) are skipped.
+        depth: Depth image [m], (H, W); pixels outside [min_range, max_range] (0, NaN, inf) are skipped.
         boxes: Half-open pixel boxes ``(v0, v1, u0, u1)`` per control point, int64 (K, 4); an
             empty box (v0 >= v1) disables its control point.
         xn: ``(u - cx) / fx`` per column, (W,).
@@ -37,6 +39,8 @@ def closest_in_boxes(
         inv_rr: ``1 / (1 + xn[u]² + yn[v]²)`` per pixel, (H, W).
         points: Control points in the sensor frame [m], (K, 3).
         support: Rank k of the reported distance (1 = minimum).
+        min_range: Smallest valid depth [m].
+        max_range: Largest valid depth [m].
         work_v: Scratch, int32 (H·W,).
         work_u: Scratch, int32 (H·W,).
         work_d: Scratch, float64 (H·W,).
@@ -58,7 +62,7 @@ def closest_in_boxes(
     for v in range(v_lo, v_hi):
         for u in range(u_lo, u_hi):
             d = depth[v, u]
-            if d > 0.0:
+            if min_range <= d <= max_range:  # False for NaN
                 work_v[n] = v
                 work_u[n] = u
                 work_d[n] = d

@@ -127,9 +127,9 @@ def camera_model_from_mujoco(
         if model.cam_bodyid[cam] != 0 or model.cam_mode[cam] != mujoco.mjtCamLight.mjCAMLIGHT_FIXED:
             raise SensingError(f"camera '{camera}' is not fixed to the world: pass data to read its pose")
         pos = np.array(model.cam_pos[cam])
-        rot = np.empty(9)
-        mujoco.mju_quat2Mat(rot, model.cam_quat[cam])
-        rot = rot.reshape(3, 3)
+        flat = np.empty(9)
+        mujoco.mju_quat2Mat(flat, model.cam_quat[cam])
+        rot = flat.reshape(3, 3)
     transform = np.eye(4)
     transform[:3, :3] = rot @ _MJ_TO_OPTICAL
     transform[:3, 3] = pos

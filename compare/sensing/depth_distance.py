@@ -27,7 +27,8 @@ which is never larger than Flacco's value (his point at :math:`d_p` lies on the 
 when :math:`d_o < d_p`) and equals the measured point's distance when the obstacle is behind
 :math:`P`. The returned closest point is :math:`s^\* r`, mapped to the base frame.
 
-Pixels with no return (0, NaN, out of range) are skipped: they never create an obstacle.
+Pixels with no return (0, NaN, ±inf, outside the camera's range) are skipped: they never create
+an obstacle.
 A frame whose valid fraction is below ``blind_fraction`` is flagged ``blind`` so that the
 controller stops. Readings report "nothing in range" when the minimum exceeds :math:`\rho`.
 """
@@ -132,10 +133,11 @@ class DepthDistance:
         p = base_to_sensor(self.camera, p_base)  # (K, 3)
         boxes = self.surveillance_boxes(p)
         seen = boxes[:, 0] < boxes[:, 1]
+        lo, hi = self.camera.min_range_m, self.camera.max_range_m
         if self.backend == "numba":
             img = depth if depth.flags.c_contiguous else np.ascontiguousarray(depth)
             d2, a, b, s, counts = closest_in_boxes(
-                img, boxes, self._xn64, self._yn64, self._inv_rr, p, self.min_support, *self._work
+                img, boxes, self._xn64, self._yn64, self._inv_rr, p, self.min_support, lo, hi, *self._work
             )
         else:
             d2, a, b, s, counts = self._closest_numpy(depth, boxes, p)
@@ -167,7 +169,8 @@ class DepthDistance:
         for k in range(k_points):
             if boxes[k, 0] >= boxes[k, 1]:
                 continue
-            res, counts[k] = self._closest(depth, p[k], tuple(int(v) for v in boxes[k]))
+            v0, v1, u0, u1 = (int(v) for v in boxes[k])
+            res, counts[k] = self._closest(depth, p[k], (v0, v1, u0, u1))
             if res is not None:
                 for arr, val in zip(out, res, strict=True):
                     arr[k] = val
@@ -179,8 +182,8 @@ class DepthDistance:
         """(d², a, b, s) of the chosen pixel in ``box`` (None if too few pixels), and the valid-pixel count."""
         v0, v1, u0, u1 = box
         crop = depth[v0:v1, u0:u1]
-        with np.errstate(invalid="ignore"):
-            mask = crop > 0.0  # NaN > 0 is False: invalid pixels drop out here
+        with np.errstate(invalid="ignore"):  # NaN compares False: invalid pixels drop out here
+            mask = (crop >= self.camera.min_range_m) & (crop <= self.camera.max_range_m)
         flat = np.flatnonzero(mask)  # 1-D search: ~10x faster than a 2-D nonzero
         n = int(flat.size)
         if n < self.min_support:

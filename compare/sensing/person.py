@@ -60,11 +60,25 @@ _POLE_RIGHT = (-0.25, -0.5, -1.0)
 class KeyframeLike(Protocol):
     """What a keyframe needs (``compare.config.PersonKeyframe`` and :class:`PersonKeyframe` fit)."""
 
-    t: float
-    position: tuple[float, float]
-    yaw: float
-    right_hand: tuple[float, float, float] | None
-    left_hand: tuple[float, float, float] | None
+    @property
+    def t(self) -> float:
+        """Time [s]."""
+
+    @property
+    def position(self) -> tuple[float, float]:
+        """Torso axis on the floor (x, y) [m]."""
+
+    @property
+    def yaw(self) -> float:
+        """Heading [rad]."""
+
+    @property
+    def right_hand(self) -> tuple[float, float, float] | None:
+        """Right hand target [m] or None."""
+
+    @property
+    def left_hand(self) -> tuple[float, float, float] | None:
+        """Left hand target [m] or None."""
 
 
 @dataclass(frozen=True)
@@ -139,7 +153,8 @@ class Person:
             site = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_SITE, f"{prefix}{side}_shoulder")
             if site < 0 or model.site_bodyid[site] != torso_body:
                 raise UnknownSceneElement("site", f"{prefix}{side}_shoulder", [])
-            self._shoulders[side] = tuple(float(v) for v in model.site_pos[site])
+            sx, sy, sz = (float(v) for v in model.site_pos[site])
+            self._shoulders[side] = (sx, sy, sz)
         floor = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_GEOM, "floor")
         self.floor_z = float(model.geom_pos[floor][2]) if floor >= 0 else 0.0
         frames = list(keyframes)
@@ -160,7 +175,7 @@ class Person:
         self._times = times
         self._keys = [self._resolve(f) for f in frames]
         self._stationary = [a == b for a, b in zip(self._keys, self._keys[1:], strict=False)]
-        self._cache_key: tuple[int, int, float] | None = None
+        self._cache_key: tuple[int, int, tuple[float, ...]] | None = None
 
     def _body(self, model: mujoco.MjModel, name: str) -> _Body:
         full = self.prefix + name
@@ -335,7 +350,7 @@ class Person:
         else:
             k, still = -1, True
         torso = self._torso.mocap_id
-        if still and self._cache_key == (k, id(data), float(data.mocap_pos[torso, 0])):
+        if still and self._cache_key == (k, id(data), tuple(data.mocap_pos[torso])):
             return
         key = self._key_at(t)
         pos = [(key.x, key.y, self.floor_z)]
@@ -348,7 +363,7 @@ class Person:
             quat += [upper, fore, fore]
         data.mocap_pos[self._mocap_index] = np.array(pos)
         data.mocap_quat[self._mocap_index] = np.array(quat)
-        self._cache_key = (k, id(data), float(data.mocap_pos[torso, 0])) if still else None
+        self._cache_key = (k, id(data), tuple(data.mocap_pos[torso])) if still else None
 
     __call__ = apply
 

@@ -33,7 +33,7 @@ import numpy as np
 from compare.robot_io import CameraModel, DepthFrame
 from compare.sensing.camera import DepthNoise, normalized_coordinates
 from compare.sensing.exceptions import SensingError, UnknownSceneElement
-from compare.sensing.renderer import ROBOT_VISUAL_GROUP
+from compare.sensing.renderer import ROBOT_VISUAL_GROUP, DepthCamera
 
 _SUPPORTED = (
     mujoco.mjtGeom.mjGEOM_SPHERE,
@@ -253,12 +253,22 @@ class StaticBackground:
         self.margin_m = float(margin_m)
 
     @classmethod
-    def capture(cls, camera: object, model: mujoco.MjModel, **kwargs: object) -> StaticBackground:
-        """Render the static geoms of ``model`` with a :class:`~compare.sensing.renderer.DepthCamera`."""
+    def capture(
+        cls,
+        camera: DepthCamera,
+        model: mujoco.MjModel,
+        margin_m: float = 0.04,
+        noise: DepthNoise | None = None,
+        noise_allowance: float = 5.0,
+    ) -> StaticBackground:
+        """Render the static geoms (group 0) of ``model`` with ``camera`` as the background.
+
+        Capture after the camera is placed: the background belongs to one camera pose.
+        """
         data = mujoco.MjData(model)
         mujoco.mj_kinematics(model, data)
         mujoco.mj_camlight(model, data)  # camera poses are not part of mj_kinematics
-        return cls(camera.render_static(data), **kwargs)  # type: ignore[attr-defined, arg-type]
+        return cls(camera.render_static(data), margin_m, noise, noise_allowance)
 
     def apply_inplace(self, depth: np.ndarray) -> None:
         """Zero the background pixels of a float32 depth image in place (NaN pixels are left alone)."""

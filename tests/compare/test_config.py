@@ -43,7 +43,7 @@ BAD_CONFIGS = [
         r"methods\.names\[1\]: unknown method 'hqp-nosuchsolver'; available:",
     ),
     ("methods.names", ["teleport"], r"unknown method 'teleport'"),
-    ("methods.settings", {"mink": {}}, r"settings for 'mink', which is not in names"),
+    ("methods.settings", {"hqp-osqp": {}}, r"settings for 'hqp-osqp', which is not in names"),
     (
         "levels.1.tasks",
         [{"type": "obstacle_distance", "frames": ["link_4"], "safety_distance": 0.05}],

@@ -1,0 +1,52 @@
+"""Smoke tests of the solver benchmark runner (compare.bench.solvers) and ``python -m compare.bench``."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+
+from compare.bench.__main__ import main
+from compare.bench.solver_cases import active_set_tasks, case2_states
+from compare.bench.solvers import candidate_hierarchy, run_solver_bench
+
+
+def test_runner_times_each_case_and_skips_unknown_methods(capsys):
+    rows = run_solver_bench(["tpik", "no-such-method"], repeats=3)
+    assert "skipping method 'no-such-method'" in capsys.readouterr().out
+    assert [(r.name, r.case) for r in rows] == [
+        ("tpik", "case2-active0"),
+        ("tpik", "case2-active1"),
+        ("tpik", "case2-active3"),
+    ]
+    for row in rows:
+        assert row.samples == 3 and 0 < row.median_us <= row.p95_us
+        assert {"build_us", "solve_us", "active", "modes_evaluated"} <= set(row.extra)
+    assert [r.extra["active"] for r in rows][0] == 0
+
+
+@pytest.mark.parametrize("k", [0, 1, 4, 9, 12])
+def test_candidate_hierarchy_has_exactly_k_candidates(jaco, k):
+    q = case2_states(jaco)[0].q
+    h = candidate_hierarchy(jaco, q, k)
+    assert len(h.set_tasks) == 12
+    assert len(active_set_tasks(h, jaco, q)) == k
+    kin = jaco.kinematics(q)
+    for task in h.set_tasks:  # candidates sit in the activation band, never past safety
+        assert task.margins(task.compute_value_and_jacobian(kin)[0])[0] > 0.0
+
+
+def test_main_writes_the_design_json(tmp_path):
+    out = tmp_path / "bench.json"
+    argv = ["--only", "solvers", "--methods", "tpik", "--repeats", "2", "--max-candidates", "1"]
+    code = main([*argv, "--json", str(out)])
+    assert code == 0
+    data = json.loads(out.read_text())
+    assert {"versions", "results", "command"} <= set(data)
+    cases = {(r["name"], r["case"]) for r in data["results"]}
+    assert ("tpik", "case2-active3") in cases and ("tpik-exhaustive", "tpik-candidates-1") in cases
+    assert all({"name", "case", "median_us", "p95_us"} <= set(r) for r in data["results"])
+
+
+def test_main_rejects_bad_arguments():
+    assert main(["--repeats", "0"]) == 2
