@@ -197,7 +197,9 @@ def hw(
     dry_run: Annotated[
         bool, typer.Option("--dry-run", help="Run everything (ROS, sensing, solver, logs) but publish nothing.")
     ] = False,
-    duration: Annotated[float | None, typer.Option("--duration", help="Run time [s] (default: scenario's).")] = None,
+    duration: Annotated[
+        float | None, typer.Option("--duration", help="Run time on the arm [s] (default: duration_s × time_scale).")
+    ] = None,
     out: Annotated[Path | None, typer.Option("--out", "-o", help="Results directory [results/hw-<scenario>].")] = None,
     time_scale: ScaleOpt = None,
     plots: Annotated[bool, typer.Option(help="Write the plots after the run.")] = True,

@@ -297,14 +297,13 @@ def split_settings(solver: str, settings: Mapping[str, Any] | None) -> tuple[Hqp
 
 @dataclass
 class _Level:
-    """One priority level: its equality tasks' buffers and its set tasks' range."""
+    """One priority level: its equality tasks and their preallocated buffers."""
 
     name: str
     eq_tasks: tuple[Task, ...]
     eq_slices: tuple[slice, ...]
     J: np.ndarray  # (m_eq, n), preallocated
     r: np.ndarray  # (m_eq,), preallocated
-    set_start: int  # index of its first set task in the solver's flat list
 
 
 class HqpSolver:
@@ -382,7 +381,7 @@ class HqpSolver:
             for task in eq:
                 slices.append(slice(start, start + task.dim))
                 start += task.dim
-            levels.append(_Level(level.name, eq, tuple(slices), np.zeros((start, n)), np.zeros(start), len(set_tasks)))
+            levels.append(_Level(level.name, eq, tuple(slices), np.zeros((start, n)), np.zeros(start)))
             for task in level.tasks:
                 if isinstance(task, SetTask):
                     set_tasks.append(task)
@@ -504,21 +503,25 @@ class HqpSolver:
             c_pre = cuts[first_eq]
             if first_eq and not ((lb > 0.0).any() or (ub < 0.0).any()) and (c_pre == 0 or (h_rel[:c_pre] >= 0.0).all()):
                 k_start = first_eq
+        margin = 0.0
         for k in range(k_start, n_levels + 1):
             if k < n_levels:
                 lv = self._levels[k]
                 J, r, c0, c1 = lv.J, lv.r, cuts[k], cuts[k + 1]
             elif self.min_norm_level and qp_calls:
                 # min ‖q̇‖² under all rows; without a backend answer q̇ is already the exact
-                # ε-regularised (minimum-norm) solution.
+                # ε-regularised (minimum-norm) solution. Its optimum sits on the constraints of
+                # the levels above: a margin δ gives the feasible set an interior (ProxQP reports
+                # "infeasible" without it).
                 J, r, c0, c1 = self._eye, self._zeros, cuts[k], cuts[k]
+                margin = self.slack_margin
             else:
                 break
             d = n if Z is None else Z.shape[1]
             if d == 0 or (r.size == 0 and c0 == c1):
                 continue
             try:
-                qd, used, its, retried = self._solve_level(k, qd, Z, J, r, G_all, h_rel, c0, c1, lb, ub, eps)
+                qd, used, its, retried = self._solve_level(k, qd, Z, J, r, G_all, h_rel, c0, c1, lb, ub, eps, margin)
             except NoSolutionFound as exc:
                 if k == 0:
                     return self._failed(f"{self.name}: {exc}", t_start, k)
@@ -529,7 +532,6 @@ class HqpSolver:
                 status = SolveStatus.DEGRADED
                 message = f"{self.name}: {exc}; kept the solution of the levels above"
                 break
-            self._needed_backend[k] = bool(used)
             qp_calls += used
             retries += retried
             if its is not None:
@@ -626,12 +628,14 @@ class HqpSolver:
         lb: np.ndarray,
         ub: np.ndarray,
         eps: float,
+        margin: float = 0.0,
     ) -> tuple[np.ndarray, int, int | None, int]:
         """Solve level ``k`` for q̇ = qd + Z z.
 
         Rows ``:c0`` of ``G_all``/``h_rel`` are the earlier levels' (already relaxed), rows
         ``c0:c1`` this level's (with slack). ``h_rel[:c0]`` is raised in place by any violation
         within tolerance of the accepted answer, so later levels stay feasible by construction.
+        ``margin`` relaxes every row of the QP (min-norm level only).
 
         Returns:
             (q̇, 1 if the backend was called else 0, backend iterations, 1 if retried else 0).
@@ -691,10 +695,8 @@ class HqpSolver:
             live = np.abs(box_G).max(axis=1) > 1e-12
             G_rows = np.vstack([G_all[:c1] @ Z, box_G[live]])
             h = np.concatenate([h_rel[:c1] - G_all[:c1] @ qd, box_h[live]])
-        if r is self._zeros:
-            # Min-norm level: its optimum sits on the constraints of the levels above; a margin δ
-            # gives the feasible set an interior (ProxQP reports "infeasible" without it).
-            h = h + self.slack_margin
+        if margin:
+            h = h + margin
         if m == 0:  # no slack variable: x = z
             G, P, q_vec, x_lb, x_ub = G_rows, Pz, qz, z_lb, z_ub
             x0 = np.zeros(d)
@@ -717,6 +719,11 @@ class HqpSolver:
         cand = x[:d].copy() if at_zero else (qd + x[:d] if Z is None else qd + Z @ x[:d])
         np.maximum(cand, lb, out=cand)
         np.minimum(cand, ub, out=cand)
+        # Next step, go straight to the backend only if a constraint binds now.
+        tol = self.tolerance
+        self._needed_backend[k] = bool(
+            (cand <= lb + tol).any() or (cand >= ub - tol).any() or (G_all[:c1] @ cand >= h_rel[:c1] - tol).any()
+        )
         if c0:
             # Absorb violations within tolerance, so later levels stay feasible by construction.
             np.maximum(h_acc, G_acc @ cand, out=h_acc)

@@ -21,7 +21,7 @@ How our tasks map onto mink:
 * Any other equality task (e.g. manipulability) becomes a small :class:`mink.Task` adapter with
   error :math:`e = -r\,dt` and the task's own Jacobian.
 * Every set-based task becomes a row pair of :class:`SetTaskLimit` (a :class:`mink.Limit`):
-  :math:`\sigmȧ_l dt \le J \Delta q \le \sigmȧ_u dt` from :meth:`tpik.tasks.SetTask.velocity_bounds`.
+  :math:`\dot\sigma_l\,dt \le J \Delta q \le \dot\sigma_u\,dt` from :meth:`tpik.tasks.SetTask.velocity_bounds`.
   These are *hard* constraints without slack: when they cannot all be met mink finds no solution
   and the step is reported FAILED with a zero velocity.
 * Joint position limits of the model: :class:`mink.ConfigurationLimit`; joint velocity limits
@@ -33,6 +33,12 @@ level on the squared residual). Set-task levels are constraints whatever their l
 
 The set-based task Jacobians come from pinocchio through our :class:`~robots.Kinematics`;
 mink computes the frame Jacobians from MuJoCo. Both read the same MJCF file.
+
+A step calls :func:`mink.build_ik` then :func:`qpsolvers.solve_problem` and divides by ``dt``,
+which is all :func:`mink.solve_ik` does besides a limit check that only logs: the build and
+solve times can so be reported apart (``tests/qp_baseline/test_mink_peer.py`` checks the
+velocity equals ``mink.solve_ik``'s). mink's failures (no solution, an exception, a velocity
+outside the limits by more than ``tolerance``) give a FAILED step with zero velocity.
 """
 
 from __future__ import annotations
@@ -49,7 +55,7 @@ import numpy as np
 import qpsolvers
 
 from qp_baseline.exceptions import InvalidSettings, UnknownSolver
-from qp_baseline.hqp import available_qp_solvers, backend_iterations, probe_settings
+from qp_baseline.hqp import available_qp_solvers, backend_iterations, backend_kwargs, probe_settings
 from robots import Kinematics, Robot
 from tpik.hierarchy import Hierarchy
 from tpik.step_result import SolveStatus, StepResult, failed
@@ -187,7 +193,7 @@ class MinkSolver:
         self.robot = robot
         self.name = name
         self.settings = MinkSettings.from_dict(settings)
-        self._qp_kwargs = dict(self.settings.qp_settings or {})
+        self._qp_kwargs = backend_kwargs(self.settings.solver, self.settings.qp_settings or {})
         self.configuration = mink.Configuration(robot.mj_model)
         nv = robot.nq
         self._limit_rows = SetTaskLimit(nv)
@@ -204,7 +210,7 @@ class MinkSolver:
 
     def _check_qp_settings(self) -> None:
         """Solve a tiny QP with the backend settings so a bad one fails here, not mid-run."""
-        probe_settings(self.settings.solver, self._qp_kwargs)
+        probe_settings(self.settings.solver, self.settings.qp_settings or {})
 
     def _prepare(self, hierarchy: Hierarchy) -> None:
         """Build the mink tasks of a hierarchy once (rebuilt only for a new hierarchy object)."""
@@ -308,8 +314,8 @@ class MinkSolver:
             self._limit_rows.set_rows(G, np.array(bounds, dtype=float), names)
             tasks = [a.mink_task for a in self._adapters]
             problem = mink.build_ik(self.configuration, tasks, dt, self.settings.damping, self._limits)
-        except (mink.MinkError, ValueError, AssertionError) as exc:
-            return failed(n, f"mink could not build the problem: {exc}")
+        except Exception as exc:  # noqa: BLE001 - mink errors, its asserts, a task that cannot be evaluated
+            return failed(n, f"mink could not build the problem: {type(exc).__name__}: {exc}")
         t1 = time.perf_counter()
         try:
             with warnings.catch_warnings():

@@ -27,7 +27,7 @@ class Kinematics:
         q: Joint configuration [rad]. Shape (n,). Read-only.
     """
 
-    __slots__ = ("_data", "_generation", "_jacobians", "q", "robot")
+    __slots__ = ("_data", "_generation", "_jacobians", "_positions", "q", "robot")
 
     def __init__(self, robot: Robot, q: np.ndarray, data: pin.Data, generation: int) -> None:
         self.robot = robot
@@ -36,6 +36,7 @@ class Kinematics:
         self._data = data
         self._generation = generation
         self._jacobians: dict[int, np.ndarray] = {}
+        self._positions: dict[int, np.ndarray] = {}
 
     def _check(self) -> None:
         if not self.robot.is_current(self._generation):
@@ -57,9 +58,15 @@ class Kinematics:
         return np.array(self._data.oMf[self.robot.frame_id(name)].homogeneous)
 
     def frame_position(self, name: str) -> np.ndarray:
-        """Frame origin in the base frame [m]. Shape (3,)."""
+        """Frame origin in the base frame [m]. Shape (3,). Cached per frame: read-only."""
         self._check()
-        return np.array(self._data.oMf[self.robot.frame_id(name)].translation)
+        frame_id = self.robot.frame_id(name)
+        pos = self._positions.get(frame_id)
+        if pos is None:
+            pos = np.array(self._data.oMf[frame_id].translation)
+            pos.flags.writeable = False
+            self._positions[frame_id] = pos
+        return pos
 
     def frame_rotation(self, name: str) -> np.ndarray:
         """Frame orientation in the base frame. Shape (3, 3)."""

@@ -534,6 +534,7 @@ class RosRobotIO(RobotIO):
             "zero_commands": self.zero_commands,
             "loop_overruns": self.overruns,
             "stream_overruns": self.pump_overruns,
+            "command_sockets_nodelay": len(self._nodelay_done),
             "ignored_messages": dict(self.bad_messages),
             "state_timeout_s": self.hw.state_timeout_s,
             "depth_timeout_s": self.hw.depth_timeout_s if self.use_depth else None,

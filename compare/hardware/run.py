@@ -150,7 +150,8 @@ def run_hardware(
 
     Returns:
         The content of ``summary.json``; ``["methods"][method]["hardware"]`` holds the measured
-        rates, watchdog events and counters, ``["interrupted"]`` the signal that ended the run.
+        rates, watchdog events and counters, ``["methods"][method]["interrupted"]`` the signal
+        that ended the run (None if it ran to the end).
 
     Raises:
         StartRefused: a start-up check failed (nothing was commanded but zero).

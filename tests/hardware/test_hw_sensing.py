@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import itertools
 import math
+import os
 from pathlib import Path
 
 import mujoco
@@ -11,10 +12,23 @@ import numpy as np
 import pytest
 
 from compare.config import PersonKeyframe, load_config
-from compare.hardware.sensing import HardwareDepthSensing, capture_background
+from compare.hardware.exceptions import HardwareError
+from compare.hardware.sensing import (
+    HardwareDepthSensing,
+    capture_background,
+    load_background,
+    save_background,
+    static_background,
+)
 from compare.robot_io import DepthFrame
 
-pytestmark = pytest.mark.rendering
+pytestmark = [
+    pytest.mark.rendering,
+    pytest.mark.skipif(
+        mujoco.GLContext.__module__.endswith("glfw") and not os.environ.get("DISPLAY"),
+        reason="offscreen rendering needs MUJOCO_GL=egl before mujoco is imported (the Makefile exports it)",
+    ),
+]
 
 CONFIG = Path(__file__).resolve().parents[2] / "configs" / "case1.toml"
 
@@ -53,8 +67,9 @@ def test_hardware_sensing_matches_the_simulation_pipeline(scene, jaco):
     config, pipeline, data, q, empty, person = scene
     kin = jaco.kinematics(q)
     sim = pipeline.process(person, control_point_positions(kin), data=data)
-    background = capture_background(_stream(empty), lambda: q, jaco, config, duration_s=0.05)
-    assert background is not None
+    depth = capture_background(_stream(empty), lambda t: q, jaco, config, duration_s=0.05)
+    assert depth is not None
+    background = static_background(depth, config)
     hw = HardwareDepthSensing(jaco, pipeline.camera, lambda: person, lambda t: q, config, background)
     result = hw.update(1.0, kin)
     assert not result.blind
@@ -70,7 +85,8 @@ def test_hardware_sensing_matches_the_simulation_pipeline(scene, jaco):
 
 def test_empty_scene_gives_nothing_in_range(scene, jaco):
     config, pipeline, _, q, empty, _ = scene
-    background = capture_background(_stream(empty), lambda: q, jaco, config, duration_s=0.05)
+    depth = capture_background(_stream(empty), lambda t: q, jaco, config, duration_s=0.05)
+    background = static_background(depth, config)
     hw = HardwareDepthSensing(jaco, pipeline.camera, lambda: empty, lambda t: q, config, background)
     result = hw.update(0.0, jaco.kinematics(q))
     assert not result.blind
@@ -85,3 +101,19 @@ def test_stale_or_missing_frame_is_blind(scene, jaco):
     assert hw.update(person.stamp_s + config.sensor.max_age_s + 0.01, kin).blind
     assert HardwareDepthSensing(jaco, pipeline.camera, lambda: None, lambda t: q, config).update(0.0, kin).blind
     assert np.isfinite(hw.filter_time_s)
+
+
+def test_captured_background_leaves_the_arm_out_and_round_trips(scene, jaco, tmp_path):
+    config, pipeline, _, q, empty, _ = scene
+    depth = capture_background(_stream(empty), lambda t: q, jaco, config, duration_s=0.05)
+    raw_valid = empty.depth_m > 0
+    arm = raw_valid & (depth == 0)  # valid returns without background: the arm's pixels
+    assert 0 < np.count_nonzero(arm) < 0.2 * arm.size
+    # The static scene (table, floor) is the background everywhere else.
+    assert np.count_nonzero(depth > 0) > 0.5 * np.count_nonzero(raw_valid)
+    path = tmp_path / "bg.npz"
+    save_background(path, depth)
+    np.testing.assert_array_equal(load_background(path, pipeline.camera), depth)
+    small = type(pipeline.camera)(**{**pipeline.camera.__dict__, "width": 10})
+    with pytest.raises(HardwareError, match="px"):
+        load_background(path, small)

@@ -49,9 +49,10 @@ def test_velocity_is_what_mink_solve_ik_returns_for_the_same_problem(jaco):
     limits = [mink.ConfigurationLimit(jaco.mj_model), mink.VelocityLimit(jaco.mj_model, velocities)]
     theirs = mink.solve_ik(configuration, [frame], DT, "daqp", damping=1e-12, limits=limits)
     np.testing.assert_allclose(ours.qdot, theirs, atol=1e-9)
-    # A per-second velocity: one step covers gain·dt of the error along the task.
+    # A per-second velocity: ṗ = K (p_d − p), up to mink's SE(3)-log Jacobian (second order in the
+    # 4 cm error: ~1e-6 m/s here).
     J = kin.position_jacobian("end_effector")
-    np.testing.assert_allclose(J @ ours.qdot, 2.0 * (target - kin.frame_position("end_effector")), atol=1e-6)
+    np.testing.assert_allclose(J @ ours.qdot, 2.0 * (target - kin.frame_position("end_effector")), atol=1e-5)
 
 
 def test_walls_hold_in_closed_loop(jaco):

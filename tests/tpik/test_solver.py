@@ -158,7 +158,6 @@ def test_cascade_matches_a_textbook_svd_implementation(jaco, variant):
     """Random levels, some rank-deficient or tall, some damped: same q̇ and λ as plain SVD code."""
     rng = np.random.default_rng(8)
     n = jaco.nq
-    vnorm = float(np.linalg.norm(jaco.v_max))
     solver = TpikSolver(jaco, TpikSettings(variant=variant, velocity_norm_max=1e3))
     for trial in range(60):
         dims = [int(d) for d in rng.integers(1, 5, size=int(rng.integers(1, 5)))]
@@ -176,7 +175,6 @@ def test_cascade_matches_a_textbook_svd_implementation(jaco, variant):
         scale = report.extras["velocity_scale"]
         np.testing.assert_allclose(qdot, expected * scale, atol=1e-8 * max(1.0, np.abs(expected).max()))
         np.testing.assert_allclose(list(report.damping.values()), lams, atol=1e-9)
-    assert vnorm > 0
 
 
 # --------------------------------------------------------------------------- set-based modes
