@@ -146,6 +146,12 @@ class SensorConfig(_Strict):
 class RandomConfig(_Strict):
     """Ranges of the ``random`` scenario family (all drawn from ``scenario.seed``).
 
+    The defaults are the *hard* family of the reliability campaigns (README "Reliability
+    campaigns"): a person walking up at up to 1.6 m/s and moving a hand at up to 2.0 m/s (the
+    human speeds of ISO 13855 / ISO/TS 15066), from any side, reaching for any control point or
+    pushing the end effector toward a wall; start poses near the joint limits; waypoints near the
+    walls. ``configs/random.toml`` spells every range out.
+
     Attributes:
         waypoints: Number of waypoints drawn inside ``workspace_lower``/``upper``.
         workspace_lower: Box for waypoints [m].
@@ -155,16 +161,171 @@ class RandomConfig(_Strict):
         person_visits: Number of approaches to the arm.
         noise_std_m: Range of depth noise σ [m].
         dropout: Range of pixel dropout fraction.
+        hand_speed_mps: Range of the hand's speed while reaching and withdrawing [m/s].
+        near_radius_m: Range of the torso's closest approach to the base axis [m].
+        reach_targets: What a visit's hand goes for, drawn uniformly: ``waypoint`` (near an EE
+            waypoint), ``link_4`` / ``link_6`` / ``link_7`` (that control point at the start
+            pose), ``push_ee`` (through the EE position toward the wall on the far side).
+        push_depth_m: Range of how far the hand goes past its target, away from the person [m].
+        start_near_limit_probability: Per limited joint of a joint-limit task, probability that
+            the start value is put just inside a safety threshold.
+        start_limit_offset_rad: Range of the distance inside that threshold [rad].
+        waypoint_near_wall_probability: Per waypoint, probability that one coordinate is moved
+            next to a wall of the EE's ``wall_box``.
+        waypoint_wall_offset_m: Range of that coordinate's signed distance past the wall [m]
+            (negative = inside the allowed box; up to the waypoint tolerance outside, so the
+            waypoint is still reached with the EE held at the wall).
+        start_pose_attempts: Draws of the start pose before falling back to the plain perturbed
+            home pose (a start pose must have the EE inside the walls and every set task inside
+            its safety thresholds).
     """
 
     waypoints: int = Field(3, ge=1, le=20)
     workspace_lower: Vec3 = (-0.45, -0.45, 0.25)
     workspace_upper: Vec3 = (0.45, 0.45, 0.85)
     start_perturbation_rad: float = Field(0.3, ge=0.0, le=math.pi)
-    person_speed_mps: tuple[float, float] = (0.3, 1.2)
+    person_speed_mps: tuple[float, float] = (0.5, 1.6)
     person_visits: int = Field(2, ge=0, le=20)
     noise_std_m: tuple[float, float] = (0.0, 0.01)
     dropout: tuple[float, float] = (0.0, 0.05)
+    hand_speed_mps: tuple[float, float] = (0.5, 2.0)
+    near_radius_m: tuple[float, float] = (0.7, 0.95)
+    reach_targets: list[Literal["waypoint", "link_4", "link_6", "link_7", "push_ee"]] = Field(
+        default_factory=lambda: ["waypoint", "link_4", "link_6", "link_7", "push_ee"], min_length=1
+    )
+    push_depth_m: tuple[float, float] = (0.05, 0.25)
+    start_near_limit_probability: float = Field(0.3, ge=0.0, le=1.0)
+    start_limit_offset_rad: tuple[float, float] = (0.005, 0.08)
+    waypoint_near_wall_probability: float = Field(0.4, ge=0.0, le=1.0)
+    waypoint_wall_offset_m: tuple[float, float] = (-0.04, 0.015)
+    start_pose_attempts: int = Field(200, ge=1, le=10000)
+
+    @field_validator(
+        "person_speed_mps",
+        "noise_std_m",
+        "dropout",
+        "hand_speed_mps",
+        "near_radius_m",
+        "push_depth_m",
+        "start_limit_offset_rad",
+        "waypoint_wall_offset_m",
+    )
+    @classmethod
+    def _ordered_range(cls, rng: tuple[float, float]) -> tuple[float, float]:
+        if not (math.isfinite(rng[0]) and math.isfinite(rng[1])) or rng[0] > rng[1]:
+            raise ValueError(f"range must be [low, high] with low <= high, got {list(rng)}")
+        return rng
+
+    @field_validator("person_speed_mps", "hand_speed_mps")
+    @classmethod
+    def _positive_speed(cls, rng: tuple[float, float]) -> tuple[float, float]:
+        if rng[0] <= 0.0:
+            raise ValueError(f"speeds must be > 0 m/s, got {list(rng)}")
+        return rng
+
+
+FaultKind = Literal[
+    "depth_nan",
+    "depth_zero",
+    "depth_dropout",
+    "depth_frozen",
+    "depth_delay",
+    "joint_noise",
+    "solver_fail",
+    "solver_timeout",
+]
+"""Kinds of injected faults (``compare.faults`` documents each one)."""
+
+
+class FaultSpec(_Strict):
+    """One injected fault, active on ``[start_s, end_s)`` (both scaled by ``scenario.time_scale``).
+
+    Attributes:
+        kind: See :data:`FaultKind` and ``compare.faults``.
+        start_s: Start [s].
+        end_s: End [s] (exclusive); ``inf`` = until the end of the run.
+        fraction: ``depth_nan`` / ``depth_zero`` / ``depth_dropout``: fraction of the pixels hit
+            (1 = the whole frame).
+        delay_s: ``depth_delay``: age of the frames delivered [s]; ``solver_timeout``: time the
+            solve is made to take beyond its own [s].
+        std_rad: ``joint_noise``: σ of the Gaussian noise on the joint positions [rad].
+        std_rad_s: ``joint_noise``: σ of the noise on the joint velocities [rad/s].
+        every_n: ``solver_fail`` / ``solver_timeout``: hit every n-th control step of the window.
+        deadline_s: ``solver_timeout``: the solve deadline [s]; default the control period.
+        sleep: ``solver_timeout``: really sleep ``delay_s`` (wall time) instead of adding it to the
+            measured solve time only (results are identical; sweeps keep ``false``).
+    """
+
+    kind: FaultKind
+    start_s: float = Field(0.0, ge=0.0)
+    end_s: float = math.inf
+    fraction: float = Field(1.0, gt=0.0, le=1.0)
+    delay_s: float = Field(0.1, ge=0.0, le=10.0)
+    std_rad: float = Field(0.002, ge=0.0, le=0.5)
+    std_rad_s: float = Field(0.0, ge=0.0, le=5.0)
+    every_n: int = Field(1, ge=1)
+    deadline_s: float | None = Field(None, gt=0.0)
+    sleep: bool = False
+
+    @model_validator(mode="after")
+    def _window(self) -> FaultSpec:
+        if not self.end_s > self.start_s:
+            raise ValueError(f"end_s ({self.end_s:g}) must be > start_s ({self.start_s:g})")
+        return self
+
+
+class FaultsConfig(_Strict):
+    """Faults injected identically into every method's run (``[faults]``, ``compare.faults``).
+
+    Attributes:
+        inject: The faults (``[[faults.inject]]`` tables); empty = a fault-free run.
+        seed_offset: Added to ``scenario.seed`` for the faults' random draws (pixel masks, noise).
+    """
+
+    inject: list[FaultSpec] = Field(default_factory=list)
+    seed_offset: int = Field(0, ge=0)
+
+
+class Iso15066Config(_Strict):
+    r"""Speed-and-separation margin of ISO/TS 15066:2016 clause 5.5.4 (``compare.iso15066``).
+
+    .. math:: S_p = S_h + S_r + S_s + C + Z_d + Z_r,\quad S_h = v_h (T_r + T_s),\quad S_r = v_r T_r
+
+    Defaults (ISO/TS 15066 leaves every value to the application; ours are for the simulated
+    Jaco² with a 30 Hz depth camera and a 100 Hz loop):
+
+    Attributes:
+        enabled: Compute the margin and write it to ``summary.json`` and the plots.
+        reaction_time_s: T_r [s]: one depth period (33 ms) + frame processing + one control
+            period (10 ms) + driver latency, rounded up to 0.1 s.
+        stopping_time_s: T_s [s]: 0.2 s, the time to brake from the joint speed limits
+            (0.63–0.84 rad/s) at the velocity servos' deceleration.
+        stopping_distance_m: S_s [m]; ``None`` = :math:`v_r T_s / 2` (constant deceleration).
+        intrusion_distance_m: C [m]: 0, the depth camera sees hands and arms themselves (no
+            reach-over a detection plane as with ISO 13855 light curtains: there C = 0.85 m).
+        sensor_uncertainty_m: Z_d [m]: 0.02, the person's position uncertainty (Kinect v2 depth
+            noise at 1–2 m plus the self-filter margin's order).
+        robot_uncertainty_m: Z_r [m]: 0.01, control point position uncertainty (model, encoders,
+            servo tracking lag).
+        human_speed: ``estimated`` (from the motion of the measured closest points, filtered) or
+            ``constant`` (:attr:`human_speed_mps` always, ISO 13855's 1.6 m/s walking speed).
+        human_speed_mps: v_h in ``constant`` mode [m/s].
+        human_speed_filter_s: Time constant of the first-order filter of the estimate [s].
+        human_speed_max_mps: The raw estimate is clipped to this [m/s] (a jump of the closest
+            point from one body part to another is not a speed).
+    """
+
+    enabled: bool = True
+    reaction_time_s: float = Field(0.1, ge=0.0, le=5.0)
+    stopping_time_s: float = Field(0.2, ge=0.0, le=5.0)
+    stopping_distance_m: float | None = Field(None, ge=0.0, le=5.0)
+    intrusion_distance_m: float = Field(0.0, ge=0.0, le=2.0)
+    sensor_uncertainty_m: float = Field(0.02, ge=0.0, le=1.0)
+    robot_uncertainty_m: float = Field(0.01, ge=0.0, le=1.0)
+    human_speed: Literal["estimated", "constant"] = "estimated"
+    human_speed_mps: float = Field(1.6, ge=0.0, le=10.0)
+    human_speed_filter_s: float = Field(0.1, ge=0.0, le=5.0)
+    human_speed_max_mps: float = Field(3.0, gt=0.0, le=20.0)
 
 
 class LevelConfig(_Strict):
@@ -300,6 +461,8 @@ class Config(_Strict):
     levels: list[LevelConfig] = Field(min_length=1)
     methods: MethodsConfig = Field(default_factory=MethodsConfig)
     hardware: HardwareConfig = Field(default_factory=HardwareConfig)
+    faults: FaultsConfig = Field(default_factory=FaultsConfig)
+    iso15066: Iso15066Config = Field(default_factory=Iso15066Config)
 
     def hierarchy_description(self) -> list[dict[str, Any]]:
         """The levels as the plain description :meth:`Hierarchy.from_description` takes."""

@@ -11,6 +11,15 @@ One control step (period ``dt``, 100 Hz in the paper):
    configured fallback; blind or stale sensing commands zero velocity (safe stop);
 6. send the command and wait for the next period.
 
+Sensing is checked at the update that sees a problem (:func:`sensing_problem`): a blind frame
+(``DistanceResult.blind``: too few valid pixels, NaN or all-zero frames, no frame), a frame
+older than ``stale_frame_periods`` sensing periods (frozen or delayed camera), or a reading
+that is not finite. The loop then commands zero velocity in that same step and logs why; the
+estimates of the last good update are kept but not trusted. While the frame stamp does not
+advance, the source is polled again at every control step (not only at the sensing rate), so a
+frozen frame is caught within half a period plus one control period of being overdue. The
+older rule stays as a second guard: no good update for ``max_sensing_age_s`` → safe stop.
+
 Every method runs this same code on the same scenario, seed and sensing.
 """
 
@@ -73,6 +82,9 @@ class LoopSettings:
         fallback_decay_s: Decay time of ``hold_last`` [s].
         max_sensing_age_s: An estimate older than this is stale → zero velocity [s].
         stop_when_blind: Command zero velocity while sensing is blind or stale.
+        stale_frame_periods: A sensing update whose frame stamp is more than this many sensing
+            periods older than the loop time is stale (frozen or delayed frame) → zero velocity
+            at that update; ``None`` disables the check (then only ``max_sensing_age_s`` applies).
     """
 
     dt: float = 0.01
@@ -82,6 +94,7 @@ class LoopSettings:
     fallback_decay_s: float = 0.2
     max_sensing_age_s: float = 0.2
     stop_when_blind: bool = True
+    stale_frame_periods: float | None = 1.5
 
 
 @dataclass
@@ -123,6 +136,7 @@ class _Recorder:
             f(f"dist_true:{cp}", n_steps)
         self.cols["waypoint"] = np.zeros(n_steps, dtype=np.int32)
         self.cols["status"] = np.empty(n_steps, dtype=object)
+        self.cols["reason"] = np.full(n_steps, "", dtype=object)
         for name in ("fallback", "blind"):
             self.cols[name] = np.zeros(n_steps, dtype=bool)
 
@@ -131,6 +145,32 @@ class _Recorder:
 
     def frame(self) -> pd.DataFrame:
         return pd.DataFrame({k: v[: self.n] for k, v in self.cols.items()})
+
+
+def sensing_problem(result: DistanceResultLike, t: float, stale_after_s: float | None) -> str | None:
+    """Why a sensing update must not be trusted, or None when it is usable.
+
+    Args:
+        result: The update.
+        t: Loop time of the update [s] (the clock of ``result.stamp_s``).
+        stale_after_s: Largest accepted age ``t - stamp_s`` of the frame [s]; None = no check.
+
+    Returns:
+        ``"blind frame ..."``, ``"stale frame ..."`` or ``"invalid reading ..."``, or None.
+    """
+    if result.blind:
+        fraction = getattr(result, "valid_fraction", math.nan)
+        return f"blind frame (valid fraction {fraction:.2f})"
+    stamp = float(getattr(result, "stamp_s", math.nan))
+    if stale_after_s is not None and math.isfinite(stamp) and t - stamp > stale_after_s + 1e-9:
+        return f"stale frame (age {1e3 * (t - stamp):.0f} ms)"
+    for name, r in result.readings.items():
+        if not r.in_range:
+            continue
+        point = r.closest_point
+        if not math.isfinite(r.distance_m) or point is None or not np.all(np.isfinite(point)):
+            return f"invalid reading for {name}"
+    return None
 
 
 def _guard(qdot: np.ndarray, v_max: np.ndarray) -> str | None:
@@ -190,6 +230,13 @@ def run_loop(
     blind = obstacles is not None and bool(obstacle_tasks)
     measured = dict.fromkeys(CONTROL_POINTS, math.inf)
     was_blind = False
+    sensing_reason: str | None = None  # why the latest update was not usable (None: it was)
+    blind_reason = ""
+    last_stamp = math.nan
+    repoll = False
+    stale_after_s = (
+        None if settings.stale_frame_periods is None else settings.stale_frame_periods * settings.sensing_period_s
+    )
     start_wall = time.perf_counter()
     t0 = io.now()
     next_progress = 0.0
@@ -203,12 +250,17 @@ def run_loop(
             continue
         kin = robot.kinematics(reading.q)
 
-        if obstacles is not None and obstacle_tasks and t + 1e-9 >= next_sense_t:
-            next_sense_t = (
-                t + settings.sensing_period_s if next_sense_t < 0 else next_sense_t + settings.sensing_period_s
-            )
+        if obstacles is not None and obstacle_tasks and (t + 1e-9 >= next_sense_t or repoll):
+            if t + 1e-9 >= next_sense_t:
+                next_sense_t = (
+                    t + settings.sensing_period_s if next_sense_t < 0 else next_sense_t + settings.sensing_period_s
+                )
             result = obstacles.update(t, kin)
-            if not result.blind:
+            stamp = float(getattr(result, "stamp_s", math.nan))
+            repoll = math.isfinite(stamp) and stamp == last_stamp  # frame did not advance: look again next step
+            last_stamp = stamp
+            sensing_reason = sensing_problem(result, t, stale_after_s)
+            if sensing_reason is None:
                 last_good_sense_t = t
                 for task in obstacle_tasks:
                     r = result.readings.get(task.frame)
@@ -217,11 +269,19 @@ def run_loop(
                     r = result.readings.get(cp)
                     measured[cp] = r.distance_m if r is not None and r.in_range else math.inf
         if obstacles is not None and obstacle_tasks:
-            blind = t - last_good_sense_t > settings.max_sensing_age_s
-            if blind != was_blind:
-                events.append(f"t={t:.3f} s: sensing {'blind or stale: safe stop' if blind else 'recovered'}")
+            if sensing_reason is not None:
+                reason_now = sensing_reason
+            elif t - last_good_sense_t > settings.max_sensing_age_s:
+                reason_now = f"no good sensing update (for {1e3 * (t - last_good_sense_t):.0f} ms)"
+            else:
+                reason_now = ""
+            blind = bool(reason_now)
+            if blind != was_blind or (blind and reason_now.split(" (")[0] != blind_reason.split(" (")[0]):
+                what = f"sensing blind or stale: {reason_now}: safe stop" if blind else "sensing recovered"
+                events.append(f"t={t:.3f} s: {what}")
                 log.warning(events[-1])
                 was_blind = blind
+            blind_reason = reason_now
 
         ee = kin.frame_position("end_effector")
         target = waypoints.update(t, ee)
@@ -256,7 +316,8 @@ def run_loop(
         else:
             command = np.array(qdot, dtype=float)
             last_safe, last_safe_t = command, t
-        if blind and settings.stop_when_blind:
+        stopped = blind and settings.stop_when_blind
+        if stopped:
             command = np.zeros(robot.nq)
         io.send_velocity(command)
 
@@ -269,6 +330,9 @@ def run_loop(
         cols["status"][i] = status.value
         cols["fallback"][i] = fallback
         cols["blind"][i] = blind
+        if fallback or stopped:
+            parts = [f"sensing: {blind_reason}"] if stopped else []
+            cols["reason"][i] = "; ".join(parts + ([f"fallback: {reason}"] if fallback else []))
         for j in range(robot.nq):
             cols[f"q_{j + 1}"][i] = reading.q[j]
             cols[f"qdot_{j + 1}"][i] = command[j]

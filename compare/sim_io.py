@@ -90,10 +90,10 @@ class SimRobotIO(RobotIO):
         """Advance one control period."""
         m, d = self.model, self.data
         if self.mode == "dynamic":
-            for _ in range(self._substeps):
-                if self._scene_update is not None:
-                    self._scene_update(d.time, d)
-                mujoco.mj_step(m, d)
+            if self._scene_update is not None:
+                # Scripted bodies move at most ~2 cm per control period: updated once per period.
+                self._scene_update(d.time, d)
+            mujoco.mj_step(m, d, nstep=self._substeps)
         else:
             d.qpos[: self.nq] += self._command * self.dt
             d.qvel[: self.nq] = self._command

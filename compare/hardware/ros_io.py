@@ -268,6 +268,7 @@ class RosRobotIO(RobotIO):
             self.startup_events.extend(self.watchdog.events)
             self.watchdog.events.clear()
             self.watchdog.quiet = False
+            self.zero_commands = self.clamp_count = self.overruns = self.pump_overruns = 0
 
     def halt(self, reason: str, level: int = logging.WARNING) -> None:
         """Latch zero velocity from now on (Ctrl-C, errors); safe to call from a signal handler."""

@@ -182,3 +182,56 @@ def surveillance_boxes(
         if u0 < u1 and v0 < v1:
             boxes[k, 0], boxes[k, 1], boxes[k, 2], boxes[k, 3] = v0, v1, u0, u1
     return boxes
+
+
+@numba.njit(cache=True, nogil=True)
+def closest_on_capsules_kernel(
+    points: np.ndarray, a: np.ndarray, b: np.ndarray, radius: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """Compiled :func:`compare.sensing.geometric_distance.closest_on_capsules` (same arithmetic).
+
+    Args:
+        points: Query points [m], (K, 3).
+        a: Capsule segment starts [m], (G, 3).
+        b: Capsule segment ends [m], (G, 3).
+        radius: Radii [m], (G,).
+
+    Returns:
+        Distances [m] (K,), 0 inside a capsule, and closest surface points [m] (K, 3).
+    """
+    n_points = points.shape[0]
+    n_geoms = a.shape[0]
+    dist = np.empty(n_points)
+    closest = np.empty((n_points, 3))
+    for k in range(n_points):
+        best = np.inf
+        bc0 = bc1 = bc2 = 0.0
+        bp0 = bp1 = bp2 = 0.0
+        bn = 1.0
+        br = 0.0
+        for g in range(n_geoms):
+            ab0, ab1, ab2 = b[g, 0] - a[g, 0], b[g, 1] - a[g, 1], b[g, 2] - a[g, 2]
+            ap0, ap1, ap2 = points[k, 0] - a[g, 0], points[k, 1] - a[g, 1], points[k, 2] - a[g, 2]
+            len2 = ab0 * ab0 + ab1 * ab1 + ab2 * ab2
+            t = (ap0 * ab0 + ap1 * ab1 + ap2 * ab2) / len2 if len2 > 0.0 else 0.0
+            t = min(max(t, 0.0), 1.0)
+            c0, c1, c2 = a[g, 0] + t * ab0, a[g, 1] + t * ab1, a[g, 2] + t * ab2
+            p0, p1, p2 = points[k, 0] - c0, points[k, 1] - c1, points[k, 2] - c2
+            n = np.sqrt(p0 * p0 + p1 * p1 + p2 * p2)
+            surface = n - radius[g]
+            if surface < best:
+                best = surface
+                bc0, bc1, bc2 = c0, c1, c2
+                bp0, bp1, bp2 = p0, p1, p2
+                bn = n
+                br = radius[g]
+        if best > 0.0:
+            scale = br / max(bn, 1e-12)
+            closest[k, 0] = bc0 + scale * bp0
+            closest[k, 1] = bc1 + scale * bp1
+            closest[k, 2] = bc2 + scale * bp2
+            dist[k] = best
+        else:
+            closest[k, 0], closest[k, 1], closest[k, 2] = points[k, 0], points[k, 1], points[k, 2]
+            dist[k] = 0.0
+    return dist, closest

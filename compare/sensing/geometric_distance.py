@@ -19,6 +19,7 @@ from collections.abc import Mapping
 import mujoco
 import numpy as np
 
+from compare.sensing._kernels import closest_on_capsules_kernel
 from compare.sensing.exceptions import SensingError
 from compare.sensing.renderer import PERSON_GROUP
 from compare.sensing.results import DistanceResult, ObstacleReading
@@ -83,7 +84,7 @@ class GeometricDistance:
         if names:
             P = np.array([np.asarray(control_points[n], dtype=float) for n in names])  # (K, 3)
             A, B, r = self.segments(data)
-            dist, closest = closest_on_capsules(P, A, B, r)
+            dist, closest = closest_on_capsules_kernel(P, A, B, r)
             for i, name in enumerate(names):
                 if dist[i] <= self.rho_m:
                     readings[name] = ObstacleReading(float(dist[i]), closest[i], True)
@@ -102,7 +103,7 @@ class GeometricDistance:
         if not names:
             return {}
         P = np.array([np.asarray(control_points[n], dtype=float) for n in names])
-        dist, _ = closest_on_capsules(P, *self.segments(data))
+        dist, _ = closest_on_capsules_kernel(P, *self.segments(data))
         return {n: float(d) for n, d in zip(names, dist, strict=True)}
 
 

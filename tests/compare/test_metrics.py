@@ -308,3 +308,14 @@ def test_empty_table_gives_nulls_not_errors():
     assert summary["joint_limits"]["violations"] == 0
     assert summary["time_to_waypoint_s"] == []
     assert_strict_json(summary)
+
+
+def test_hovering_at_the_threshold_within_tolerance_is_no_violation_but_margin_shows_it():
+    steps = make_steps()
+    sigma = steps["sigma:joint_limit_2"].to_numpy().copy()
+    sigma[100:400:2] = 1.9 + 0.5e-3  # chattering 0.5 mrad past σ_s,u while held there
+    steps["sigma:joint_limit_2"] = sigma
+    group = compute_summary(steps, make_meta())["joint_limits"]
+    assert group["violations"] == 0 and group["violation_time_s"] == 0.0
+    assert group["safety_margin_min"] == pytest.approx(-0.5e-3)
+    assert group["violation_tolerance"] == pytest.approx(1e-3)

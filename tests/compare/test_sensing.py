@@ -437,3 +437,18 @@ def test_surveillance_box_holds_every_pixel_within_rho(camera):
             assert got.distance_m == pytest.approx(brute, abs=1e-6)
         else:
             assert not got.in_range
+
+
+def test_compiled_capsule_distance_matches_numpy_reference():
+    from compare.sensing._kernels import closest_on_capsules_kernel
+
+    rng = np.random.default_rng(11)
+    a = rng.uniform(-1, 1, (10, 3))
+    b = a + rng.uniform(-0.3, 0.3, (10, 3))
+    b[3] = a[3]  # a sphere
+    r = rng.uniform(0.03, 0.15, 10)
+    points = rng.uniform(-1.2, 1.2, (200, 3))
+    d_ref, c_ref = closest_on_capsules(points, a, b, r)
+    d_nb, c_nb = closest_on_capsules_kernel(points, a, b, r)
+    np.testing.assert_allclose(d_nb, d_ref, atol=1e-12)
+    np.testing.assert_allclose(c_nb, c_ref, atol=1e-12)
