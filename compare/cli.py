@@ -115,6 +115,13 @@ def sweep(
     sensing: Annotated[
         str | None, typer.Option("--sensing", help="depth | geometric (sweeps default to geometric).")
     ] = None,
+    executor: Annotated[
+        str, typer.Option("--executor", help="local (worker processes) | ray (a Ray cluster, extra 'cluster').")
+    ] = "local",
+    address: Annotated[
+        str | None,
+        typer.Option("--address", help="Ray cluster to join (auto, ray://host:10001); default: a local Ray instance."),
+    ] = None,
 ) -> None:
     """Run a randomized batch in parallel; finished runs are skipped when re-run (resumable)."""
     from compare.config import ConfigError, load_config
@@ -127,11 +134,21 @@ def sweep(
         return
     out_dir = out or Path("results") / f"sweep-{cfg.scenario.name}"
     try:
-        summary = run_sweep(cfg, text, out_dir, n=n, workers=workers, methods=list(methods) if methods else None)
+        summary = run_sweep(
+            cfg,
+            text,
+            out_dir,
+            n=n,
+            workers=workers,
+            methods=list(methods) if methods else None,
+            executor=executor,
+            address=address,
+        )
     except ConfigError as exc:
         _fail(str(exc))
         return
     typer.echo(f"sweep summary: {out_dir}/sweep_summary.json ({summary.get('runs', n)} runs)")
+    typer.echo(f"sweep report:  {out_dir}/sweep_report.md")
 
 
 @app.command()

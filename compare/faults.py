@@ -226,7 +226,9 @@ class FaultInjector:
         fallback = steps["fallback"].to_numpy(dtype=bool) if "fallback" in steps.columns else np.zeros(len(t), bool)
         per_window: dict[str, list[dict[str, Any]]] = {}
         for w in self.windows:
-            per_window.setdefault(w.kind, []).append(self._window_reaction(w, t, stop, fallback, moving, sensing_period_s))
+            per_window.setdefault(w.kind, []).append(
+                self._window_reaction(w, t, stop, fallback, moving, sensing_period_s)
+            )
         return {kind: _aggregate(rows) for kind, rows in per_window.items()}
 
     def _window_reaction(
@@ -241,7 +243,7 @@ class FaultInjector:
         hits = self.log.hits.get(w.index, [])
         row: dict[str, Any] = {
             "injected_steps": len(hits),
-            "first_injected_t_s": hits[0] if hits else None,
+            "first_injected_t_s": _round(hits[0]) if hits else None,
             "reaction": "not_triggered",
             "latency": None,
             "latency_from_start": None,
@@ -260,8 +262,8 @@ class FaultInjector:
             row["fallback_steps"] = int(reacted.size)
             if reacted.size:
                 row["reaction"] = "fallback" if reacted.size == hit_idx.size else "none"
-                row["latency"] = float(t[reacted[0]] - first)
-                row["latency_from_start"] = float(t[reacted[0]] - w.start_s)
+                row["latency"] = _round(float(t[reacted[0]] - first))
+                row["latency_from_start"] = _round(float(t[reacted[0]] - w.start_s))
             else:
                 row["reaction"] = "none"
             return row
@@ -275,14 +277,19 @@ class FaultInjector:
         if idx.size:
             t_r = float(t[idx[0]])
             row["reaction"] = "safe_stop"
-            row["latency"] = t_r - first
-            row["latency_from_start"] = t_r - w.start_s
+            row["latency"] = _round(t_r - first)
+            row["latency_from_start"] = _round(t_r - w.start_s)
             row["moving_steps_while_faulty"] = int(np.count_nonzero((t >= t_r) & (t <= last + 1e-9) & moving))
         elif w.kind == "depth_delay" or (w.kind in PIXEL_KINDS and w.spec.fraction < 1.0):
             row["reaction"] = "tolerated"  # a short delay or a partial loss the sensing copes with
         else:
             row["reaction"] = "none"
         return row
+
+
+def _round(x: float) -> float:
+    """Times on the control grid, without the float noise of accumulated periods (µs resolution)."""
+    return round(float(x), 6) + 0.0
 
 
 def _aggregate(rows: list[dict[str, Any]]) -> dict[str, Any]:
@@ -528,6 +535,6 @@ class FaultySolver:
         deadline = hit.spec.deadline_s if hit.spec.deadline_s is not None else self._inj.control_period_s
         if took <= deadline or not math.isfinite(took):
             return result
-        return failed(
-            kin.nq, f"solver timeout: {1e3 * took:.1f} ms > deadline {1e3 * deadline:.1f} ms", injected=True
-        )
+        # The message names the configured numbers only: events stay reproducible run to run.
+        message = f"solver timeout: solve + {1e3 * hit.spec.delay_s:.1f} ms > deadline {1e3 * deadline:.1f} ms"
+        return failed(kin.nq, message, injected=True, took_s=took)

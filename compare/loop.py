@@ -40,7 +40,7 @@ from compare.waypoints import WaypointSchedule
 from robots import Kinematics, Robot
 from tpik.hierarchy import Hierarchy
 from tpik.step_result import IkSolver, SolveStatus
-from tpik.tasks import ObstacleDistanceTask, PositionTask, SetTask
+from tpik.tasks import JointLimitTask, ObstacleDistanceTask, PositionTask, SetTask, VirtualWallTask
 
 log = logging.getLogger(__name__)
 
@@ -123,9 +123,9 @@ class _Recorder:
         f = self._float
         for name in ["t", "ee_x", "ee_y", "ee_z", "target_x", "target_y", "target_z", "ee_error_m", "solve_time_us"]:
             f(name, n_steps)
-        for j in range(1, nq + 1):
-            f(f"q_{j}", n_steps)
-            f(f"qdot_{j}", n_steps)
+        self.nq = nq
+        self.q = np.full((n_steps, nq), np.nan)
+        self.qdot = np.full((n_steps, nq), np.nan)
         for task in set_tasks:
             f(f"sigma:{task.name}", n_steps)
             self.cols[f"active:{task.name}"] = np.zeros(n_steps, dtype=bool)
@@ -144,7 +144,54 @@ class _Recorder:
         self.cols[name] = np.full(n, np.nan)
 
     def frame(self) -> pd.DataFrame:
-        return pd.DataFrame({k: v[: self.n] for k, v in self.cols.items()})
+        cols = {k: v[: self.n] for k, v in self.cols.items()}
+        for j in range(self.nq):
+            cols[f"q_{j + 1}"] = self.q[: self.n, j]
+            cols[f"qdot_{j + 1}"] = self.qdot[: self.n, j]
+        return pd.DataFrame(cols)
+
+
+class _FramePositions:
+    """Frame positions of one step's kinematics, each computed at most once [m]."""
+
+    __slots__ = ("_cache", "_kin")
+
+    def __init__(self, kin: Kinematics, ee: np.ndarray) -> None:
+        self._kin = kin
+        self._cache: dict[str, np.ndarray] = {"end_effector": ee}
+
+    def __call__(self, frame: str) -> np.ndarray:
+        p = self._cache.get(frame)
+        if p is None:
+            p = self._cache[frame] = self._kin.frame_position(frame)
+        return p
+
+
+def _value_function(task: SetTask) -> Callable[[Kinematics, Callable[[str], np.ndarray]], float]:
+    """σ of a set task for the per-step record, without its Jacobian (the solver already used it).
+
+    Known task types read σ from the step's frame positions; any other type falls back to
+    ``compute_value_and_jacobian``. Same values as the tasks compute (recording is ~5× cheaper).
+    """
+    if isinstance(task, JointLimitTask):
+        j = task.joint - 1
+        return lambda kin, _pos: float(kin.q[j])
+    if isinstance(task, VirtualWallTask):
+        normal, offset, frame = task.normal, task.offset, task.frame
+        return lambda _kin, pos: float(normal @ pos(frame)) - offset
+    if isinstance(task, ObstacleDistanceTask):
+        obstacle_task = task
+
+        def distance(kin: Kinematics, pos: Callable[[str], np.ndarray]) -> float:
+            obstacle = obstacle_task.obstacle
+            if obstacle is None:
+                return math.inf
+            diff = obstacle - pos(obstacle_task.frame)
+            dist = math.sqrt(float(diff @ diff))
+            return 0.0 if dist < 1e-9 else dist
+
+        return distance
+    return lambda kin, _pos: task.compute_value_and_jacobian(kin)[0]
 
 
 def sensing_problem(result: DistanceResultLike, t: float, stale_after_s: float | None) -> str | None:
@@ -177,9 +224,9 @@ def _guard(qdot: np.ndarray, v_max: np.ndarray) -> str | None:
     """Why a command must not be sent, or None when it is finite and within the limits."""
     if qdot.shape != v_max.shape:
         return f"command has shape {qdot.shape}, expected {v_max.shape}"
-    if not np.all(np.isfinite(qdot)):
+    if not np.isfinite(qdot).all():
         return "command is not finite"
-    if np.any(np.abs(qdot) > v_max * (1.0 + 1e-6) + 1e-9):
+    if (np.abs(qdot) > v_max * (1.0 + 1e-6) + 1e-9).any():
         return f"command exceeds the velocity limits by {float(np.max(np.abs(qdot) - v_max)):.3g} rad/s"
     return None
 
@@ -221,6 +268,19 @@ def run_loop(
     position_tasks = [t for t in hierarchy.tasks if isinstance(t, PositionTask) and t.frame == "end_effector"]
     rec = _Recorder(n_steps, robot.nq, set_tasks, [t.name for t in obstacle_tasks])
     cols = rec.cols
+    # Column arrays and σ functions looked up once (recording is a noticeable share of a fast run).
+    sigma_record = [(cols[f"sigma:{t.name}"], cols[f"active:{t.name}"], t.name, _value_function(t)) for t in set_tasks]
+    dist_record = [(cols[f"dist_meas:{cp}"], cols[f"dist_true:{cp}"], cp) for cp in CONTROL_POINTS]
+    truth_record = [(cols[f"truth:{t.name}"], t.frame) for t in obstacle_tasks]
+    c_t, c_ee_x, c_ee_y, c_ee_z = cols["t"], cols["ee_x"], cols["ee_y"], cols["ee_z"]
+    c_tx, c_ty, c_tz, c_err = cols["target_x"], cols["target_y"], cols["target_z"], cols["ee_error_m"]
+    c_solve, c_wp, c_status, c_fallback, c_blind = (
+        cols["solve_time_us"],
+        cols["waypoint"],
+        cols["status"],
+        cols["fallback"],
+        cols["blind"],
+    )
     events: list[str] = []
     v_max = robot.v_max
     last_safe = np.zeros(robot.nq)
@@ -230,6 +290,7 @@ def run_loop(
     blind = obstacles is not None and bool(obstacle_tasks)
     measured = dict.fromkeys(CONTROL_POINTS, math.inf)
     was_blind = False
+    fallback_since: float | None = None  # start of the current fallback episode [s]
     sensing_reason: str | None = None  # why the latest update was not usable (None: it was)
     blind_reason = ""
     last_stamp = math.nan
@@ -311,41 +372,47 @@ def run_loop(
                 command = last_safe * decay
             else:
                 command = np.zeros(robot.nq)
-            events.append(f"t={t:.3f} s: {solver.name}: fallback ({settings.fallback}): {reason}")
-            log.warning(events[-1])
+            if fallback_since is None:  # log the start of a fallback episode, not every step of it
+                fallback_since = t
+                events.append(f"t={t:.3f} s: {solver.name}: fallback ({settings.fallback}): {reason}")
+                log.warning(events[-1])
         else:
             command = np.array(qdot, dtype=float)
             last_safe, last_safe_t = command, t
+            if fallback_since is not None:
+                events.append(f"t={t:.3f} s: {solver.name}: recovered after {t - fallback_since:.2f} s of fallback")
+                log.warning(events[-1])
+                fallback_since = None
         stopped = blind and settings.stop_when_blind
         if stopped:
             command = np.zeros(robot.nq)
         io.send_velocity(command)
 
-        cols["t"][i] = t
-        cols["ee_x"][i], cols["ee_y"][i], cols["ee_z"][i] = ee
-        cols["target_x"][i], cols["target_y"][i], cols["target_z"][i] = target
-        cols["ee_error_m"][i] = float(np.linalg.norm(target - ee))
-        cols["solve_time_us"][i] = solve_us
-        cols["waypoint"][i] = waypoints.index
-        cols["status"][i] = status.value
-        cols["fallback"][i] = fallback
-        cols["blind"][i] = blind
+        c_t[i] = t
+        c_ee_x[i], c_ee_y[i], c_ee_z[i] = ee
+        c_tx[i], c_ty[i], c_tz[i] = target
+        c_err[i] = math.dist(target, ee)
+        c_solve[i] = solve_us
+        c_wp[i] = waypoints.index
+        c_status[i] = status.value
+        c_fallback[i] = fallback
+        c_blind[i] = blind
         if fallback or stopped:
             parts = [f"sensing: {blind_reason}"] if stopped else []
             cols["reason"][i] = "; ".join(parts + ([f"fallback: {reason}"] if fallback else []))
-        for j in range(robot.nq):
-            cols[f"q_{j + 1}"][i] = reading.q[j]
-            cols[f"qdot_{j + 1}"][i] = command[j]
+        rec.q[i] = reading.q
+        rec.qdot[i] = command
         active_names = set(active)
-        for task in set_tasks:
-            cols[f"sigma:{task.name}"][i] = task.compute_value_and_jacobian(kin)[0]
-            cols[f"active:{task.name}"][i] = task.name in active_names
+        position = _FramePositions(kin, ee)
+        for c_sigma, c_active, name, value in sigma_record:
+            c_sigma[i] = value(kin, position)
+            c_active[i] = name in active_names
         true_d = truth(kin) if truth is not None else {}
-        for cp in CONTROL_POINTS:
-            cols[f"dist_meas:{cp}"][i] = measured[cp]
-            cols[f"dist_true:{cp}"][i] = true_d.get(cp, math.inf)
-        for task in obstacle_tasks:
-            cols[f"truth:{task.name}"][i] = true_d.get(task.frame, math.inf)
+        for c_meas, c_true, cp in dist_record:
+            c_meas[i] = measured[cp]
+            c_true[i] = true_d.get(cp, math.inf)
+        for c_truth, frame in truth_record:
+            c_truth[i] = true_d.get(frame, math.inf)
         rec.n = i + 1
 
         if progress is not None and t >= next_progress:

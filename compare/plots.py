@@ -246,6 +246,46 @@ def plot_ee_walls(steps: pd.DataFrame, method: str, wall_tasks: Sequence[SetTask
     return _save(fig, path)
 
 
+def plot_iso15066(steps: pd.DataFrame, method: str, control_points: Sequence[str], path: Path) -> Path | None:
+    """ISO/TS 15066 speed-and-separation margin per control point (``compare.iso15066``).
+
+    Top: margin d − S_p [m] per control point, 0 in red, time below zero shaded. Bottom: the
+    estimated human speed v_h and the robot's speed toward the person v_r [m/s]. None when the
+    run has no ``iso_margin_m:*`` column or the person was never within range.
+    """
+    cps = [cp for cp in control_points if f"iso_margin_m:{cp}" in steps.columns]
+    if not cps or not any(_has_data(_finite(steps[f"iso_margin_m:{cp}"])) for cp in cps):
+        return None
+    t = steps["t"].to_numpy(dtype=float)
+    fig, axes = _figure(2, 1, height_in=6.0)
+    top, bottom = axes[0, 0], axes[1, 0]
+    colors = _colors(list(cps))
+    below = np.zeros(len(t), dtype=bool)
+    for cp in cps:
+        m = _finite(steps[f"iso_margin_m:{cp}"])
+        top.plot(t, m, color=colors[cp], label=cp)
+        with np.errstate(invalid="ignore"):
+            below |= np.nan_to_num(m, nan=0.0) < 0.0
+        for kind, style in (("vh_mps", "-"), ("vr_mps", ":")):
+            col = f"iso_{kind}:{cp}"
+            if col in steps.columns:
+                label = f"{cp} v_h (estimated)" if kind == "vh_mps" else f"{cp} v_r"
+                bottom.plot(t, _finite(steps[col]), color=colors[cp], linestyle=style, label=label)
+    top.axhline(0.0, label="S_p reached", **SAFETY_STYLE)
+    if np.any(below):
+        top.fill_between(
+            t, 0, 1, where=below, transform=top.get_xaxis_transform(), color="tab:red", alpha=0.12, linewidth=0
+        )
+    top.set(ylabel="d − S_p [m]", title=f"{method}: ISO/TS 15066 speed and separation margin (5.5.4)")
+    top.grid(alpha=0.3)
+    _legend_outside(top)
+    bottom.set(xlabel="t [s]", ylabel="speed [m/s]")
+    bottom.set_ylim(bottom=0.0)
+    bottom.grid(alpha=0.3)
+    _legend_outside(bottom)
+    return _save(fig, path)
+
+
 def _annotated_point(ax: Axes, x: float, x_hi: float | None, y: float, label: str, color: Any) -> None:
     err = None if x_hi is None or x_hi < x else np.array([[0.0], [x_hi - x]])
     ax.errorbar([x], [y], xerr=err, fmt="o", color=color, capsize=3, markersize=6)
@@ -312,6 +352,7 @@ def _plot_method(steps: pd.DataFrame, name: str, msum: dict[str, Any], out: Path
         ("distances", lambda p: plot_distances(steps, name, cps, group("obstacles"), p)),
         ("joints", lambda p: plot_joints(steps, name, group("joint_limits"), p)),
         ("ee_walls", lambda p: plot_ee_walls(steps, name, group("walls"), p)),
+        ("iso15066", lambda p: plot_iso15066(steps, name, cps, p)),
     ]
     paths: list[Path] = []
     for kind, draw in figures:
@@ -330,7 +371,8 @@ def plot_run(results_dir: Path) -> list[Path]:
 
     Per method ``<method>_ee_error.png`` (Fig. 3), ``<method>_distances.png`` (Figs. 4/9),
     ``<method>_joints.png`` (Figs. 5/10), ``<method>_ee_walls.png`` (Fig. 8, when the scenario
-    has walls), and ``comparison.png`` (solve time vs worst safety margin, all methods).
+    has walls), ``<method>_iso15066.png`` (ISO/TS 15066 margin, when the person came within
+    range), and ``comparison.png`` (solve time vs worst safety margin, all methods).
     A method whose per-step table is missing only appears in the comparison.
     """
     results_dir = Path(results_dir)
@@ -364,6 +406,8 @@ def plot_sweep(sweep_dir: Path) -> list[Path]:
     right, every run: median solve time against total safety-violation time.
     ``sweep_min_distance_cdf.png``: empirical CDF of the minimum obstacle distance per run,
     per method, with the obstacle safety threshold (when the runs have obstacles).
+    ``sweep_iso_margin_cdf.png``: CDF of each run's minimum ISO/TS 15066 margin.
+    ``sweep_solve_vs_violation.png``: p99 solve time against the worst joint-limit / wall margin.
     """
     sweep_dir = Path(sweep_dir)
     runs = collect_sweep(sweep_dir)
@@ -441,7 +485,80 @@ def plot_sweep(sweep_dir: Path) -> list[Path]:
         if drawn or threshold is not None:
             ax.legend(fontsize="small", loc="lower right")
         paths.append(_save(fig, out / "sweep_min_distance_cdf.png"))
+    for draw in (_plot_sweep_iso_cdf, _plot_sweep_solve_vs_violation):
+        try:
+            path = draw(ok, methods, colors, out)
+        except Exception as exc:  # one bad figure must not cost the others
+            log.warning("sweep plot %s failed: %s", draw.__name__, exc)
+            continue
+        if path is not None:
+            paths.append(path)
     return paths
+
+
+def _ecdf(ax: Axes, values: pd.Series, color: Any, label: str) -> bool:
+    d = pd.to_numeric(values, errors="coerce").to_numpy(dtype=float)
+    d = np.sort(d[np.isfinite(d)])
+    if not d.size:
+        return False
+    ax.step(np.concatenate([[d[0]], d]), np.arange(0, d.size + 1) / d.size, where="post", color=color, label=label)
+    return True
+
+
+def _plot_sweep_iso_cdf(ok: pd.DataFrame, methods: list[str], colors: dict[str, Any], out: Path) -> Path | None:
+    """``sweep_iso_margin_cdf.png``: CDF of each run's minimum ISO/TS 15066 margin, per method."""
+    if "iso_min_margin_m" not in ok.columns:
+        return None
+    fig, axes = _figure(height_in=4.0, width_in=7.0)
+    ax = axes[0, 0]
+    drawn = False
+    for name in methods:
+        rows = ok.loc[ok["method"] == name, "iso_min_margin_m"]
+        n = int(pd.to_numeric(rows, errors="coerce").notna().sum())
+        drawn |= _ecdf(ax, rows, colors[name], f"{name} (n={n})")
+    if not drawn:
+        return None
+    ax.axvline(0.0, label="S_p reached (margin 0)", **SAFETY_STYLE)
+    ax.set(
+        xlabel="minimum ISO/TS 15066 margin d − S_p over the run [m]",
+        ylabel="share of runs ≤ x",
+        title="speed and separation margin (runs with the person within range)",
+    )
+    ax.set_ylim(0.0, 1.02)
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize="small", loc="lower right")
+    return _save(fig, out / "sweep_iso_margin_cdf.png")
+
+
+def _plot_sweep_solve_vs_violation(
+    ok: pd.DataFrame, methods: list[str], colors: dict[str, Any], out: Path
+) -> Path | None:
+    """``sweep_solve_vs_violation.png``: each run's p99 solve time against its worst joint / wall margin."""
+    panels = [g for g in ("joint_limits", "walls") if f"{g}_safety_margin_min" in ok.columns]
+    if not panels or "solve_p99_us" not in ok.columns:
+        return None
+    fig, axes = _figure(1, len(panels), height_in=4.2, width_in=5.5 * len(panels))
+    for ax, group in zip(axes[0], panels, strict=True):
+        for name in methods:
+            rows = ok[ok["method"] == name]
+            x = pd.to_numeric(rows["solve_p99_us"], errors="coerce").to_numpy(dtype=float)
+            y = pd.to_numeric(rows[f"{group}_safety_margin_min"], errors="coerce").to_numpy(dtype=float)
+            keep = np.isfinite(x) & np.isfinite(y) & (x > 0)
+            if np.any(keep):
+                bad = int(np.count_nonzero(y[keep] < 0.0))
+                ax.scatter(x[keep], y[keep], s=12, alpha=0.6, color=colors[name], label=f"{name} ({bad} below 0)")
+        ax.axhline(0.0, **SAFETY_STYLE)
+        _log_x(ax)
+        ax.set(
+            xlabel="p99 solve time of the run [µs]",
+            ylabel=f"worst safety margin [{GROUP_UNITS[group]}] (< 0: violated)",
+            title=GROUP_TITLES[group],
+        )
+        ax.grid(alpha=0.3, which="both")
+        if ax.get_legend_handles_labels()[0]:
+            ax.legend(fontsize="small")
+    fig.suptitle("solve time vs safety, one point per run")
+    return _save(fig, out / "sweep_solve_vs_violation.png")
 
 
 def _sweep_obstacle_threshold(sweep_dir: Path, ok: pd.DataFrame) -> float | None:

@@ -6,6 +6,7 @@ Both read only ``summary.json`` (DESIGN §7); the report links the PNGs of :mod:
 from __future__ import annotations
 
 import datetime as dt
+import json
 import math
 from pathlib import Path
 from typing import Any
@@ -165,5 +166,148 @@ def render_report(results_dir: Path, command: str | None = None) -> Path:
     else:
         out.append(f"No plots yet: `tpik-compare plot {results_dir}`.")
     path = results_dir / REPORT_FILE
+    path.write_text("\n".join(out).rstrip() + "\n", encoding="utf-8")
+    return path
+
+
+# --------------------------------------------------------------------------------------- sweeps
+
+SWEEP_REPORT_FILE = "sweep_report.md"
+
+
+def _pct(x: Any) -> str:
+    return "–" if x is None else f"{100.0 * float(x):.1f} %"
+
+
+def render_sweep_report(sweep_dir: Path, command: str | None = None) -> Path:
+    """Write ``sweep_dir/sweep_report.md`` from ``sweep_summary.json`` and the sweep plots.
+
+    Per method: runs, share of runs with a joint-limit or wall safety violation (the goal for
+    TPIK and HQP is 0), with an obstacle violation, with failures / fallbacks, unsafe commands,
+    solve time percentiles, ISO/TS 15066 margin; then the figures (minimum-distance CDF, ISO
+    margin CDF, solve time vs violation) and the provenance (command, executor, machine).
+
+    Args:
+        sweep_dir: Sweep directory (``sweep_summary.json`` must exist).
+        command: Command line; default the one stored in the summary's ``campaign`` entry.
+
+    Returns:
+        Path of the report.
+    """
+    sweep_dir = Path(sweep_dir)
+    summary = json.loads((sweep_dir / "sweep_summary.json").read_text(encoding="utf-8"))
+    versions: dict[str, str] = summary.get("versions") or {}
+    campaign = summary.get("campaign") or {}
+    methods: dict[str, dict[str, Any]] = summary.get("methods") or {}
+    now = dt.datetime.now(dt.UTC).strftime("%Y-%m-%d %H:%M UTC")
+    cmd = command or campaign.get("command")
+    out = [
+        f"# Sweep report: {summary.get('scenario', '?')} ({summary.get('runs', 0)} runs)",
+        "",
+        f"- generated: {now}",
+        f"- git commit: `{versions.get('git_commit', 'unknown')}`",
+        f"- machine: {versions.get('cpu', 'unknown')} ({versions.get('machine', '?')}), "
+        f"Python {versions.get('python', '?')}",
+    ]
+    if cmd:
+        out.append(f"- command: `{cmd}`")
+    if campaign:
+        wall = campaign.get("wall_time_s")
+        per = campaign.get("wall_time_per_run_s")
+        out.append(
+            f"- executor: {campaign.get('executor', '?')}"
+            + (f", {campaign['workers']} workers" if campaign.get("workers") else "")
+            + (f", cluster {campaign['address']}" if campaign.get("address") not in (None, "local") else "")
+            + f"; this invocation ran {campaign.get('runs_executed', '?')}"
+            + f" of {campaign.get('runs_requested', '?')} runs"
+            + (f" in {wall / 60.0:.1f} min ({per:.2f} s per run)" if wall and per else "")
+        )
+    if summary.get("skipped_finished_runs"):
+        out.append(f"- resumed: {summary['skipped_finished_runs']} runs were already finished")
+    out += ["", "## Safety and failures per method", ""]
+    headers = [
+        "method",
+        "runs",
+        "joint-limit or wall violation",
+        "obstacle violation",
+        "worst joint margin [rad]",
+        "worst wall margin [m]",
+        "runs with failures / fallbacks",
+        "failures / fallbacks (steps)",
+        "unsafe commands",
+    ]
+    rows = []
+    for name, m in methods.items():
+        worst = m.get("worst_safety_margin") or {}
+        rows.append(
+            [
+                name,
+                f"{m.get('runs', 0)}" + (f" (+{m['errors']} errors)" if m.get("errors") else ""),
+                _pct(m.get("share_runs_limit_or_wall_violation")),
+                _pct(m.get("share_runs_obstacle_violation")),
+                _fmt(worst.get("joint_limits"), "+.4f"),
+                _fmt(worst.get("walls"), "+.4f"),
+                f"{_pct(m.get('share_runs_with_failures'))} / {_pct(m.get('share_runs_with_fallbacks'))}",
+                f"{m.get('failures', 0)} / {m.get('fallbacks', 0)}",
+                str(m.get("unsafe_commands", 0)),
+            ]
+        )
+    out.append(_markdown_table(headers, rows) if rows else "No finished run.")
+    out += [
+        "",
+        "A violation is a safety-margin episode beyond the metrics' tolerance (1 mm / 1 mrad); worst margins are"
+        " exact. Obstacle distances use the ground-truth geometry. Unsafe commands (non-finite or beyond the"
+        " velocity limits) are counted on what the loop sent: 0 by construction.",
+        "",
+        "## Cost and ISO/TS 15066 margin",
+        "",
+    ]
+    headers = [
+        "method",
+        "solve median [µs]",
+        "median of run p99 [µs]",
+        "p95 of run p99 [µs]",
+        "max [µs]",
+        "realtime × (median)",
+        "ISO min margin [m]",
+        "runs below S_p",
+    ]
+    rows = []
+    for name, m in methods.items():
+        solve = m.get("solve_time_us") or {}
+        pct = m.get("solve_time_percentiles_us") or {}
+        iso = m.get("iso15066") or {}
+        rows.append(
+            [
+                name,
+                _fmt(solve.get("median_of_medians"), ".0f"),
+                _fmt(solve.get("median_of_p99"), ".0f"),
+                _fmt(pct.get("p95_of_run_p99"), ".0f"),
+                _fmt(solve.get("max"), ".0f"),
+                _fmt((m.get("realtime_factor") or {}).get("median"), ".1f"),
+                _fmt(iso.get("min_margin_m"), "+.3f"),
+                _pct(iso.get("share_runs_below_zero")),
+            ]
+        )
+    if rows:
+        out.append(_markdown_table(headers, rows))
+    out += [
+        "",
+        "ISO margin: measured separation minus the protective separation distance S_p of ISO/TS 15066 clause"
+        " 5.5.4 (formula (1)), with the human speed estimated from the sensing; negative = the arm could not stop"
+        " before contact if the person kept coming (compare/iso15066.py).",
+    ]
+    failed = summary.get("failed_runs") or []
+    if failed:
+        out += ["", "## Failed runs", ""] + [f"- {line}" for line in failed[:50]]
+    plots = sorted((sweep_dir / PLOTS_DIR).glob("sweep_*.png")) if (sweep_dir / PLOTS_DIR).is_dir() else []
+    out += ["", "## Figures", ""]
+    if plots:
+        for p in plots:
+            rel = p.relative_to(sweep_dir).as_posix()
+            out += [f"### {p.stem}", "", f"![{p.stem}]({rel})", ""]
+    else:
+        out.append(f"No plots yet: `tpik-compare plot {sweep_dir}`.")
+    path = sweep_dir / SWEEP_REPORT_FILE
     path.write_text("\n".join(out).rstrip() + "\n", encoding="utf-8")
     return path

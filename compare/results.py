@@ -15,7 +15,8 @@ finished so far intact. Each method entry is the output of
 set task (infinite bounds as ``null``), which the plots read.
 
 A sweep directory holds ``runs/<index:05d>/`` run directories, ``sweep_runs.csv`` (one row per
-run and method) and ``sweep_summary.json`` (per-method aggregates).
+run and method), ``sweep_summary.json`` (per-method aggregates), ``plots/`` and
+``sweep_report.md`` (:func:`compare.report.render_sweep_report`).
 """
 
 from __future__ import annotations
@@ -287,7 +288,29 @@ def flatten_method(summary: dict[str, Any]) -> dict[str, Any]:
             "peak_joint_acceleration_rad_s2": summary.get("peak_joint_acceleration_rad_s2"),
         }
     )
+    # Reliability campaigns (issue 9): ISO/TS 15066 margin, injected faults, command guard, cost.
+    iso = summary.get("iso15066") or {}
+    faults = summary.get("faults") or {}
+    latencies = [f.get("reaction_latency_s_max") for f in faults.values() if isinstance(f, dict)]
+    row.update(
+        {
+            "iso_min_margin_m": iso.get("min_margin_m"),
+            "iso_time_below_zero_s": iso.get("time_below_zero_s"),
+            "iso_human_speed_max_mps": iso.get("human_speed_max_mps"),
+            "unsafe_commands": summary.get("unsafe_commands"),
+            "fault_injected_steps": int(sum((f.get("injected_steps") or 0) for f in faults.values())),
+            "fault_unreacted": int(sum(f.get("reaction") == "none" for f in faults.values())),
+            "fault_reaction_latency_s_max": _max_or_none(latencies),
+            "sim_time_s": summary.get("sim_time_s"),
+            "wall_time_s": summary.get("wall_time_s"),
+        }
+    )
     return row
+
+
+def _max_or_none(values: Iterable[Any]) -> float | None:
+    finite = [float(v) for v in values if v is not None and math.isfinite(float(v))]
+    return max(finite) if finite else None
 
 
 def collect_sweep(out_dir: Path) -> pd.DataFrame:
@@ -378,7 +401,53 @@ def _method_aggregate(rows: pd.DataFrame) -> dict[str, Any]:
         "failures": int(_stat(values("failures"), "sum") or 0),
         "fallbacks": int(_stat(values("fallbacks"), "sum") or 0),
         "activation_toggles_per_s_median": _stat(values("activation_toggles_per_s"), "median"),
+        # Reliability campaigns (issue 9).
+        "share_runs_joint_limit_violation": share(violated("joint_limits")),
+        "share_runs_wall_violation": share(violated("walls")),
+        "share_runs_with_failures": share(pd.to_numeric(values("failures"), errors="coerce").fillna(0) > 0),
+        "share_runs_with_fallbacks": share(pd.to_numeric(values("fallbacks"), errors="coerce").fillna(0) > 0),
+        "solve_time_percentiles_us": {
+            "p50_of_run_p99": _stat(values("solve_p99_us"), "median"),
+            "p95_of_run_p99": _percentile(values("solve_p99_us"), 95),
+            "max_of_run_p99": _stat(values("solve_p99_us"), "max"),
+            "p95_of_run_medians": _percentile(values("solve_median_us"), 95),
+        },
+        "iso15066": {
+            "min_margin_m": _stat(values("iso_min_margin_m"), "min"),
+            "median_min_margin_m": _stat(values("iso_min_margin_m"), "median"),
+            "share_runs_below_zero": share(
+                pd.to_numeric(values("iso_time_below_zero_s"), errors="coerce").fillna(0) > 0
+            ),
+            "time_below_zero_s_total": _stat(values("iso_time_below_zero_s"), "sum"),
+        },
+        "unsafe_commands": int(_stat(values("unsafe_commands"), "sum") or 0),
+        "realtime_factor": {
+            "median": _stat(values("realtime_factor"), "median"),
+            "min": _stat(values("realtime_factor"), "min"),
+        },
     }
+
+
+def _percentile(values: pd.Series, q: float) -> float | None:
+    x = pd.to_numeric(values, errors="coerce").to_numpy(dtype=float)
+    x = x[np.isfinite(x)]
+    return float(np.percentile(x, q)) if x.size else None
+
+
+TIMING_KEYS = frozenset(
+    {"solve_time_us", "realtime_factor", "wall_time_s", "solve_time_us_by_active_count", "versions", "steps_file"}
+)
+"""Keys of ``summary.json`` whose values depend on the machine's speed or environment, not on
+(config, seed): left out when runs are compared for determinism."""
+
+
+def deterministic_view(summary: Any) -> Any:
+    """``summary`` without the :data:`TIMING_KEYS` (recursively): equal for equal (config, seed)."""
+    if isinstance(summary, dict):
+        return {k: deterministic_view(v) for k, v in summary.items() if k not in TIMING_KEYS}
+    if isinstance(summary, list):
+        return [deterministic_view(v) for v in summary]
+    return summary
 
 
 def write_sweep_summary(out_dir: Path, runs: pd.DataFrame | None = None) -> dict[str, Any]:

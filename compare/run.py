@@ -8,11 +8,14 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+import pandas as pd
 from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 
 import robots
+from compare import iso15066
 from compare.config import Config
-from compare.loop import LoopSettings, run_loop
+from compare.faults import FaultInjector, unsafe_commands
+from compare.loop import LoopSettings, ObstacleSource, run_loop
 from compare.methods import make_method
 from compare.metrics import RunMeta, SetTaskInfo, compute_summary
 from compare.results import ResultsWriter
@@ -70,12 +73,28 @@ def run_method(config: Config, method: str, robot: robots.Robot, progress: Progr
         def callback(t: float) -> None:
             progress.update(task_id, completed=t)
 
+    # Faults (``[faults]``) and the ISO/TS 15066 monitor wrap the backend, the sensing and the solver.
+    injector = FaultInjector(config.faults, sc.seed, sc.time_scale, sim.io.now, config.sensor.blind_fraction, sc.dt)
+    io = injector.wrap_io(sim.io)
+    obstacles: ObstacleSource = sim.obstacles
+    if sim.pipeline is not None and io is not sim.io:
+        obstacles = sim.pipeline.source(io.read_depth)  # depth mode: the pipeline reads the faulty frames
+    elif sim.pipeline is None:
+        obstacles = injector.wrap_obstacles(obstacles)  # geometric mode: frame faults emulated
+    solver = injector.wrap_solver(solver)
+    stale_after_s = (
+        None if settings.stale_frame_periods is None else settings.stale_frame_periods * settings.sensing_period_s
+    )
+    monitor = iso15066.SeparationMonitor(obstacles, stale_after_s) if config.iso15066.enabled else None
     try:
-        out = run_loop(sim.io, robot, hierarchy, solver, schedule, settings, sim.obstacles, sim.truth, callback)
+        out = run_loop(io, robot, hierarchy, solver, schedule, settings, monitor or obstacles, sim.truth, callback)
     finally:
         sim.close()
     if progress is not None and task_id is not None:
         progress.update(task_id, completed=sc.sim_time_s)
+    steps = injector.annotate(out.steps)
+    if monitor is not None:
+        steps = pd.concat([steps, monitor.margins(steps, robot, config.iso15066)], axis=1)
     meta = RunMeta(
         scenario=sc.name,
         seed=sc.seed,
@@ -86,10 +105,14 @@ def run_method(config: Config, method: str, robot: robots.Robot, progress: Progr
         sensing=sc.sensing,
         set_tasks=set_task_infos(hierarchy),
     )
-    summary = compute_summary(out.steps, meta)
+    summary = compute_summary(steps, meta)
+    summary["faults"] = injector.summarize(steps, settings.sensing_period_s)
+    summary["unsafe_commands"] = unsafe_commands(steps, robot.v_max)
+    if monitor is not None:
+        summary["iso15066"] = iso15066.summarize(steps, sc.dt, config.iso15066)
     summary["sensing"] = sc.sensing
     summary["events"] = out.events[:50]
-    return {"summary": summary, "steps": out.steps}
+    return {"summary": summary, "steps": steps}
 
 
 def run_scenario(

@@ -1,16 +1,36 @@
-"""Randomized batches: many seeds of one scenario family on a process pool, resumable."""
+"""Randomized batches: many seeds of one scenario family, resumable, on local processes or Ray.
+
+``run_sweep`` runs seeds ``seed .. seed + n − 1``; a run whose ``summary.json`` already holds
+every method is skipped, so an interrupted campaign is resumed by running the same command
+again. The executor (:mod:`compare.executors`) only decides *where* a run executes: the same
+seed gives the same results on either.
+
+Afterwards the sweep directory holds ``runs/<index>/`` (one run each), ``sweep_runs.csv`` (one
+row per run and method), ``sweep_summary.json`` (per-method aggregates plus a ``campaign``
+entry: executor, workers, wall time), ``plots/`` and ``sweep_report.md``.
+"""
 
 from __future__ import annotations
 
 import logging
-from concurrent.futures import ProcessPoolExecutor, as_completed
+import shlex
+import sys
+import time
 from pathlib import Path
 from typing import Any
 
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
 
 from compare.config import Config, parse_config
-from compare.results import collect_sweep, is_finished, sweep_run_dir, write_sweep_summary
+from compare.executors import Job, SweepExecutor, make_executor
+from compare.results import (
+    SWEEP_SUMMARY_FILE,
+    collect_sweep,
+    is_finished,
+    sweep_run_dir,
+    write_json_atomic,
+    write_sweep_summary,
+)
 
 log = logging.getLogger(__name__)
 
@@ -26,19 +46,20 @@ def _seeded(config: Config, seed: int, methods: list[str] | None) -> Config:
     return parse_config(data)
 
 
-def _run_one(config: Config, config_text: str, run_dir: Path) -> tuple[Path, str | None]:
-    """Worker: one seed, no plots, no progress bar; returns (dir, error or None)."""
-    import os
-
-    os.environ.setdefault("MUJOCO_GL", "egl")
-    from compare.run import run_scenario
-
-    try:
-        summary = run_scenario(config, run_dir, config_text=config_text, progress=False, make_plots=False)
-    except Exception as exc:  # keep the sweep going; the run is retried on the next invocation
-        return run_dir, f"{type(exc).__name__}: {exc}"
-    errors = summary.get("errors") or {}
-    return run_dir, "; ".join(f"{k}: {v}" for k, v in errors.items()) or None
+def sweep_jobs(
+    config: Config, config_text: str, out_dir: Path, n: int, methods: list[str] | None = None
+) -> tuple[list[Job], int]:
+    """The runs of a sweep still to do, and how many are already finished."""
+    names = methods or list(config.methods.names)
+    jobs: list[Job] = []
+    skipped = 0
+    for i in range(n):
+        run_dir = sweep_run_dir(out_dir, i)
+        if is_finished(run_dir, names):
+            skipped += 1
+            continue
+        jobs.append(Job(_seeded(config, config.scenario.seed + i, methods), config_text, run_dir))
+    return jobs, skipped
 
 
 def run_sweep(
@@ -48,47 +69,78 @@ def run_sweep(
     n: int,
     workers: int = 2,
     methods: list[str] | None = None,
+    executor: str | SweepExecutor = "local",
+    address: str | None = None,
+    progress: bool = True,
+    report: bool = True,
+    command: str | None = None,
 ) -> dict[str, Any]:
     """Run seeds ``seed .. seed + n − 1`` of ``config``; skip runs already finished.
 
+    Args:
+        config: The scenario family (``kind = "random"`` for a randomized sweep).
+        config_text: Its TOML text (copied into the sweep and every run directory).
+        out_dir: Sweep directory.
+        n: Number of runs.
+        workers: Local worker processes, or CPUs of the local Ray instance.
+        methods: Methods to run instead of the config's.
+        executor: ``local`` (default), ``ray``, or a :class:`~compare.executors.SweepExecutor`.
+        address: Ray cluster address (``--address``); None = a local Ray instance.
+        progress: Show a progress bar.
+        report: Write the plots and ``sweep_report.md`` at the end.
+        command: Command line recorded in the summary and the report (default: ``sys.argv``).
+
     Returns:
         The sweep summary written to ``out_dir/sweep_summary.json``.
+
+    Raises:
+        compare.executors.ExecutorUnavailable: The executor cannot run here.
     """
     out_dir.mkdir(parents=True, exist_ok=True)
     (out_dir / "config.toml").write_text(config_text, encoding="utf-8")
-    names = methods or list(config.methods.names)
-    jobs: list[tuple[Config, Path]] = []
-    skipped = 0
-    for i in range(n):
-        run_dir = sweep_run_dir(out_dir, i)
-        if is_finished(run_dir, names):
-            skipped += 1
-            continue
-        jobs.append((_seeded(config, config.scenario.seed + i, methods), run_dir))
+    runner = executor if isinstance(executor, SweepExecutor) else make_executor(executor, workers, address)
+    jobs, skipped = sweep_jobs(config, config_text, out_dir, n, methods)
     failures: list[str] = []
     columns = (TextColumn("[bold]sweep"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(), TimeRemainingColumn())
-    with Progress(*columns) as bar:
+    start = time.perf_counter()
+    with Progress(*columns, disable=not progress) as bar:
         task = bar.add_task("runs", total=n, completed=skipped)
-        if jobs:
-            with ProcessPoolExecutor(max_workers=workers) as pool:
-                futures = [pool.submit(_run_one, cfg, config_text, run_dir) for cfg, run_dir in jobs]
-                for fut in as_completed(futures):
-                    run_dir, error = fut.result()
-                    if error:
-                        failures.append(f"{run_dir.name}: {error}")
-                        log.warning("run %s failed: %s", run_dir.name, error)
-                    bar.advance(task)
+
+        def done(run_dir: Path, error: str | None) -> None:
+            if error:
+                failures.append(f"{run_dir.name}: {error}")
+                log.warning("run %s failed: %s", run_dir.name, error)
+            bar.advance(task)
+
+        runner.run(jobs, done)
+    wall = time.perf_counter() - start
     if skipped:
         log.info("skipped %d finished runs", skipped)
     collect_sweep(out_dir)
     summary = write_sweep_summary(out_dir)
-    summary.setdefault("skipped_finished_runs", skipped)
+    summary["skipped_finished_runs"] = skipped
+    summary["campaign"] = {
+        **runner.describe(),
+        "runs_requested": n,
+        "runs_executed": len(jobs),
+        "wall_time_s": wall,
+        "wall_time_per_run_s": wall / len(jobs) if jobs else None,
+        "command": command or " ".join(shlex.quote(a) for a in sys.argv),
+    }
     if failures:
-        summary.setdefault("failed_runs", failures)
-    try:
-        from compare.plots import plot_sweep
+        summary["failed_runs"] = failures
+    write_json_atomic(out_dir / SWEEP_SUMMARY_FILE, summary)
+    if report:
+        try:
+            from compare.plots import plot_sweep
 
-        plot_sweep(out_dir)
-    except Exception as exc:  # plots must never lose the results
-        log.warning("sweep plots failed: %s", exc)
+            plot_sweep(out_dir)
+        except Exception as exc:  # plots must never lose the results
+            log.warning("sweep plots failed: %s", exc)
+        try:
+            from compare.report import render_sweep_report
+
+            render_sweep_report(out_dir)
+        except Exception as exc:
+            log.warning("sweep report failed: %s", exc)
     return summary

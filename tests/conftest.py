@@ -4,12 +4,12 @@ from __future__ import annotations
 
 import os
 
-import numpy as np
-import pytest
+os.environ.setdefault("MUJOCO_GL", "egl")  # before mujoco is imported (by robots)
 
-import robots
+import numpy as np  # noqa: E402
+import pytest  # noqa: E402
 
-os.environ.setdefault("MUJOCO_GL", "egl")
+import robots  # noqa: E402
 
 
 @pytest.fixture(scope="session")

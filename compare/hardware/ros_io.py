@@ -241,13 +241,16 @@ class RosRobotIO(RobotIO):
                     bad = f" ({self.bad_messages})" if self.bad_messages else ""
                     raise StartRefused(f"no {what} on {topic} within {timeout_s:.1f} s{bad}: is the publisher running?")
                 time.sleep(0.005)
-        # Measure the state rate over ~20 periods: a driver launched with the default
-        # feedback_publish_rate (0.1 s) would leave the 100 Hz loop on 10 Hz data.
+        # Measure the state rate over ~30 periods: a driver launched with the default
+        # feedback_publish_rate (0.1 s) would leave the 100 Hz loop on 10 Hz data. The median
+        # interval is used, so that a scheduling hiccup of a loaded machine does not count.
         t0 = time.monotonic()
-        window = max(0.3, 20.0 / self.hw.state_rate_hz)
+        window = max(0.5, 30.0 / self.hw.state_rate_hz)
         while time.monotonic() - t0 < window:
             time.sleep(0.01)
-        rate = self.rates["joint_state"].stats(since=t0)["rate_hz"] or 0.0
+        arrivals = np.array([t for t in self.rates["joint_state"].times if t >= t0])
+        intervals = np.diff(arrivals)
+        rate = 1.0 / float(np.median(intervals)) if intervals.size >= 2 and np.median(intervals) > 0 else 0.0
         want = self.hw.state_rate_hz * self.hw.min_state_rate_fraction
         if rate < want:
             raise StartRefused(
@@ -506,8 +509,7 @@ class RosRobotIO(RobotIO):
     def _on_depth(self, msg: Any) -> None:
         now = time.monotonic()
         cam = self._camera
-        if cam is None:
-            self._bad("depth", "no camera_info yet")
+        if cam is None:  # normal for the first frames: camera_info comes on its own connection
             return
         if (msg.width, msg.height) != (cam.width, cam.height):
             self._bad("depth", f"image {msg.width}x{msg.height} but camera_info {cam.width}x{cam.height}")

@@ -1,23 +1,51 @@
-"""Randomized scenarios drawn from a seed (DESIGN §5, "beyond the paper").
+r"""Randomized scenarios drawn from a seed (DESIGN §5, "beyond the paper").
 
 :func:`realize` turns a config of kind ``random`` into a concrete one: start pose, waypoints,
 person path and speed, sensor noise and dropout all come from ``numpy.random.default_rng(seed)``,
 so (config, seed) reproduces a run exactly. Scripted kinds (``case1``, ``case2``) pass through.
+
+The ranges are in ``[random]`` (:class:`compare.config.RandomConfig`); the defaults make the
+*hard* family of the reliability campaigns:
+
+* **start pose**: the ``home`` pose perturbed by ``start_perturbation_rad``; each joint of a
+  joint-limit task is, with ``start_near_limit_probability``, put ``start_limit_offset_rad``
+  inside one of its safety thresholds. A pose is kept only if every set task starts inside its
+  safety thresholds (the EE inside the walls, no person near) — otherwise it is drawn again, up to
+  ``start_pose_attempts`` times, then the plain perturbed pose (clipped 0.2 rad inside the
+  physical limits) is used;
+* **waypoints**: uniform in the workspace box; each, with ``waypoint_near_wall_probability``, has
+  one coordinate moved to a wall of the EE's ``wall_box`` at a signed offset drawn from
+  ``waypoint_wall_offset_m`` (positive = beyond the wall, at most the waypoint tolerance so it is
+  reached with the EE held on the wall);
+* **person**: ``person_visits`` visits, one starting in each equal time slot (or as soon as the
+  person has walked around the arm, at the away radius, from the previous visit's side; a visit
+  may run past the end of the run). Each visit comes from a uniformly
+  drawn side, walks from 1.6 m to ``near_radius_m`` of the base axis at a walking speed drawn
+  from ``person_speed_mps`` (ISO 13855 / ISO/TS 15066: 1.6 m/s), raises the hand to 0.25 m
+  short of its target, moves it through the target and ``push_depth_m`` beyond (away from the
+  person) at a hand speed drawn from ``hand_speed_mps`` (up to 2.0 m/s), holds, withdraws at the
+  same speed and walks away. The target is drawn from ``reach_targets``: near a waypoint, a
+  control point (``link_4``, ``link_6``, ``link_7``) at the start pose, or the EE (``push_ee``:
+  pushing it toward the far wall).
 """
 
 from __future__ import annotations
 
 import math
+from typing import Any
 
 import numpy as np
 
 import robots
-from compare.config import Config, PersonKeyframe
+from compare.config import Config, PersonKeyframe, RandomConfig
+from tpik.tasks import JointLimitTask, ObstacleDistanceTask, SetTask, VirtualWallTask
 
 # Where the person stands when not visiting: this far from the base [m].
 _AWAY_RADIUS_M = 1.6
-# Closest approach of the torso axis to the base [m] (the table edge is at 0.6 m).
-_NEAR_RADIUS_M = (0.75, 0.95)
+# How far short of its target the hand is when the torso arrives [m].
+_APPROACH_M = 0.25
+# Hand targets are kept within these heights [m] (table top to above the head of the arm).
+_HAND_Z_M = (0.15, 1.3)
 
 
 def realize(config: Config, robot: robots.Robot | None = None) -> Config:
@@ -27,16 +55,14 @@ def realize(config: Config, robot: robots.Robot | None = None) -> Config:
     robot = robot or robots.load("jaco2")
     rng = np.random.default_rng(config.scenario.seed)
     rc = config.random
+    set_tasks = config.build_hierarchy(robot).set_tasks
 
-    lo = np.where(np.isfinite(robot.q_lower), robot.q_lower + 0.2, -np.inf)
-    hi = np.where(np.isfinite(robot.q_upper), robot.q_upper - 0.2, np.inf)
-    start_q = np.clip(robot.home + rng.uniform(-1, 1, robot.nq) * rc.start_perturbation_rad, lo, hi)
-
-    wl, wu = np.array(rc.workspace_lower), np.array(rc.workspace_upper)
-    waypoints = [tuple(float(v) for v in rng.uniform(wl, wu)) for _ in range(rc.waypoints)]
-
+    start_q = _start_pose(rng, robot, rc, set_tasks)
+    waypoints = _waypoints(rng, rc, set_tasks, config.waypoints.tolerance_m)
+    kin = robot.kinematics(start_q)
+    targets = {name: kin.frame_position(name) for name in ("link_4", "link_6", "link_7", "end_effector")}
     duration = config.scenario.duration_s
-    keyframes = _person_path(rng, duration, rc.person_visits, rc.person_speed_mps, waypoints)
+    keyframes = _person_path(rng, duration, rc, waypoints, targets)
 
     sensor = config.sensor.model_copy(
         update={"noise_std_m": float(rng.uniform(*rc.noise_std_m)), "dropout": float(rng.uniform(*rc.dropout))}
@@ -49,40 +75,164 @@ def realize(config: Config, robot: robots.Robot | None = None) -> Config:
     )
 
 
+def _start_pose(
+    rng: np.random.Generator, robot: robots.Robot, rc: RandomConfig, set_tasks: tuple[SetTask, ...]
+) -> np.ndarray:
+    """A start pose inside every set task's safety thresholds, some joints near their limits."""
+    lo = np.where(np.isfinite(robot.q_lower), robot.q_lower + 0.2, -np.inf)
+    hi = np.where(np.isfinite(robot.q_upper), robot.q_upper - 0.2, np.inf)
+    plain = np.clip(robot.home + rng.uniform(-1, 1, robot.nq) * rc.start_perturbation_rad, lo, hi)
+    limits = [t for t in set_tasks if isinstance(t, JointLimitTask)]
+    checked = [t for t in set_tasks if not isinstance(t, ObstacleDistanceTask)]
+    for _ in range(rc.start_pose_attempts):
+        q = np.clip(robot.home + rng.uniform(-1, 1, robot.nq) * rc.start_perturbation_rad, lo, hi)
+        for task in limits:
+            if rng.uniform() < rc.start_near_limit_probability:
+                th = task.thresholds
+                inset = float(rng.uniform(*rc.start_limit_offset_rad))
+                q[task.joint - 1] = th.safety_lower + inset if rng.uniform() < 0.5 else th.safety_upper - inset
+        if _inside_safety(robot, q, checked):
+            return q
+    return plain
+
+
+def _inside_safety(robot: robots.Robot, q: np.ndarray, tasks: list[SetTask]) -> bool:
+    kin = robot.kinematics(q)
+    for task in tasks:
+        sigma = task.compute_value_and_jacobian(kin)[0]
+        th = task.thresholds
+        if not th.safety_lower <= sigma <= th.safety_upper:
+            return False
+    return all(kin.frame_position(f)[2] > 0.05 for f in ("link_4", "link_6", "link_7", "end_effector"))
+
+
+def _wall_box(set_tasks: tuple[SetTask, ...]) -> tuple[np.ndarray, np.ndarray] | None:
+    """Lower and upper wall positions (x, y, z) of axis-aligned EE walls; None if there are none."""
+    lower = np.full(3, np.nan)
+    upper = np.full(3, np.nan)
+    for task in set_tasks:
+        if not isinstance(task, VirtualWallTask) or task.frame != "end_effector":
+            continue
+        axis = int(np.argmax(np.abs(task.normal)))
+        if abs(abs(task.normal[axis]) - 1.0) > 1e-9:
+            continue
+        # σ = n·p − d ≥ safety_lower: the wall (safety threshold) sits at n·p = d + safety_lower.
+        if task.normal[axis] > 0:
+            lower[axis] = task.offset + task.thresholds.safety_lower
+        else:
+            upper[axis] = -(task.offset + task.thresholds.safety_lower)
+    if np.all(np.isnan(lower)) and np.all(np.isnan(upper)):
+        return None
+    return lower, upper
+
+
+def _waypoints(
+    rng: np.random.Generator, rc: RandomConfig, set_tasks: tuple[SetTask, ...], tolerance_m: float
+) -> list[tuple[float, float, float]]:
+    wl, wu = np.array(rc.workspace_lower), np.array(rc.workspace_upper)
+    walls = _wall_box(set_tasks)
+    out = []
+    for _ in range(rc.waypoints):
+        p = rng.uniform(wl, wu)
+        if walls is not None and rng.uniform() < rc.waypoint_near_wall_probability:
+            axis = int(rng.integers(3))
+            side = int(rng.integers(2))
+            wall = (walls[0] if side == 0 else walls[1])[axis]
+            if math.isfinite(wall):
+                offset = min(float(rng.uniform(*rc.waypoint_wall_offset_m)), 0.75 * tolerance_m)
+                p[axis] = wall - offset if side == 0 else wall + offset
+        out.append(tuple(float(v) for v in p))
+    return out
+
+
 def _person_path(
     rng: np.random.Generator,
     duration_s: float,
-    visits: int,
-    speed_range: tuple[float, float],
+    rc: RandomConfig,
     waypoints: list[tuple[float, float, float]],
+    targets: dict[str, np.ndarray],
 ) -> list[PersonKeyframe]:
-    """Keyframes: stand away, walk in from a random side at a random speed, reach, walk out."""
-    side = rng.uniform(-math.pi, math.pi)
-    frames = [_standing(0.0, side)]
-    if visits == 0:
+    """Keyframes of ``rc.person_visits`` visits (module docstring)."""
+    first_side = rng.uniform(-math.pi, math.pi)
+    frames = [_standing(0.0, first_side)]
+    if rc.person_visits == 0:
         return frames
-    slot = duration_s / visits
-    for k in range(visits):
-        speed = float(rng.uniform(*speed_range))
-        side = rng.uniform(-math.pi, math.pi)
-        near = float(rng.uniform(*_NEAR_RADIUS_M))
-        walk_s = (_AWAY_RADIUS_M - near) / speed
-        start = k * slot + float(rng.uniform(0.05, 0.3)) * slot
-        stay = float(rng.uniform(0.2, 0.4)) * slot
-        reach = np.array(waypoints[int(rng.integers(len(waypoints)))]) + rng.normal(0.0, 0.1, 3)
-        reach[2] = float(np.clip(reach[2], 0.3, 1.2))
-        away_xy = _AWAY_RADIUS_M * np.array([math.cos(side), math.sin(side)])
-        near_xy = near * np.array([math.cos(side), math.sin(side)])
-        yaw = side + math.pi  # facing the arm
-        t_in = start + walk_s
-        t_out = t_in + stay
-        if t_out + walk_s >= duration_s + slot:
+    slot = duration_s / rc.person_visits
+    free_at = 0.0  # end of the previous visit [s]
+    last_side = first_side
+    for k in range(rc.person_visits):
+        walk_speed = float(rng.uniform(*rc.person_speed_mps))
+        hand_speed = float(rng.uniform(*rc.hand_speed_mps))
+        side = float(rng.uniform(-math.pi, math.pi))
+        near = float(rng.uniform(*rc.near_radius_m))
+        kind = rc.reach_targets[int(rng.integers(len(rc.reach_targets)))]
+        push = float(rng.uniform(*rc.push_depth_m))
+        planned = k * slot + float(rng.uniform(0.05, 0.3)) * slot
+        hold = float(rng.uniform(0.1, 0.3)) * slot
+        noise = rng.normal(0.0, 0.05, 3)
+        if k == 0:
+            last_side = side  # stand where the first visit starts
+            frames = [_standing(0.0, side)]
+        # Walk around the arm at the away radius to the new side (never through the work cell).
+        turn = math.remainder(side - last_side, math.tau)
+        arc_s = _AWAY_RADIUS_M * abs(turn) / walk_speed
+        start = max(planned, free_at + arc_s + 0.1)
+        if start >= duration_s:  # visits may run past the end, but must start within the run
             break
-        frames.append(PersonKeyframe(t=start, position=tuple(away_xy), yaw=yaw))
-        frames.append(PersonKeyframe(t=t_in, position=tuple(near_xy), yaw=yaw, right_hand=tuple(reach)))
-        frames.append(PersonKeyframe(t=t_out, position=tuple(near_xy), yaw=yaw, right_hand=tuple(reach)))
-        frames.append(PersonKeyframe(t=t_out + walk_s, position=tuple(away_xy), yaw=yaw))
+        if abs(turn) > 1e-6 and k > 0:
+            pieces = max(1, math.ceil(abs(turn) / (math.pi / 6)))
+            t_arc0 = start - arc_s
+            for j in range(1, pieces + 1):
+                a = last_side + turn * j / pieces
+                frames.append(_standing(t_arc0 + arc_s * j / pieces, a))
+        target = _reach_target(kind, waypoints, targets, rng) + noise
+        direction = np.array([math.cos(side), math.sin(side)])
+        away_xy = _AWAY_RADIUS_M * direction
+        near_xy = near * direction
+        yaw = side + math.pi  # facing the arm
+        # The hand moves through the target away from the person (toward the far wall).
+        inward = np.array([-direction[0], -direction[1], 0.0])
+        approach = _clip_hand(target - _APPROACH_M * inward)
+        end = _clip_hand(target + push * inward)
+        walk_s = (_AWAY_RADIUS_M - near) / walk_speed
+        reach_s = max(float(np.linalg.norm(end - approach)) / hand_speed, 0.05)
+        t_in = start + walk_s
+        t_reach = t_in + reach_s
+        t_hold = t_reach + hold
+        t_back = t_hold + reach_s
+        t_out = t_back + walk_s
+        frames.append(PersonKeyframe(t=start, position=_xy(away_xy), yaw=yaw))
+        frames.append(PersonKeyframe(t=t_in, position=_xy(near_xy), yaw=yaw, right_hand=_vec(approach)))
+        frames.append(PersonKeyframe(t=t_reach, position=_xy(near_xy), yaw=yaw, right_hand=_vec(end)))
+        frames.append(PersonKeyframe(t=t_hold, position=_xy(near_xy), yaw=yaw, right_hand=_vec(end)))
+        frames.append(PersonKeyframe(t=t_back, position=_xy(near_xy), yaw=yaw, right_hand=_vec(approach)))
+        frames.append(PersonKeyframe(t=t_out, position=_xy(away_xy), yaw=yaw))
+        free_at, last_side = t_out, side
     return _strictly_increasing(frames)
+
+
+def _reach_target(
+    kind: str, waypoints: list[tuple[float, float, float]], targets: dict[str, np.ndarray], rng: np.random.Generator
+) -> np.ndarray:
+    if kind == "waypoint":
+        return np.array(waypoints[int(rng.integers(len(waypoints)))], dtype=float)
+    if kind == "push_ee":
+        return np.array(targets["end_effector"], dtype=float)
+    return np.array(targets[kind], dtype=float)
+
+
+def _clip_hand(p: np.ndarray) -> np.ndarray:
+    out = np.array(p, dtype=float)
+    out[2] = float(np.clip(out[2], *_HAND_Z_M))
+    return out
+
+
+def _xy(v: np.ndarray) -> tuple[float, float]:
+    return (float(v[0]), float(v[1]))
+
+
+def _vec(v: np.ndarray) -> tuple[float, float, float]:
+    return (float(v[0]), float(v[1]), float(v[2]))
 
 
 def _standing(t: float, side: float) -> PersonKeyframe:
@@ -96,3 +246,19 @@ def _strictly_increasing(frames: list[PersonKeyframe]) -> list[PersonKeyframe]:
         if f.t > out[-1].t + 1e-6:
             out.append(f)
     return out
+
+
+def describe(config: Config) -> dict[str, Any]:
+    """A few numbers of a realized random scenario (for reports and tests)."""
+    frames = config.person.keyframes
+    speeds = []
+    for a, b in zip(frames, frames[1:], strict=False):
+        dt = b.t - a.t
+        if dt > 0:
+            speeds.append(math.dist(a.position, b.position) / dt)
+    return {
+        "start_q": list(config.scenario.start_q or ()),
+        "waypoints": [list(p) for p in config.waypoints.positions],
+        "keyframes": len(frames),
+        "max_walking_speed_mps": max(speeds) if speeds else 0.0,
+    }

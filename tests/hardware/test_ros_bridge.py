@@ -186,7 +186,9 @@ def test_depth_stall_zeroes_the_velocity(ros_env, procs, case1_config, tmp_path)
     last_frame = max(rec["depth_t"])
     t_zero, stays_zero = _first_zero_after(rec, last_frame)
     reaction = t_zero - last_frame
-    print(f"\ndepth watchdog: zero command {1e3 * reaction:.1f} ms after the last depth frame")
+    print(f"\ndepth stall: zero command {1e3 * reaction:.1f} ms after the last depth frame")
+    # The loop's own stale-frame check (1.5 sensing periods) usually stops first; the 200 ms
+    # watchdog of the command stream is the bound.
     assert reaction <= 0.2 + 0.01
     assert stays_zero
     events = read_json(tmp_path / "hw" / "summary.json")["methods"]["tpik"]["hardware"]["watchdog_events"]
@@ -245,4 +247,4 @@ def test_sigint_ends_with_zero_velocity_and_keeps_the_results(ros_env, procs, ca
     print(f"\nSIGINT: zero command {1e3 * (t_zero - t_sig):.1f} ms after the signal")
     assert stays_zero and t_zero - t_sig < 0.1
     summary = read_json(out / "summary.json")["methods"]["tpik"]
-    assert summary["interrupted"] == "SIGINT" and summary["steps"] > 50
+    assert summary["interrupted"] == "SIGINT" and summary["steps"] > 10
