@@ -47,6 +47,40 @@ def set_task_infos(hierarchy: Hierarchy) -> tuple[SetTaskInfo, ...]:
     return tuple(infos)
 
 
+def loop_setup(
+    config: Config, ee0: np.ndarray, duration_s: float | None = None
+) -> tuple[WaypointSchedule, LoopSettings]:
+    """Waypoint schedule and loop settings of a scenario (simulation, viewer and hardware alike).
+
+    Args:
+        config: The (realized) scenario.
+        ee0: EE position at the start [m] (the target when there are no waypoints).
+        duration_s: Run time [s]; default the scenario's scaled duration.
+    """
+    sc = config.scenario
+    wp = config.waypoints
+    schedule = WaypointSchedule(wp.positions, ee0, wp.tolerance_m, wp.dwell_s * sc.time_scale, wp.cycle)
+    settings = LoopSettings(
+        dt=sc.dt,
+        duration_s=sc.sim_time_s if duration_s is None else duration_s,
+        sensing_period_s=1.0 / sc.sensing_rate_hz,
+        fallback=sc.fallback,
+        fallback_decay_s=sc.fallback_decay_s,
+        max_sensing_age_s=config.sensor.max_age_s,
+    )
+    return schedule, settings
+
+
+def write_plots(out_dir: Path) -> None:
+    """Draw the run's plots; a plotting error is logged and never loses the results."""
+    try:
+        from compare.plots import plot_run
+
+        plot_run(Path(out_dir))
+    except Exception as exc:  # plots must never lose the results
+        log.warning("plots failed: %s", exc)
+
+
 def run_method(config: Config, method: str, robot: robots.Robot, progress: Progress | None = None) -> dict[str, Any]:
     """Simulate ``config`` (already realized) with one method; return summary and steps."""
     hierarchy = config.build_hierarchy(robot)
@@ -54,17 +88,7 @@ def run_method(config: Config, method: str, robot: robots.Robot, progress: Progr
     sc = config.scenario
     q0 = np.array(sc.start_q) if sc.start_q is not None else robot.home.copy()
     sim = build_simulation(config, robot, q0)
-    ee0 = robot.frame_position(q0, "end_effector")
-    wp = config.waypoints
-    schedule = WaypointSchedule(wp.positions, ee0, wp.tolerance_m, wp.dwell_s * sc.time_scale, wp.cycle)
-    settings = LoopSettings(
-        dt=sc.dt,
-        duration_s=sc.sim_time_s,
-        sensing_period_s=1.0 / sc.sensing_rate_hz,
-        fallback=sc.fallback,
-        fallback_decay_s=sc.fallback_decay_s,
-        max_sensing_age_s=config.sensor.max_age_s,
-    )
+    schedule, settings = loop_setup(config, robot.frame_position(q0, "end_effector"))
     task_id = None
     callback = None
     if progress is not None:
@@ -150,12 +174,7 @@ def run_scenario(
             writer.add_method(method, result["summary"], result["steps"])
             log.info("%s done in %.1f s", method, time.perf_counter() - t0)
     if make_plots:
-        try:
-            from compare.plots import plot_run
-
-            plot_run(Path(out_dir))
-        except Exception as exc:  # plots must never lose the results
-            log.warning("plots failed: %s", exc)
+        write_plots(Path(out_dir))
     return writer.summary
 
 
@@ -170,19 +189,7 @@ def view_scenario(config: Config, method: str) -> None:
     sim = build_simulation(config, robot, q0)
     hierarchy = config.build_hierarchy(robot)
     solver = make_method(method, robot, config.methods.settings.get(method))
-    schedule = WaypointSchedule(
-        config.waypoints.positions,
-        robot.frame_position(q0, "end_effector"),
-        config.waypoints.tolerance_m,
-        config.waypoints.dwell_s * sc.time_scale,
-        config.waypoints.cycle,
-    )
-    settings = LoopSettings(
-        dt=sc.dt,
-        duration_s=sc.sim_time_s,
-        sensing_period_s=1.0 / sc.sensing_rate_hz,
-        max_sensing_age_s=config.sensor.max_age_s,
-    )
+    schedule, settings = loop_setup(config, robot.frame_position(q0, "end_effector"))
     with mujoco.viewer.launch_passive(sim.io.model, sim.io.data) as viewer:
         clock = {"tick": time.perf_counter()}
 

@@ -34,9 +34,8 @@ from compare.config import Config
 from compare.hardware.exceptions import StartRefused
 from compare.hardware.ros_io import RosRobotIO
 from compare.hardware.safety import start_problems
-from compare.loop import CONTROL_POINTS, LoopSettings, ObstacleSource, run_loop
+from compare.loop import CONTROL_POINTS, ObstacleSource, run_loop
 from compare.methods import make_method
-from compare.waypoints import WaypointSchedule
 from tpik.hierarchy import Hierarchy
 from tpik.tasks import ObstacleDistanceTask
 
@@ -160,7 +159,7 @@ def run_hardware(
     """
     from compare.metrics import RunMeta, compute_summary
     from compare.results import ResultsWriter
-    from compare.run import set_task_infos
+    from compare.run import loop_setup, set_task_infos, write_plots
 
     robot = robots.load("jaco2")
     sc = config.scenario
@@ -194,17 +193,7 @@ def run_hardware(
             problems = start_problems(hierarchy, kin)
             if problems:
                 raise StartRefused("arm outside its safety thresholds at start: " + "; ".join(problems))
-            wp = config.waypoints
-            ee0 = kin.frame_position("end_effector")
-            schedule = WaypointSchedule(wp.positions, ee0, wp.tolerance_m, wp.dwell_s * sc.time_scale, wp.cycle)
-            settings = LoopSettings(
-                dt=sc.dt,
-                duration_s=duration,
-                sensing_period_s=1.0 / sc.sensing_rate_hz,
-                fallback=sc.fallback,
-                fallback_decay_s=sc.fallback_decay_s,
-                max_sensing_age_s=config.sensor.max_age_s,
-            )
+            schedule, settings = loop_setup(config, kin.frame_position("end_effector"), duration)
             log.info("hardware run: %s, %.1f s%s", method, duration, " (dry run: nothing published)" if dry_run else "")
             io.start_clock()
             out = run_loop(
@@ -243,12 +232,7 @@ def run_hardware(
     writer = ResultsWriter(Path(out_dir), sc.name, sc.seed, duration, config_text)
     writer.add_method(method, summary, steps)
     if make_plots:
-        try:
-            from compare.plots import plot_run
-
-            plot_run(Path(out_dir))
-        except Exception as exc:  # plots must never lose the results
-            log.warning("plots failed: %s", exc)
+        write_plots(Path(out_dir))
     return writer.summary
 
 
