@@ -27,7 +27,7 @@ class Kinematics:
         q: Joint configuration [rad]. Shape (n,). Read-only.
     """
 
-    __slots__ = ("_data", "_generation", "_jacobians", "_positions", "q", "robot")
+    __slots__ = ("_data", "_generation", "_jacobians", "_position_jacobians", "_positions", "q", "robot")
 
     def __init__(self, robot: Robot, q: np.ndarray, data: pin.Data, generation: int) -> None:
         self.robot = robot
@@ -35,8 +35,10 @@ class Kinematics:
         self.q.flags.writeable = False
         self._data = data
         self._generation = generation
-        self._jacobians: dict[int, np.ndarray] = {}
-        self._positions: dict[int, np.ndarray] = {}
+        # Caches keyed by the frame name as given (the lookup of the frame index is skipped).
+        self._jacobians: dict[str, np.ndarray] = {}
+        self._position_jacobians: dict[str, np.ndarray] = {}
+        self._positions: dict[str, np.ndarray] = {}
 
     def _check(self) -> None:
         if not self.robot.is_current(self._generation):
@@ -60,12 +62,11 @@ class Kinematics:
     def frame_position(self, name: str) -> np.ndarray:
         """Frame origin in the base frame [m]. Shape (3,). Cached per frame: read-only."""
         self._check()
-        frame_id = self.robot.frame_id(name)
-        pos = self._positions.get(frame_id)
+        pos = self._positions.get(name)
         if pos is None:
-            pos = np.array(self._data.oMf[frame_id].translation)
+            pos = np.array(self._data.oMf[self.robot.frame_id(name)].translation)
             pos.flags.writeable = False
-            self._positions[frame_id] = pos
+            self._positions[name] = pos
         return pos
 
     def frame_rotation(self, name: str) -> np.ndarray:
@@ -83,17 +84,21 @@ class Kinematics:
             The array is cached: do not modify it.
         """
         self._check()
-        frame_id = self.robot.frame_id(name)
-        jac = self._jacobians.get(frame_id)
+        jac = self._jacobians.get(name)
         if jac is None:
-            jac = pin.getFrameJacobian(self.robot.pin_model, self._data, frame_id, _LWA)
+            jac = pin.getFrameJacobian(self.robot.pin_model, self._data, self.robot.frame_id(name), _LWA)
             jac.flags.writeable = False
-            self._jacobians[frame_id] = jac
+            self._jacobians[name] = jac
         return jac
 
     def position_jacobian(self, name: str) -> np.ndarray:
-        """Rows ``0:3`` of :meth:`frame_jacobian` [m/rad]. Shape (3, n)."""
-        return self.frame_jacobian(name)[:3]
+        """Rows ``0:3`` of :meth:`frame_jacobian` [m/rad]. Shape (3, n). Cached: read-only."""
+        self._check()
+        jac = self._position_jacobians.get(name)
+        if jac is None:
+            jac = self.frame_jacobian(name)[:3]
+            self._position_jacobians[name] = jac
+        return jac
 
     def joint_origins(self) -> np.ndarray:
         """Origins of the joint frames 1..n in the base frame [m]. Shape (n, 3)."""

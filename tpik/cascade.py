@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from operator import mul
 
 import numpy as np
 
@@ -105,6 +106,8 @@ class ModeSearch:
         self.A = A
         self.G_np = A @ A.T
         self.G: list[list[float]] = self.G_np.tolist()
+        self.g_finite = math.isfinite(sum(map(sum, self.G)))
+        """Whether every entry of G is finite (NaN/inf anywhere in A shows here)."""
         self.x = x
         self.R = len(x)
         self.levels = levels
@@ -275,37 +278,50 @@ class ModeSearch:
 
     def _select_small(self, leaves: list[_Leaf], incumbent: Mode | None) -> Mode | None:
         """:meth:`_select` in plain floats (faster than NumPy calls for a few small leaves)."""
-        G, adm_tol, full = self.G, self.adm_tol, self.full
+        G, adm_tol, full, g_finite = self.G, self.adm_tol, self.full, self.g_finite
         cands = list(enumerate(zip(self.cand_row, self.cand_side, strict=True)))
         best = incumbent
         for mask, z, lams in leaves:
-            nz = [(j, zj) for j, zj in enumerate(z) if zj != 0.0]
-            norm2 = 0.0
-            for i, zi in nz:
-                Gi = G[i]
-                acc = 0.0
-                for j, zj in nz:
-                    acc += Gi[j] * zj
-                norm2 += zi * acc
+            # Gz, then ‖q̇‖² = zᵀGz and J_C q̇ = (Gz)_C. With G finite, zero entries of z add 0.
+            if g_finite:
+                gz = [sum(map(mul, Gi, z)) for Gi in G]
+                norm2 = sum(map(mul, z, gz))
+            else:  # G overflowed: skip the zero entries of z (inf · 0 would give NaN)
+                nz = [(j, zj) for j, zj in enumerate(z) if zj != 0.0]
+                gz = []
+                for Gi in G:
+                    acc = 0.0
+                    for j, zj in nz:
+                        acc += Gi[j] * zj
+                    gz.append(acc)
+                norm2 = 0.0
+                for i, zi in nz:
+                    norm2 += zi * gz[i]
             if not math.isfinite(norm2):
                 continue
-            mode = Mode(mask, z, norm2, mask.bit_count(), lams)
-            if not self.better(mode, best):
-                continue
+            n_active = mask.bit_count()
+            if best is not None:
+                # Inline of better(): skip the Mode object for a leaf that loses.
+                b2 = best.norm2
+                close = abs(norm2 - b2) <= 1e-12 * (1.0 + max(norm2, b2))
+                if self.largest_norm:
+                    wins = n_active < best.n_active if close else norm2 > b2
+                elif n_active != best.n_active:
+                    wins = n_active < best.n_active
+                else:
+                    wins = norm2 > b2 and not close
+                if not wins:
+                    continue
             if mask != full:
                 outward = False
                 for c, (row, side) in cands:
                     if not mask >> c & 1:
-                        Gr = G[row]
-                        move = 0.0
-                        for j, zj in nz:
-                            move += Gr[j] * zj
-                        if move * side > adm_tol:
+                        if gz[row] * side > adm_tol:
                             outward = True  # a left-out task would move further out (eqs. 8–9)
                             break
                 if outward:
                     continue
-            best = mode
+            best = Mode(mask, z, norm2, n_active, lams)
         return best
 
     def better(self, a: Mode, b: Mode | None) -> bool:
@@ -335,6 +351,10 @@ class ModeSearch:
                 masks += [m | 1 << c for m in masks]
             subsets.append(masks)
         leaves: list[_Leaf] = []
+        if not self.ss:
+            self._explore_nsb(subsets, leaves)
+            self.evaluated += len(leaves)
+            return self._select(leaves)
 
         def explore(li: int, mask: int, state: _State) -> None:
             for sub in subsets[li]:
@@ -348,6 +368,56 @@ class ModeSearch:
         explore(0, 0, ([0.0] * self.R, [], [], ()))
         self.evaluated += len(leaves)
         return self._select(leaves)
+
+    def _explore_nsb(self, subsets: list[list[int]], leaves: list[_Leaf]) -> None:
+        r"""NSB depth-first enumeration: :meth:`_advance` inlined, same arithmetic in the same order.
+
+        A level's own solution and its image :math:`G_{\cdot K}y` do not depend on the levels
+        above (NSB), so they are formed once per (level, subset) before the enumeration.
+        """
+        levels = self.levels
+        last = len(levels) - 1
+        R = self.R
+        # Per level and subset: (subset bits, (y_k, k) pairs or None for an empty level, λ, G_{·K}y, K).
+        table: list[list[tuple[int, list[tuple[float, int]] | None, float, list[float], list[int]]]] = []
+        for li, level in enumerate(levels):
+            row = []
+            for sub in subsets[li]:
+                if not (level.eq_rows or sub):
+                    row.append((sub, None, 0.0, [], []))
+                    continue
+                own = self._own_solution(li, sub)
+                K, y, lam, _ = own
+                c = self._own_image(own) if li > 0 else []
+                row.append((sub, list(zip(y, K, strict=True)), lam, c, K))
+            table.append(row)
+        add_rows = self._add_rows
+
+        def explore(li: int, mask: int, z: list[float], P: list[int], L: list[list[float]], lams: tuple) -> None:
+            is_last = li == last
+            for sub, yk, lam, c, K in table[li]:
+                m = mask | sub
+                if yk is None:
+                    z2, P2, L2, lams2 = z, P, L, (*lams, 0.0)
+                else:
+                    z2 = z.copy()
+                    for yb, kb in yk:
+                        z2[kb] += yb
+                    if P:
+                        u = backward(L, forward(L, [c[p] for p in P]))
+                        for up, p in zip(u, P, strict=True):
+                            z2[p] -= up
+                    lams2 = (*lams, lam)
+                    if is_last:
+                        P2, L2 = P, L
+                    else:
+                        P2, L2 = add_rows(P, L, K)
+                if is_last:
+                    leaves.append((m, z2, lams2))
+                else:
+                    explore(li + 1, m, z2, P2, L2, lams2)
+
+        explore(0, 0, [0.0] * R, [], [], ())
 
     def greedy(self) -> Mode | None:
         """Greedy release from S = C: drop the task whose removal gives the best admissible mode."""

@@ -166,7 +166,7 @@ def _check_number(key: str, value: object, allow_zero: bool = False) -> None:
 
 
 _SetEntry = tuple[Any, SetTask, str, float, float, float, float, float]
-"""A set-based task of the plan, thresholds read once: (σ-and-J method or None, task, name, gain,
+"""A set-based task of the plan, thresholds read once: (σ method or None, task, name, gain,
 σ_{a,l}, σ_{a,u}, σ_{s,l}, σ_{s,u}). The method is None when ``compute_state`` is overridden."""
 
 
@@ -231,9 +231,8 @@ class TpikSolver:
                 if isinstance(task, SetTask):
                     th = task.thresholds
                     # σ and J are read directly unless the task customises its TaskState.
-                    direct = (
-                        task.compute_value_and_jacobian if type(task).compute_state is SetTask.compute_state else None
-                    )
+                    # σ alone first; the Jacobian only for candidates (most set tasks are inactive).
+                    direct = task.compute_value if type(task).compute_state is SetTask.compute_state else None
                     st.append(
                         (
                             direct,
@@ -314,20 +313,22 @@ class TpikSolver:
             cands: list[int] = []
             for direct, set_task, name, gain, act_lower, act_upper, safe_lower, safe_upper in lp.set_tasks:
                 if direct is not None:
-                    sigma_raw, jac = direct(kin)
-                    sigma = float(sigma_raw)
+                    sigma = float(direct(kin))
+                    jac = None
                 else:
                     state = set_task.compute_state(kin)
                     state.validate(name, n)
-                    sigma, jac = float(state.value[0]), state.jacobian
-                if jac.shape != row_shape:
-                    raise InvalidTaskState(f"task '{name}': jacobian has shape {jac.shape}, expected (1, {n})")
+                    sigma, jac = float(state.value[0]), state.jacobian  # shape checked by validate()
                 if act_upper <= sigma < inf:
                     side, target = 1.0, safe_upper
                 elif -inf < sigma <= act_lower:
                     side, target = -1.0, safe_lower
                 else:
                     continue  # inside the activation thresholds, or non-finite σ: inactive
+                if jac is None:
+                    jac = set_task.compute_jacobian(kin)
+                    if jac.shape != row_shape:
+                        raise InvalidTaskState(f"task '{name}': jacobian has shape {jac.shape}, expected (1, {n})")
                 if gain > k_max:
                     gain = k_max
                 cands.append(len(cand_row))
@@ -363,7 +364,7 @@ class TpikSolver:
             admissibility_tol=s.admissibility_tolerance,
             largest_norm=s.selection_rule == "largest_norm",
         )
-        if not math.isfinite(sum(map(sum, search.G))):  # G = AAᵀ: NaN/inf anywhere in A shows here
+        if not search.g_finite:  # G = AAᵀ: NaN/inf anywhere in A shows here
             _raise_non_finite(block_names, blocks)
         t1 = time.perf_counter()
 

@@ -112,3 +112,23 @@ def test_margins_are_signed():
     task = JointLimitTask("j", 2, 7, Thresholds(0.0, 0.1, 1.0, 1.1, 0.05))
     assert task.margins(0.05) == pytest.approx((-0.05, 0.05))
     assert task.margins(0.5) == pytest.approx((0.4, 0.5))
+
+
+def test_value_and_jacobian_alone_equal_the_pair(jaco):
+    rng = np.random.default_rng(3)
+    th = Thresholds(0.1, 0.35, math.inf, math.inf, 0.05)
+    obstacle = ObstacleDistanceTask("o", "link_6", th)
+    obstacle.set_obstacle(np.array([0.3, 0.2, 0.6]))
+    tasks = [
+        JointLimitTask.from_robot(jaco, 4, 0.1, 0.05),
+        VirtualWallTask(
+            "w", "end_effector", np.array([0.0, 1.0, 0.0]), -0.5, Thresholds(-0.05, 0.0, math.inf, math.inf, 0.03)
+        ),
+        obstacle,
+    ]
+    for _ in range(5):
+        kin = jaco.kinematics(rng.uniform(jaco.q_lower.clip(-3, 3) + 0.1, jaco.q_upper.clip(-3, 3) - 0.1))
+        for task in tasks:
+            sigma, jac = task.compute_value_and_jacobian(kin)
+            assert task.compute_value(kin) == pytest.approx(sigma, abs=1e-15)
+            np.testing.assert_array_equal(task.compute_jacobian(kin), jac)

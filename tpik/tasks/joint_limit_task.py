@@ -55,6 +55,14 @@ class JointLimitTask(SetTask):
         th = Thresholds(lo, lo + safety_margin, hi - safety_margin, hi, activation_margin)
         return cls(task_name, joint, robot.nq, th, gain)
 
+    def compute_value(self, kin: Kinematics) -> float:
+        """σ = q_j [rad]."""
+        return float(kin.q[self.joint - 1])
+
+    def compute_jacobian(self, kin: Kinematics) -> np.ndarray:
+        """J = e_jᵀ (a shared read-only row)."""
+        return self._jacobian
+
     def compute_value_and_jacobian(self, kin: Kinematics) -> tuple[float, np.ndarray]:
         """σ = q_j, J = e_jᵀ."""
         return float(kin.q[self.joint - 1]), self._jacobian

@@ -53,6 +53,13 @@ class ObstacleDistanceTask(SetTask):
         """A copy of O [m], or None."""
         return None if self._obstacle is None else self._obstacle.copy()
 
+    def compute_value(self, kin: Kinematics) -> float:
+        """σ = ‖O − P‖ [m]; +inf without obstacle."""
+        if self._obstacle is None:
+            return math.inf
+        diff = self._obstacle - kin.frame_position(self.frame)
+        return float(np.sqrt(diff @ diff))
+
     def compute_value_and_jacobian(self, kin: Kinematics) -> tuple[float, np.ndarray]:
         """σ = ‖O − P‖ and the paper's partial-Jacobian row; (inf, 0) without obstacle."""
         if self._obstacle is None:

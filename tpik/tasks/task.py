@@ -189,6 +189,18 @@ class SetTask(Task):
     def compute_value_and_jacobian(self, kin: Kinematics) -> tuple[float, np.ndarray]:
         """Return σ and the Jacobian row of shape (1, n)."""
 
+    def compute_value(self, kin: Kinematics) -> float:
+        """σ alone.
+
+        Solvers call this for every set task and the Jacobian only for the few near a
+        threshold; subclasses override it when σ is cheaper than σ and J together.
+        """
+        return self.compute_value_and_jacobian(kin)[0]
+
+    def compute_jacobian(self, kin: Kinematics) -> np.ndarray:
+        """The Jacobian row alone, shape (1, n) (see :meth:`compute_value`)."""
+        return self.compute_value_and_jacobian(kin)[1]
+
     def compute_state(self, kin: Kinematics) -> TaskState:
         """Evaluate σ and J; σ_d is the safety threshold σ is closest to (eq. 7), else σ."""
         sigma, jac = self.compute_value_and_jacobian(kin)

@@ -45,7 +45,14 @@ class VirtualWallTask(SetTask):
         self.normal = n / norm
         self.offset = float(as_finite_vector(name, "offset", offset, 1)[0]) / norm
 
+    def compute_value(self, kin: Kinematics) -> float:
+        """σ = nᵀp − d [m]."""
+        return float(self.normal @ kin.frame_position(self.frame)) - self.offset
+
+    def compute_jacobian(self, kin: Kinematics) -> np.ndarray:
+        """J = nᵀ J_pos, shape (1, n)."""
+        return (self.normal @ kin.position_jacobian(self.frame))[None, :]
+
     def compute_value_and_jacobian(self, kin: Kinematics) -> tuple[float, np.ndarray]:
         """σ = nᵀp − d, J = nᵀ J_pos."""
-        sigma = float(self.normal @ kin.frame_position(self.frame)) - self.offset
-        return sigma, (self.normal @ kin.position_jacobian(self.frame))[None, :]
+        return self.compute_value(kin), self.compute_jacobian(kin)
