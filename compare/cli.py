@@ -154,12 +154,12 @@ def sweep(
 @app.command()
 def plot(results: Annotated[Path, typer.Argument(help="A run or sweep results directory.")]) -> None:
     """Draw the plots of a finished run (summary.json) or sweep (runs/)."""
-    from compare.plots import plot_run, plot_sweep
+    from compare.plots import plot_campaign, plot_run, plot_sweep
 
     if (results / "summary.json").is_file():
         paths = plot_run(results)
     elif (results / "runs").is_dir():
-        paths = plot_sweep(results)
+        paths = plot_sweep(results) + plot_campaign(results)
     else:
         _fail(f"{results}: neither a run (summary.json) nor a sweep (runs/) directory")
         return

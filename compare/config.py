@@ -197,7 +197,7 @@ class RandomConfig(_Strict):
     start_near_limit_probability: float = Field(0.3, ge=0.0, le=1.0)
     start_limit_offset_rad: tuple[float, float] = (0.005, 0.08)
     waypoint_near_wall_probability: float = Field(0.4, ge=0.0, le=1.0)
-    waypoint_wall_offset_m: tuple[float, float] = (-0.04, 0.015)
+    waypoint_wall_offset_m: tuple[float, float] = (-0.04, 0.01)
     start_pose_attempts: int = Field(200, ge=1, le=10000)
 
     @field_validator(

@@ -47,9 +47,9 @@ from __future__ import annotations
 import math
 import time
 from collections import deque
-from collections.abc import Callable, Mapping
+from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 import pandas as pd
@@ -489,9 +489,10 @@ class FaultyObstacleSource:
         valid = max(0.0, float(getattr(result, "valid_fraction", 1.0)) * (1.0 - w.spec.fraction))
         stamp = float(getattr(result, "stamp_s", t))
         if valid < self._inj.blind_fraction:
-            readings: Mapping[str, Any] = {name: ObstacleReading.nothing() for name in result.readings}
-            return DistanceResult(dict(readings), valid, True, stamp)
-        return DistanceResult(dict(result.readings), valid, False, stamp)
+            blind = {name: ObstacleReading.nothing() for name in result.readings}
+            return cast(DistanceResultLike, DistanceResult(blind, valid, True, stamp))
+        kept = cast(dict[str, ObstacleReading], dict(result.readings))
+        return cast(DistanceResultLike, DistanceResult(kept, valid, False, stamp))
 
 
 class FaultySolver:

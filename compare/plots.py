@@ -23,7 +23,7 @@ from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 from matplotlib.ticker import FuncFormatter, LogLocator, NullFormatter
 
-from compare.metrics import GROUPS, SetTaskInfo, set_tasks_from_summary
+from compare.metrics import GROUPS, VIOLATION_TOLERANCE, SetTaskInfo, set_tasks_from_summary
 from compare.results import RUNS_DIR, collect_sweep, load_steps, load_summary, safe_name, summarize_sweep_rows
 
 log = logging.getLogger(__name__)
@@ -406,8 +406,7 @@ def plot_sweep(sweep_dir: Path) -> list[Path]:
     right, every run: median solve time against total safety-violation time.
     ``sweep_min_distance_cdf.png``: empirical CDF of the minimum obstacle distance per run,
     per method, with the obstacle safety threshold (when the runs have obstacles).
-    ``sweep_iso_margin_cdf.png``: CDF of each run's minimum ISO/TS 15066 margin.
-    ``sweep_solve_vs_violation.png``: p99 solve time against the worst joint-limit / wall margin.
+    :func:`plot_campaign` adds the reliability-campaign figures.
     """
     sweep_dir = Path(sweep_dir)
     runs = collect_sweep(sweep_dir)
@@ -485,9 +484,27 @@ def plot_sweep(sweep_dir: Path) -> list[Path]:
         if drawn or threshold is not None:
             ax.legend(fontsize="small", loc="lower right")
         paths.append(_save(fig, out / "sweep_min_distance_cdf.png"))
+    return paths
+
+
+def plot_campaign(sweep_dir: Path) -> list[Path]:
+    """The reliability-campaign figures of a sweep directory (``plots/``), besides :func:`plot_sweep`'s.
+
+    ``sweep_iso_margin_cdf.png``: CDF of each run's minimum ISO/TS 15066 margin, per method.
+    ``sweep_solve_vs_violation.png``: each run's p99 solve time against its worst joint-limit and
+    wall safety margins.
+    """
+    sweep_dir = Path(sweep_dir)
+    runs = collect_sweep(sweep_dir)
+    ok = runs[runs["error"].isna()] if "error" in runs.columns else runs
+    if ok.empty:
+        return []
+    methods = list(dict.fromkeys(ok["method"]))
+    colors = _colors(methods)
+    paths: list[Path] = []
     for draw in (_plot_sweep_iso_cdf, _plot_sweep_solve_vs_violation):
         try:
-            path = draw(ok, methods, colors, out)
+            path = draw(ok, methods, colors, sweep_dir / PLOTS_DIR)
         except Exception as exc:  # one bad figure must not cost the others
             log.warning("sweep plot %s failed: %s", draw.__name__, exc)
             continue
@@ -533,7 +550,10 @@ def _plot_sweep_iso_cdf(ok: pd.DataFrame, methods: list[str], colors: dict[str, 
 def _plot_sweep_solve_vs_violation(
     ok: pd.DataFrame, methods: list[str], colors: dict[str, Any], out: Path
 ) -> Path | None:
-    """``sweep_solve_vs_violation.png``: each run's p99 solve time against its worst joint / wall margin."""
+    """``sweep_solve_vs_violation.png``: each run's p99 solve time against its worst joint / wall margin.
+
+    The legend counts the runs beyond the metrics' violation tolerance (1 mm / 1 mrad).
+    """
     panels = [g for g in ("joint_limits", "walls") if f"{g}_safety_margin_min" in ok.columns]
     if not panels or "solve_p99_us" not in ok.columns:
         return None
@@ -545,8 +565,8 @@ def _plot_sweep_solve_vs_violation(
             y = pd.to_numeric(rows[f"{group}_safety_margin_min"], errors="coerce").to_numpy(dtype=float)
             keep = np.isfinite(x) & np.isfinite(y) & (x > 0)
             if np.any(keep):
-                bad = int(np.count_nonzero(y[keep] < 0.0))
-                ax.scatter(x[keep], y[keep], s=12, alpha=0.6, color=colors[name], label=f"{name} ({bad} below 0)")
+                bad = int(np.count_nonzero(y[keep] < -VIOLATION_TOLERANCE))
+                ax.scatter(x[keep], y[keep], s=12, alpha=0.6, color=colors[name], label=f"{name} ({bad} violated)")
         ax.axhline(0.0, **SAFETY_STYLE)
         _log_x(ax)
         ax.set(

@@ -132,9 +132,10 @@ def run_sweep(
     write_json_atomic(out_dir / SWEEP_SUMMARY_FILE, summary)
     if report:
         try:
-            from compare.plots import plot_sweep
+            from compare.plots import plot_campaign, plot_sweep
 
             plot_sweep(out_dir)
+            plot_campaign(out_dir)
         except Exception as exc:  # plots must never lose the results
             log.warning("sweep plots failed: %s", exc)
         try:

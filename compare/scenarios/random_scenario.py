@@ -15,8 +15,9 @@ The ranges are in ``[random]`` (:class:`compare.config.RandomConfig`); the defau
   physical limits) is used;
 * **waypoints**: uniform in the workspace box; each, with ``waypoint_near_wall_probability``, has
   one coordinate moved to a wall of the EE's ``wall_box`` at a signed offset drawn from
-  ``waypoint_wall_offset_m`` (positive = beyond the wall, at most the waypoint tolerance so it is
-  reached with the EE held on the wall);
+  ``waypoint_wall_offset_m`` (positive = beyond the wall, at most 3/4 of the waypoint tolerance
+  so it is reached with the EE held on the wall), then clipped to the workspace box (the hard
+  family's box reaches 1 cm past the walls);
 * **person**: ``person_visits`` visits, one starting in each equal time slot (or as soon as the
   person has walked around the arm, at the away radius, from the previous visit's side; a visit
   may run past the end of the run). Each visit comes from a uniformly
@@ -141,7 +142,8 @@ def _waypoints(
             if math.isfinite(wall):
                 offset = min(float(rng.uniform(*rc.waypoint_wall_offset_m)), 0.75 * tolerance_m)
                 p[axis] = wall - offset if side == 0 else wall + offset
-        out.append(tuple(float(v) for v in p))
+        p = np.clip(p, wl, wu)  # waypoints always stay in the workspace box
+        out.append(_vec(p))
     return out
 
 
