@@ -40,7 +40,7 @@ from compare.waypoints import WaypointSchedule
 from robots import Kinematics, Robot
 from tpik.hierarchy import Hierarchy
 from tpik.step_result import IkSolver, SolveStatus
-from tpik.tasks import JointLimitTask, ObstacleDistanceTask, PositionTask, SetTask, VirtualWallTask
+from tpik.tasks import ObstacleDistanceTask, PositionTask, SetTask
 
 log = logging.getLogger(__name__)
 
@@ -151,49 +151,6 @@ class _Recorder:
         return pd.DataFrame(cols)
 
 
-class _FramePositions:
-    """Frame positions of one step's kinematics, each computed at most once [m]."""
-
-    __slots__ = ("_cache", "_kin")
-
-    def __init__(self, kin: Kinematics, ee: np.ndarray) -> None:
-        self._kin = kin
-        self._cache: dict[str, np.ndarray] = {"end_effector": ee}
-
-    def __call__(self, frame: str) -> np.ndarray:
-        p = self._cache.get(frame)
-        if p is None:
-            p = self._cache[frame] = self._kin.frame_position(frame)
-        return p
-
-
-def _value_function(task: SetTask) -> Callable[[Kinematics, Callable[[str], np.ndarray]], float]:
-    """σ of a set task for the per-step record, without its Jacobian (the solver already used it).
-
-    Known task types read σ from the step's frame positions; any other type falls back to
-    ``compute_value_and_jacobian``. Same values as the tasks compute (recording is ~5× cheaper).
-    """
-    if isinstance(task, JointLimitTask):
-        j = task.joint - 1
-        return lambda kin, _pos: float(kin.q[j])
-    if isinstance(task, VirtualWallTask):
-        normal, offset, frame = task.normal, task.offset, task.frame
-        return lambda _kin, pos: float(normal @ pos(frame)) - offset
-    if isinstance(task, ObstacleDistanceTask):
-        obstacle_task = task
-
-        def distance(kin: Kinematics, pos: Callable[[str], np.ndarray]) -> float:
-            obstacle = obstacle_task.obstacle
-            if obstacle is None:
-                return math.inf
-            diff = obstacle - pos(obstacle_task.frame)
-            dist = math.sqrt(float(diff @ diff))
-            return 0.0 if dist < 1e-9 else dist
-
-        return distance
-    return lambda kin, _pos: task.compute_value_and_jacobian(kin)[0]
-
-
 def sensing_problem(result: DistanceResultLike, t: float, stale_after_s: float | None) -> str | None:
     """Why a sensing update must not be trusted, or None when it is usable.
 
@@ -269,7 +226,8 @@ def run_loop(
     rec = _Recorder(n_steps, robot.nq, set_tasks, [t.name for t in obstacle_tasks])
     cols = rec.cols
     # Column arrays and σ functions looked up once (recording is a noticeable share of a fast run).
-    sigma_record = [(cols[f"sigma:{t.name}"], cols[f"active:{t.name}"], t.name, _value_function(t)) for t in set_tasks]
+    # σ alone (SetTask.compute_value): the solver already formed the Jacobians it needed.
+    sigma_record = [(cols[f"sigma:{t.name}"], cols[f"active:{t.name}"], t.name, t.compute_value) for t in set_tasks]
     dist_record = [(cols[f"dist_meas:{cp}"], cols[f"dist_true:{cp}"], cp) for cp in CONTROL_POINTS]
     truth_record = [(cols[f"truth:{t.name}"], t.frame) for t in obstacle_tasks]
     c_t, c_ee_x, c_ee_y, c_ee_z = cols["t"], cols["ee_x"], cols["ee_y"], cols["ee_z"]
@@ -403,9 +361,8 @@ def run_loop(
         rec.q[i] = reading.q
         rec.qdot[i] = command
         active_names = set(active)
-        position = _FramePositions(kin, ee)
         for c_sigma, c_active, name, value in sigma_record:
-            c_sigma[i] = value(kin, position)
+            c_sigma[i] = value(kin)
             c_active[i] = name in active_names
         true_d = truth(kin) if truth is not None else {}
         for c_meas, c_true, cp in dist_record:

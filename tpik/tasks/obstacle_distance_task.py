@@ -58,7 +58,8 @@ class ObstacleDistanceTask(SetTask):
         if self._obstacle is None:
             return math.inf
         diff = self._obstacle - kin.frame_position(self.frame)
-        return float(np.sqrt(diff @ diff))
+        dist = float(np.sqrt(diff @ diff))
+        return 0.0 if dist < 1e-9 else dist  # as compute_value_and_jacobian
 
     def compute_value_and_jacobian(self, kin: Kinematics) -> tuple[float, np.ndarray]:
         """σ = ‖O − P‖ and the paper's partial-Jacobian row; (inf, 0) without obstacle."""
