@@ -463,14 +463,9 @@ def plot_sweep(sweep_dir: Path) -> list[Path]:
         ax = axes[0, 0]
         drawn = False
         for name in methods:
-            d = pd.to_numeric(ok.loc[ok["method"] == name, "min_obstacle_distance_m"], errors="coerce")
-            d = np.sort(d[np.isfinite(d)].to_numpy(dtype=float))
-            if d.size:
-                # Empirical CDF, starting from 0 at the smallest value.
-                x = np.concatenate([[d[0]], d])
-                y = np.arange(0, d.size + 1) / d.size
-                ax.step(x, y, where="post", color=colors[name], label=f"{name} (n={d.size})")
-                drawn = True
+            rows = ok.loc[ok["method"] == name, "min_obstacle_distance_m"]
+            n = int(np.isfinite(pd.to_numeric(rows, errors="coerce").to_numpy(dtype=float)).sum())
+            drawn |= _ecdf(ax, rows, colors[name], f"{name} (n={n})")
         threshold = _sweep_obstacle_threshold(sweep_dir, ok)
         if threshold is not None:
             ax.axvline(threshold, label=f"safety threshold {threshold:g} m", **SAFETY_STYLE)
@@ -514,6 +509,7 @@ def plot_campaign(sweep_dir: Path) -> list[Path]:
 
 
 def _ecdf(ax: Axes, values: pd.Series, color: Any, label: str) -> bool:
+    """Empirical CDF of the finite ``values`` (a step from 0 at the smallest); False if none."""
     d = pd.to_numeric(values, errors="coerce").to_numpy(dtype=float)
     d = np.sort(d[np.isfinite(d)])
     if not d.size:

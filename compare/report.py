@@ -157,17 +157,8 @@ def render_report(results_dir: Path, command: str | None = None) -> Path:
     if errors:
         out += ["", "## Failed methods", ""]
         out += [f"- `{name}`: {message}" for name, message in errors.items()]
-    plots = sorted((results_dir / PLOTS_DIR).glob("*.png")) if (results_dir / PLOTS_DIR).is_dir() else []
-    out += ["", "## Plots", ""]
-    if plots:
-        for p in plots:
-            rel = p.relative_to(results_dir).as_posix()
-            out += [f"### {p.stem}", "", f"![{p.stem}]({rel})", ""]
-    else:
-        out.append(f"No plots yet: `tpik-compare plot {results_dir}`.")
-    path = results_dir / REPORT_FILE
-    path.write_text("\n".join(out).rstrip() + "\n", encoding="utf-8")
-    return path
+    out += _figures(results_dir, "*.png", "Plots")
+    return _write_markdown(results_dir / REPORT_FILE, out)
 
 
 # --------------------------------------------------------------------------------------- sweeps
@@ -300,14 +291,23 @@ def render_sweep_report(sweep_dir: Path, command: str | None = None) -> Path:
     failed = summary.get("failed_runs") or []
     if failed:
         out += ["", "## Failed runs", ""] + [f"- {line}" for line in failed[:50]]
-    plots = sorted((sweep_dir / PLOTS_DIR).glob("sweep_*.png")) if (sweep_dir / PLOTS_DIR).is_dir() else []
-    out += ["", "## Figures", ""]
-    if plots:
-        for p in plots:
-            rel = p.relative_to(sweep_dir).as_posix()
-            out += [f"### {p.stem}", "", f"![{p.stem}]({rel})", ""]
-    else:
-        out.append(f"No plots yet: `tpik-compare plot {sweep_dir}`.")
-    path = sweep_dir / SWEEP_REPORT_FILE
-    path.write_text("\n".join(out).rstrip() + "\n", encoding="utf-8")
+    out += _figures(sweep_dir, "sweep_*.png", "Figures")
+    return _write_markdown(sweep_dir / SWEEP_REPORT_FILE, out)
+
+
+def _figures(directory: Path, pattern: str, title: str) -> list[str]:
+    """Markdown section embedding ``directory/plots/<pattern>``, or a hint to draw them."""
+    plots_dir = directory / PLOTS_DIR
+    plots = sorted(plots_dir.glob(pattern)) if plots_dir.is_dir() else []
+    out = ["", f"## {title}", ""]
+    for p in plots:
+        rel = p.relative_to(directory).as_posix()
+        out += [f"### {p.stem}", "", f"![{p.stem}]({rel})", ""]
+    if not plots:
+        out.append(f"No plots yet: `tpik-compare plot {directory}`.")
+    return out
+
+
+def _write_markdown(path: Path, lines: list[str]) -> Path:
+    path.write_text("\n".join(lines).rstrip() + "\n", encoding="utf-8")
     return path
