@@ -27,7 +27,16 @@ class Kinematics:
         q: Joint configuration [rad]. Shape (n,). Read-only.
     """
 
-    __slots__ = ("_data", "_generation", "_jacobians", "_position_jacobians", "_positions", "q", "robot")
+    __slots__ = (
+        "_data",
+        "_generation",
+        "_jacobians",
+        "_partial_jacobians",
+        "_position_jacobians",
+        "_positions",
+        "q",
+        "robot",
+    )
 
     def __init__(self, robot: Robot, q: np.ndarray, data: pin.Data, generation: int) -> None:
         self.robot = robot
@@ -39,6 +48,7 @@ class Kinematics:
         self._jacobians: dict[str, np.ndarray] = {}
         self._position_jacobians: dict[str, np.ndarray] = {}
         self._positions: dict[str, np.ndarray] = {}
+        self._partial_jacobians: dict[tuple[str, int | None], np.ndarray] = {}
 
     def _check(self) -> None:
         if not self.robot.is_current(self._generation):
@@ -64,7 +74,7 @@ class Kinematics:
         self._check()
         pos = self._positions.get(name)
         if pos is None:
-            pos = np.array(self._data.oMf[self.robot.frame_id(name)].translation)
+            pos = self._data.oMf[self.robot.frame_id(name)].translation.copy()
             pos.flags.writeable = False
             self._positions[name] = pos
         return pos
@@ -93,11 +103,12 @@ class Kinematics:
 
     def position_jacobian(self, name: str) -> np.ndarray:
         """Rows ``0:3`` of :meth:`frame_jacobian` [m/rad]. Shape (3, n). Cached: read-only."""
-        self._check()
         jac = self._position_jacobians.get(name)
         if jac is None:
-            jac = self.frame_jacobian(name)[:3]
+            jac = self.frame_jacobian(name)[:3]  # checks staleness
             self._position_jacobians[name] = jac
+            return jac
+        self._check()
         return jac
 
     def joint_origins(self) -> np.ndarray:
@@ -118,13 +129,20 @@ class Kinematics:
             joint: 1-based joint number ``j``; defaults to the joint moving the frame.
 
         Returns:
-            Shape (3, n), a new array.
+            Shape (3, n). Cached per (frame, joint): read-only.
         """
-        j = self.robot.frame_joint(name) if joint is None else int(joint)
-        if not 1 <= j <= self.nq:
-            raise ValueError(f"joint must be in 1..{self.nq}, got {j}")
-        jac = np.array(self.position_jacobian(name))
-        jac[:, j - 1 :] = 0.0
+        key = (name, joint)
+        jac = self._partial_jacobians.get(key)
+        if jac is not None:
+            self._check()
+        else:
+            j = self.robot.frame_joint(name) if joint is None else int(joint)
+            if not 1 <= j <= self.nq:
+                raise ValueError(f"joint must be in 1..{self.nq}, got {j}")
+            jac = self.position_jacobian(name).copy()  # checks staleness
+            jac[:, j - 1 :] = 0.0
+            jac.flags.writeable = False
+            self._partial_jacobians[key] = jac
         return jac
 
     def __repr__(self) -> str:

@@ -1,435 +1,490 @@
-r"""The priority cascade and the search over active-set modes, in the row space of the tasks.
+r"""The priority cascade and the search over active-set modes, compiled, in the row space of the tasks.
 
 Let ``A`` stack every row a step can use (the equality rows of all levels and the row of every
-candidate set-based task) and :math:`G = AA^T` (R × R). Each level's update is a combination of
-its own rows and of the rows above it, so every velocity of the cascade is :math:`\dot q = A^Tz`
-with :math:`z \in \mathbb{R}^R`; projections and inverses only need entries of ``G``:
+candidate set-based task, level by level) and :math:`G = AA^T` (R × R). Each level's update is
+a combination of its own rows and of the rows above it, so every velocity of the cascade is
+:math:`\dot q = A^Tz` with :math:`z \in \mathbb{R}^R`; projections and inverses only need
+entries of ``G``:
 
 * rows above a level: an incremental Cholesky factor ``L`` of :math:`G_{PP}` over an independent
   subset ``P`` of them (a row whose residual :math:`\|N a\|` is at or below the rank tolerance
   is skipped); the exact null-space projector of the augmented Jacobian (eqs. 5–6) applied to
   :math:`A_K^T y` is :math:`A_K^T y - A_P^T G_{PP}^{-1} G_{PK} y`;
 * ``nsb`` (eq. 4), level K: :math:`\dot q_K = J_K^\# x_K`, i.e. :math:`y = (G_{KK}+\lambda^2I)^{-1}x_K`,
-  then projected as above;
+  then projected as above. This term does not depend on the levels above, so it is solved once
+  per (level, subset of the level's candidates) and shared by every mode;
 * ``ss``, level K: :math:`B = J_K N_{1,k-1}`, :math:`BB^T = G_{KK} - G_{KP}G_{PP}^{-1}G_{PK}`
   (a Schur complement), :math:`y = (BB^T + \lambda^2 I)^{-1}(x_K - G_{K\cdot}z)`, :math:`B^Ty`
   projected as above;
 * a mode's checks: :math:`J_C\dot q = G_{C\cdot}z` (eqs. 8–9) and :math:`\|\dot q\|^2 = z^TGz`.
 
-Only the chosen mode is mapped back to joint space. A level costs O(R²) float operations on
-Python lists (R ≈ 6 in the paper's case 2): at these sizes that is cheaper than the fixed cost
-of NumPy calls, and it lets the depth-first mode search share every prefix of the cascade.
+Only the chosen mode is mapped back to joint space. The whole search — Gram matrix, every
+mode's cascade, the admissibility checks, the selection, :math:`\dot q = A^Tz` and the joint
+velocity scaling — is one numba-compiled call (:func:`search_modes`): at these sizes (R ≈ 6,
+n = 7) the cost of the step is Python call overhead, not arithmetic, so the search costs about
+as much as one NumPy call per step whatever the number of modes (``docs/benchmarks.md``).
+The task evaluation stays in Python (:mod:`tpik.solver`), so the solver keeps no knowledge of
+any task type.
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
-from operator import mul
 
+import numba
 import numpy as np
 
 from tpik.dls import backward, forward, gram_dls
 
+SEARCH_NONE, SEARCH_EXHAUSTIVE, SEARCH_GREEDY = 0, 1, 2
+"""Codes of the search used (``how`` of :func:`search_modes`)."""
 
-@dataclass
-class LevelRows:
-    """One level at this step, as row indices into ``A``.
+SEARCH_NAMES: tuple[str, ...] = ("none", "exhaustive", "greedy")
+"""Report names of the search codes, by code."""
 
-    Attributes:
-        name: Level name.
-        eq_rows: Rows of the level's equality tasks (always in).
-        candidates: Global indices of the level's candidate set-based tasks.
+STATUS_OK, STATUS_NO_FINITE_MODE, STATUS_NON_FINITE_VELOCITY, STATUS_NON_FINITE_ROWS = 0, 1, 2, 3
+"""Outcome codes of :func:`search_modes`: solved; every mode non-finite; the chosen mode's
+velocity non-finite; a row of ``A`` (or its Gram matrix) non-finite (nothing solved)."""
+
+
+_MAX_TABLE_CANDIDATES = 8
+"""The NSB term is cached per (level, subset) when no level has more candidates than this."""
+
+
+@numba.njit(cache=True, nogil=True)
+def _level_rows(
+    li: int,
+    eq_ptr: np.ndarray,
+    eq_rows: np.ndarray,
+    cand_ptr: np.ndarray,
+    cand_row: np.ndarray,
+    in_mode: np.ndarray,
+    K: np.ndarray,
+) -> tuple[int, int]:
+    """Rows of level ``li`` in the mode (equality rows, then inserted candidates) into ``K``.
+
+    Returns:
+        (number of rows m, bits of the level's inserted candidates).
     """
+    m = 0
+    for e in range(eq_ptr[li], eq_ptr[li + 1]):
+        K[m] = eq_rows[e]
+        m += 1
+    sub = 0
+    for c in range(cand_ptr[li], cand_ptr[li + 1]):
+        if in_mode[c]:
+            K[m] = cand_row[c]
+            m += 1
+            sub |= 1 << (c - cand_ptr[li])
+    return m, sub
 
-    name: str
-    eq_rows: list[int]
-    candidates: list[int]
 
+@numba.njit(cache=True, nogil=True)
+def _add_rows(
+    G: np.ndarray, K: np.ndarray, m: int, P: np.ndarray, n_p: int, Lc: np.ndarray, w: np.ndarray, tol2: float
+) -> int:
+    """Extend the independent rows ``P[:n_p]`` and the Cholesky factor ``Lc`` of G_PP with K.
 
-@dataclass
-class Mode:
-    r"""A solved mode: which candidates are in, its coordinates ``z`` and checks.
-
-    Attributes:
-        mask: Bit ``c`` set when candidate ``c`` is inserted.
-        z: Coordinates of q̇ on the rows of ``A``. Shape (R,).
-        norm2: :math:`\|\dot q\|^2` [rad²/s²].
-        n_active: Number of inserted candidates.
-        damping: λ per level of :attr:`ModeSearch.levels`.
+    Returns:
+        The new number of independent rows.
     """
+    for a in range(m):
+        k = K[a]
+        d = G[k, k]
+        for j in range(n_p):  # forward substitution Lc w = G_Pk
+            acc = G[k, P[j]]
+            for t in range(j):
+                acc -= Lc[j, t] * w[t]
+            acc /= Lc[j, j]
+            w[j] = acc
+            d -= acc * acc
+        if d > tol2:
+            for t in range(n_p):
+                Lc[n_p, t] = w[t]
+            Lc[n_p, n_p] = math.sqrt(d)
+            P[n_p] = k
+            n_p += 1
+    return n_p
 
-    mask: int
-    z: list[float]
-    norm2: float
-    n_active: int
-    damping: tuple[float, ...]
 
+@numba.njit(cache=True, nogil=True)
+def _own_solution(
+    G: np.ndarray,
+    x: np.ndarray,
+    K: np.ndarray,
+    m: int,
+    vnorm: float,
+    tol: float,
+    S: np.ndarray,
+    r: np.ndarray,
+    work: np.ndarray,
+    y: np.ndarray,
+    c: np.ndarray,
+) -> float:
+    r"""NSB term of one level: :math:`y = (G_{KK}+\lambda^2I)^{-1}x_K` and :math:`c = G_{\cdot K}y`.
 
-_State = tuple[list[float], list[int], list[list[float]], tuple[float, ...]]
-"""Cascade state after some levels: z, independent rows P above, Cholesky of G_PP, λ's."""
-
-
-_Leaf = tuple[int, list[float], tuple[float, ...]]
-"""A solved mode before its checks: mask, z, λ's."""
-
-
-class ModeSearch:
-    r"""Solve the modes of one control step and pick the best admissible one.
-
-    Args:
-        A: Stacked rows: equality rows and candidate rows, level by level. Shape (R, n).
-        x: CLIK reference of every row [task unit/s]. Shape (R,).
-        levels: Levels with at least one row or candidate, highest first.
-        cand_row: Row index in ``A`` of each candidate.
-        cand_side: +1 for a candidate past its upper activation threshold, −1 past its lower.
-        ss: Siciliano–Slotine variant instead of NSB (eq. 4).
-        velocity_norm_max: :math:`\|\dot q\|_{\max}` of the damping [rad/s].
-        rank_tol: Rank tolerance on singular values.
-        admissibility_tol: Slack on :math:`J_A\dot q` in eqs. 8–9 [task unit/s].
-        largest_norm: Selection rule: largest norm first (else fewest active first).
+    Returns:
+        λ.
     """
+    for a in range(m):
+        r[a] = x[K[a]]
+        for b in range(m):
+            S[a, b] = G[K[a], K[b]]
+    lam = gram_dls(S, r, m, vnorm, tol, work, y)
+    for j in range(G.shape[0]):
+        acc = 0.0
+        for b in range(m):
+            if y[b] != 0.0:
+                acc += G[j, K[b]] * y[b]
+        c[j] = acc
+    return lam
 
-    def __init__(
-        self,
-        A: np.ndarray,
-        x: list[float],
-        levels: list[LevelRows],
-        cand_row: list[int],
-        cand_side: list[float],
-        ss: bool,
-        velocity_norm_max: float,
-        rank_tol: float,
-        admissibility_tol: float,
-        largest_norm: bool,
-    ) -> None:
-        self.A = A
-        self.G_np = A @ A.T
-        self.G: list[list[float]] = self.G_np.tolist()
-        self.g_finite = math.isfinite(sum(map(sum, self.G)))
-        """Whether every entry of G is finite (NaN/inf anywhere in A shows here)."""
-        self.x = x
-        self.R = len(x)
-        self.levels = levels
-        self.cand_row = cand_row
-        self.cand_side = cand_side
-        self.n_cand = len(cand_row)
-        self.full = (1 << self.n_cand) - 1
-        self.ss = ss
-        self.vnorm = velocity_norm_max
-        self.tol = rank_tol
-        self.tol2 = rank_tol * rank_tol
-        self.adm_tol = admissibility_tol
-        self.largest_norm = largest_norm
-        self.level_bits = [sum(1 << c for c in level.candidates) for level in levels]
-        self.evaluated = 0
-        self._own: dict[tuple[int, int], tuple[list[int], list[float], float, list[float]]] = {}
 
-    # ------------------------------------------------------------------ one level
-    def _rows(self, li: int, mask: int) -> list[int]:
-        """Rows of level ``li`` in the mode: equality rows, then the inserted candidates."""
-        level = self.levels[li]
-        chosen = [self.cand_row[c] for c in level.candidates if mask >> c & 1]
-        return level.eq_rows + chosen if chosen else level.eq_rows
+@numba.njit(cache=True, nogil=True)
+def _cascade(
+    G: np.ndarray,
+    x: np.ndarray,
+    layout: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray],
+    in_mode: np.ndarray,
+    ss: bool,
+    vnorm: float,
+    tol: float,
+    cache: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray],
+    work: tuple[np.ndarray, np.ndarray, np.ndarray],
+    z: np.ndarray,
+    lams: np.ndarray,
+) -> None:
+    """Solve one mode through every level into ``z`` (row coordinates) and ``lams`` (λ per level).
 
-    def _own_solution(self, li: int, mask: int) -> tuple[list[int], list[float], float, list[float]]:
-        r"""NSB: rows K, :math:`y = (G_{KK} + \lambda^2 I)^{-1} x_K`, λ and :math:`G_{\cdot K}\,y`.
-
-        Cached per level subset: the NSB term of a level does not depend on the levels above.
-        """
-        key = (li, mask & self.level_bits[li])
-        hit = self._own.get(key)
-        if hit is None:
-            G = self.G
-            K = self._rows(li, mask)
-            y, lam = gram_dls([[G[a][b] for b in K] for a in K], [self.x[k] for k in K], self.vnorm, self.tol)
-            hit = (K, y, lam, [])  # G_{·K} y is filled in when a projection first needs it
-            self._own[key] = hit
-        return hit
-
-    def _own_image(self, own: tuple[list[int], list[float], float, list[float]]) -> list[float]:
-        r"""NSB: :math:`c = G_{\cdot K}\,y = A\,\dot q_K` of a cached own solution (computed once)."""
-        K, y, _, c = own
-        if not c:
-            pairs = [(kb, yb) for kb, yb in zip(K, y, strict=True) if yb != 0.0]
-            for Gj in self.G:
-                acc = 0.0
-                for kb, yb in pairs:
-                    acc += Gj[kb] * yb
-                c.append(acc)
-        return c
-
-    def _add_rows(self, P: list[int], L: list[list[float]], K: list[int]) -> tuple[list[int], list[list[float]]]:
-        """Extend the independent rows P and the Cholesky factor of G_PP with the rows K."""
-        G = self.G
-        tol2 = self.tol2
-        P2, L2 = list(P), list(L)
-        for k in K:
-            Gk = G[k]
-            w: list[float] = []
-            d = Gk[k]
-            for j, Lj in enumerate(L2):  # forward substitution L w = G_Pk
-                acc = Gk[P2[j]]
-                for t in range(j):
-                    acc -= Lj[t] * w[t]
-                acc /= Lj[j]
-                w.append(acc)
-                d -= acc * acc
-            if d > tol2:
-                w.append(math.sqrt(d))
-                L2.append(w)
-                P2.append(k)
-        return P2, L2
-
-    def _advance(self, li: int, mask: int, state: _State, need_projector: bool) -> _State:
-        """Add level ``li`` of mode ``mask`` to the cascade state."""
-        z, P, L, lams = state
-        if not (self.levels[li].eq_rows or mask & self.level_bits[li]):
-            return z, P, L, (*lams, 0.0)
-        G = self.G
-        z2 = z.copy()
-        if not self.ss:
+    ``layout`` is (eq_ptr, eq_rows, cand_ptr, cand_row): each level's equality rows and
+    candidates. ``cache`` is (t_has, t_y, t_c, t_lam): the NSB term per (level, subset of the
+    level's candidates), shared across modes; ``t_has`` with zero columns disables it (too
+    many subsets to tabulate). ``work`` is (iw (2, R) int, fw (6, R), mw (4, R, R)) workspaces.
+    """
+    eq_ptr, eq_rows, cand_ptr, cand_row = layout
+    t_has, t_y, t_c, t_lam = cache
+    iw, fw, mw = work
+    R = G.shape[0]
+    n_levels = eq_ptr.shape[0] - 1
+    last = n_levels - 1
+    tol2 = tol * tol
+    K, P = iw[0], iw[1]
+    r, y, gP, u, w, c_own = fw[0], fw[1], fw[2], fw[3], fw[4], fw[5]
+    S, Lc, W, work = mw[0], mw[1], mw[2], mw[3]
+    for j in range(R):
+        z[j] = 0.0
+    n_p = 0
+    for li in range(n_levels):
+        m, sub = _level_rows(li, eq_ptr, eq_rows, cand_ptr, cand_row, in_mode, K)
+        if m == 0:
+            lams[li] = 0.0
+            continue
+        if not ss:
             # NSB (eq. 4): q̇_K = J_K^# x_K = A_Kᵀ y, then projected on the null space above.
-            own = self._own_solution(li, mask)
-            K, y, lam, _ = own
-            if P:
-                c = self._own_image(own)
-                g = forward(L, [c[p] for p in P])
+            if sub < t_has.shape[1]:
+                if not t_has[li, sub]:
+                    t_lam[li, sub] = _own_solution(G, x, K, m, vnorm, tol, S, r, work, t_y[li, sub], t_c[li, sub])
+                    t_has[li, sub] = True
+                yv, cv, lam = t_y[li, sub], t_c[li, sub], t_lam[li, sub]
             else:
-                g = None
+                lam = _own_solution(G, x, K, m, vnorm, tol, S, r, work, y, c_own)
+                yv, cv = y, c_own
+            for b in range(m):
+                z[K[b]] += yv[b]
+            if n_p > 0:
+                for t in range(n_p):
+                    gP[t] = cv[P[t]]
+                forward(Lc, gP, n_p, w)
         else:
             # SS: B = J_K N, BBᵀ = G_KK − WᵀW with W = L⁻¹ G_PK; reference compensated.
-            K = self._rows(li, mask)
-            nz = [(j, zj) for j, zj in enumerate(z) if zj != 0.0]
-            r = []
-            for k in K:
-                Gk = G[k]
-                acc = self.x[k]
-                for j, zj in nz:
-                    acc -= Gk[j] * zj
-                r.append(acc)
-            if P:
-                W = [forward(L, [G[p][k] for p in P]) for k in K]
-                S = []
-                for Wa, ka in zip(W, K, strict=True):
-                    Gka = G[ka]
-                    Sa = []
-                    for Wb, kb in zip(W, K, strict=True):
-                        acc = Gka[kb]
-                        for wa, wb in zip(Wa, Wb, strict=True):
-                            acc -= wa * wb
-                        Sa.append(acc)
-                    S.append(Sa)
+            for a in range(m):
+                ka = K[a]
+                acc = x[ka]
+                for j in range(R):
+                    if z[j] != 0.0:
+                        acc -= G[ka, j] * z[j]
+                r[a] = acc
+            if n_p > 0:
+                for a in range(m):
+                    for t in range(n_p):
+                        gP[t] = G[P[t], K[a]]
+                    forward(Lc, gP, n_p, W[a])
+                for a in range(m):
+                    for b in range(m):
+                        acc = G[K[a], K[b]]
+                        for t in range(n_p):
+                            acc -= W[a, t] * W[b, t]
+                        S[a, b] = acc
             else:
-                S = [[G[a][b] for b in K] for a in K]
-            y, lam = gram_dls(S, r, self.vnorm, self.tol)
-            g = None
-            if P:
-                g = [0.0] * len(P)
-                for Wb, yb in zip(W, y, strict=True):
-                    for t, wb in enumerate(Wb):
-                        g[t] += wb * yb
-        for yb, kb in zip(y, K, strict=True):
-            z2[kb] += yb
-        if g is not None:
-            # Remove the part of A_Kᵀ y in the span of the rows above: A_Pᵀ G_PP⁻¹ G_PK y.
-            u = backward(L, g)
-            for up, p in zip(u, P, strict=True):
-                z2[p] -= up
-        if need_projector:
-            P, L = self._add_rows(P, L, K)
-        return z2, P, L, (*lams, lam)
-
-    # ------------------------------------------------------------------ modes
-    def cascade(self, mask: int) -> _Leaf:
-        """Solve one mode through every level."""
-        state: _State = ([0.0] * self.R, [], [], ())
-        last = len(self.levels) - 1
-        for li in range(len(self.levels)):
-            state = self._advance(li, mask, state, li < last)
-        self.evaluated += 1
-        return mask, state[0], state[3]
-
-    def _select(self, leaves: list[_Leaf], incumbent: Mode | None = None) -> Mode | None:
-        """Check the leaves (finite, eqs. 8–9) and return the best of them and ``incumbent``."""
-        if len(leaves) <= 64:
-            return self._select_small(leaves, incumbent)
-        Z = np.array([leaf[1] for leaf in leaves])
-        GZ = Z @ self.G_np
-        norms = (Z * GZ).sum(axis=1).tolist()
-        moves = None
-        if self.n_cand:  # J_C q̇, signed so that "further out" is positive
-            moves = (GZ[:, self.cand_row] * np.array(self.cand_side)).tolist()
-        adm_tol, n_cand = self.adm_tol, self.n_cand
-        best = incumbent
-        for i, (mask, z, lams) in enumerate(leaves):
-            norm2 = norms[i]
-            if not math.isfinite(norm2):
-                continue
-            mode = Mode(mask, z, norm2, mask.bit_count(), lams)
-            if not self.better(mode, best):
-                continue
-            if moves is not None and mask != self.full:
-                row = moves[i]
-                if any(row[c] > adm_tol and not mask >> c & 1 for c in range(n_cand)):
-                    continue  # a left-out task would move further out (eqs. 8–9)
-            best = mode
-        return best
-
-    def _select_small(self, leaves: list[_Leaf], incumbent: Mode | None) -> Mode | None:
-        """:meth:`_select` in plain floats (faster than NumPy calls for a few small leaves)."""
-        G, adm_tol, full, g_finite = self.G, self.adm_tol, self.full, self.g_finite
-        cands = list(enumerate(zip(self.cand_row, self.cand_side, strict=True)))
-        best = incumbent
-        for mask, z, lams in leaves:
-            # Gz, then ‖q̇‖² = zᵀGz and J_C q̇ = (Gz)_C. With G finite, zero entries of z add 0.
-            if g_finite:
-                gz = [sum(map(mul, Gi, z)) for Gi in G]
-                norm2 = sum(map(mul, z, gz))
-            else:  # G overflowed: skip the zero entries of z (inf · 0 would give NaN)
-                nz = [(j, zj) for j, zj in enumerate(z) if zj != 0.0]
-                gz = []
-                for Gi in G:
+                for a in range(m):
+                    for b in range(m):
+                        S[a, b] = G[K[a], K[b]]
+            lam = gram_dls(S, r, m, vnorm, tol, work, y)
+            if n_p > 0:
+                for t in range(n_p):
                     acc = 0.0
-                    for j, zj in nz:
-                        acc += Gi[j] * zj
-                    gz.append(acc)
-                norm2 = 0.0
-                for i, zi in nz:
-                    norm2 += zi * gz[i]
-            if not math.isfinite(norm2):
+                    for b in range(m):
+                        acc += W[b, t] * y[b]
+                    w[t] = acc
+            for b in range(m):
+                z[K[b]] += y[b]
+        if n_p > 0:
+            # Remove the part of A_Kᵀ y in the span of the rows above: A_Pᵀ G_PP⁻¹ G_PK y.
+            backward(Lc, w, n_p, u)
+            for t in range(n_p):
+                z[P[t]] -= u[t]
+        lams[li] = lam
+        if li < last:
+            n_p = _add_rows(G, K, m, P, n_p, Lc, w, tol2)
+
+
+@numba.njit(cache=True, nogil=True)
+def _better(norm2: float, n_active: int, best_norm2: float, best_n_active: int, largest_norm: bool) -> bool:
+    """Whether a mode beats the incumbent under the selection rule (ties within 1e-12 relative)."""
+    close = abs(norm2 - best_norm2) <= 1e-12 * (1.0 + max(norm2, best_norm2))
+    if largest_norm:
+        return n_active < best_n_active if close else norm2 > best_norm2
+    if n_active != best_n_active:
+        return n_active < best_n_active
+    return norm2 > best_norm2 and not close
+
+
+@numba.njit(cache=True, nogil=True)
+def _check(
+    G: np.ndarray,
+    z: np.ndarray,
+    in_mode: np.ndarray,
+    cand_row: np.ndarray,
+    cand_side: np.ndarray,
+    adm_tol: float,
+    gz: np.ndarray,
+) -> tuple[float, bool]:
+    r"""Norm and admissibility of a solved mode.
+
+    Returns:
+        (:math:`\|\dot q\|^2 = z^TGz`, whether no left-out candidate moves further out: eqs.
+        8–9, :math:`\pm J_c\dot q \le` ``adm_tol``).
+    """
+    R = G.shape[0]
+    norm2 = 0.0
+    for i in range(R):
+        acc = 0.0
+        for j in range(R):
+            acc += G[i, j] * z[j]
+        gz[i] = acc
+        norm2 += z[i] * acc
+    for c in range(cand_row.shape[0]):
+        if not in_mode[c] and gz[cand_row[c]] * cand_side[c] > adm_tol:
+            return norm2, False
+    return norm2, True
+
+
+@numba.njit(cache=True, nogil=True)
+def search_modes(
+    A: np.ndarray,
+    x: np.ndarray,
+    row_level: np.ndarray,
+    row_side: np.ndarray,
+    inv_v_max: np.ndarray,
+    ss: bool,
+    largest_norm: bool,
+    velocity_norm_max: float,
+    rank_tol: float,
+    admissibility_tol: float,
+    max_exhaustive: int,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, int, int, int, float]:
+    r"""One control step's mode search (DESIGN §3, paper eqs. 4–9), from the stacked rows to q̇.
+
+    Modes are enumerated level-major (the first level's candidate subsets vary slowest, each
+    level's subsets in binary order), so ties are broken the same way on every machine.
+    Up to ``max_exhaustive`` candidates every mode is tried; above, *greedy release* from
+    S = C drops, one at a time, the task whose removal gives the best admissible mode while
+    that improves the selection rule.
+
+    Args:
+        A: Stacked rows, level by level, each level's equality rows before its candidates.
+            Shape (R, n).
+        x: CLIK reference of every row [task unit/s]. Shape (R,).
+        row_level: Index of each row's level (non-decreasing, levels with a row numbered
+            0..L−1). Shape (R,).
+        row_side: 0 for an equality row; +1 / −1 for a candidate past its upper / lower
+            activation threshold. Shape (R,).
+        inv_v_max: 1 / joint velocity limits [s/rad]. Shape (n,).
+        ss: Siciliano–Slotine variant instead of NSB (eq. 4).
+        largest_norm: Selection rule: largest norm first (else fewest active first).
+        velocity_norm_max: :math:`\|\dot q\|_{\max}` of the damping [rad/s].
+        rank_tol: Rank tolerance on singular values.
+        admissibility_tol: Slack on :math:`J_c\dot q` in eqs. 8–9 [task unit/s].
+        max_exhaustive: Largest |C| enumerated exhaustively.
+
+    Returns:
+        ``(qdot, active, lams, status, evaluated, how, scale)``: q̇ [rad/s] scaled into the
+        joint velocity limits (direction kept), which candidates are inserted (shape (C,), in
+        row order), λ per level, a ``STATUS_*`` code, modes solved, a ``SEARCH_*`` code and the
+        velocity scale factor (≤ 1).
+    """
+    R, n = A.shape
+    n_levels = 0 if R == 0 else row_level[R - 1] + 1
+    qdot = np.zeros(n)
+    lams = np.zeros(n_levels)
+    # ---- Gram matrix; a non-finite row shows here.
+    G = np.empty((R, R))
+    finite = True
+    for i in range(R):
+        for j in range(i + 1):
+            acc = 0.0
+            for k in range(n):
+                acc += A[i, k] * A[j, k]
+            G[i, j] = acc
+            G[j, i] = acc
+            if not math.isfinite(acc):
+                finite = False
+    n_cand = 0
+    for i in range(R):
+        if row_side[i] != 0.0:
+            n_cand += 1
+    active = np.zeros(n_cand, dtype=np.bool_)
+    if not finite:
+        return qdot, active, lams, STATUS_NON_FINITE_ROWS, 0, SEARCH_NONE, 1.0
+    # ---- layout: equality rows and candidates per level.
+    eq_ptr = np.zeros(n_levels + 1, dtype=np.int64)
+    cand_ptr = np.zeros(n_levels + 1, dtype=np.int64)
+    eq_rows = np.empty(R - n_cand, dtype=np.int64)
+    cand_row = np.empty(n_cand, dtype=np.int64)
+    cand_side = np.empty(n_cand)
+    ne = 0
+    nc = 0
+    for i in range(R):
+        li = row_level[i]
+        if row_side[i] == 0.0:
+            eq_rows[ne] = i
+            ne += 1
+        else:
+            cand_row[nc] = i
+            cand_side[nc] = row_side[i]
+            nc += 1
+        eq_ptr[li + 1] = ne
+        cand_ptr[li + 1] = nc
+    for li in range(n_levels):  # levels without rows of their own keep the previous counts
+        if eq_ptr[li + 1] < eq_ptr[li]:
+            eq_ptr[li + 1] = eq_ptr[li]
+        if cand_ptr[li + 1] < cand_ptr[li]:
+            cand_ptr[li + 1] = cand_ptr[li]
+    # ---- workspaces and the NSB cache per (level, subset of the level's candidates).
+    iw = np.empty((2, R), dtype=np.int64)
+    fw = np.empty((6, R))
+    mw = np.empty((4, R, R))
+    gz = np.empty(R)
+    z = np.empty(R)
+    best_z = np.zeros(R)
+    trial_lams = np.zeros(n_levels)
+    in_mode = np.zeros(n_cand, dtype=np.bool_)
+    max_level_cands = 0
+    for li in range(n_levels):
+        max_level_cands = max(max_level_cands, cand_ptr[li + 1] - cand_ptr[li])
+    n_sub = 1 << max_level_cands if (not ss and max_level_cands <= _MAX_TABLE_CANDIDATES) else 0
+    t_has = np.zeros((n_levels, n_sub), dtype=np.bool_)
+    t_y = np.empty((n_levels, n_sub, R))
+    t_c = np.empty((n_levels, n_sub, R))
+    t_lam = np.empty((n_levels, n_sub))
+    layout = (eq_ptr, eq_rows, cand_ptr, cand_row)
+    cache = (t_has, t_y, t_c, t_lam)
+    work = (iw, fw, mw)
+
+    evaluated = 0
+    how = SEARCH_NONE
+    found = False
+    best_norm2 = math.nan
+    best_active = 0
+    if n_cand == 0:
+        _cascade(G, x, layout, in_mode, ss, velocity_norm_max, rank_tol, cache, work, best_z, lams)
+        evaluated = 1
+        found = True
+    elif n_cand <= max_exhaustive:
+        how = SEARCH_EXHAUSTIVE
+        for code in range(1 << n_cand):
+            # Decode level-major: the last level's subset is the lowest digit.
+            rest = code
+            n_in = 0
+            for li in range(n_levels - 1, -1, -1):
+                width = cand_ptr[li + 1] - cand_ptr[li]
+                bits = rest & ((1 << width) - 1)
+                rest >>= width
+                for j in range(width):
+                    on = (bits >> j) & 1 == 1
+                    in_mode[cand_ptr[li] + j] = on
+                    if on:
+                        n_in += 1
+            _cascade(G, x, layout, in_mode, ss, velocity_norm_max, rank_tol, cache, work, z, trial_lams)
+            evaluated += 1
+            norm2, admissible = _check(G, z, in_mode, cand_row, cand_side, admissibility_tol, gz)
+            if not math.isfinite(norm2) or not admissible:
                 continue
-            n_active = mask.bit_count()
-            if best is not None:
-                # Inline of better(): skip the Mode object for a leaf that loses.
-                b2 = best.norm2
-                close = abs(norm2 - b2) <= 1e-12 * (1.0 + max(norm2, b2))
-                if self.largest_norm:
-                    wins = n_active < best.n_active if close else norm2 > b2
-                elif n_active != best.n_active:
-                    wins = n_active < best.n_active
-                else:
-                    wins = norm2 > b2 and not close
-                if not wins:
+            if found and not _better(norm2, n_in, best_norm2, best_active, largest_norm):
+                continue
+            found = True
+            best_norm2, best_active = norm2, n_in
+            best_z[:] = z
+            lams[:] = trial_lams
+            active[:] = in_mode
+    else:
+        how = SEARCH_GREEDY
+        in_mode[:] = True
+        _cascade(G, x, layout, in_mode, ss, velocity_norm_max, rank_tol, cache, work, z, trial_lams)
+        evaluated = 1
+        norm2, _ = _check(G, z, in_mode, cand_row, cand_side, admissibility_tol, gz)
+        if math.isfinite(norm2):  # S = C is always admissible
+            found = True
+            best_norm2, best_active = norm2, n_cand
+            best_z[:] = z
+            lams[:] = trial_lams
+            active[:] = True
+        step_z = np.empty(R)
+        step_lams = np.empty(n_levels)
+        step_active = np.zeros(n_cand, dtype=np.bool_)
+        while found and best_active > 0:
+            step_found = False
+            step_norm2 = math.nan
+            for drop in range(n_cand):
+                if not active[drop]:
                     continue
-            if mask != full:
-                outward = False
-                for c, (row, side) in cands:
-                    if not mask >> c & 1:
-                        if gz[row] * side > adm_tol:
-                            outward = True  # a left-out task would move further out (eqs. 8–9)
-                            break
-                if outward:
+                in_mode[:] = active
+                in_mode[drop] = False
+                _cascade(G, x, layout, in_mode, ss, velocity_norm_max, rank_tol, cache, work, z, trial_lams)
+                evaluated += 1
+                norm2, admissible = _check(G, z, in_mode, cand_row, cand_side, admissibility_tol, gz)
+                if not math.isfinite(norm2) or not admissible:
                     continue
-            best = Mode(mask, z, norm2, n_active, lams)
-        return best
-
-    def better(self, a: Mode, b: Mode | None) -> bool:
-        """Whether ``a`` beats ``b`` under the selection rule (ties within 1e-12 relative)."""
-        if b is None:
-            return True
-        close = abs(a.norm2 - b.norm2) <= 1e-12 * (1.0 + max(a.norm2, b.norm2))
-        if self.largest_norm:
-            return a.n_active < b.n_active if close else a.norm2 > b.norm2
-        if a.n_active != b.n_active:
-            return a.n_active < b.n_active
-        return a.norm2 > b.norm2 and not close
-
-    def single(self, mask: int) -> Mode:
-        """The mode ``mask`` alone, unchecked (its norm is not computed: NaN)."""
-        mask, z, lams = self.cascade(mask)
-        return Mode(mask, z, math.nan, mask.bit_count(), lams)
-
-    def exhaustive(self) -> Mode | None:
-        """All 2^|C| modes, depth-first over the levels so shared prefixes are solved once."""
-        levels = self.levels
-        last = len(levels) - 1
-        subsets: list[list[int]] = []
-        for level in levels:
-            masks = [0]
-            for c in level.candidates:
-                masks += [m | 1 << c for m in masks]
-            subsets.append(masks)
-        leaves: list[_Leaf] = []
-        if not self.ss:
-            self._explore_nsb(subsets, leaves)
-            self.evaluated += len(leaves)
-            return self._select(leaves)
-
-        def explore(li: int, mask: int, state: _State) -> None:
-            for sub in subsets[li]:
-                m = mask | sub
-                child = self._advance(li, m, state, li < last)
-                if li < last:
-                    explore(li + 1, m, child)
-                else:
-                    leaves.append((m, child[0], child[3]))
-
-        explore(0, 0, ([0.0] * self.R, [], [], ()))
-        self.evaluated += len(leaves)
-        return self._select(leaves)
-
-    def _explore_nsb(self, subsets: list[list[int]], leaves: list[_Leaf]) -> None:
-        r"""NSB depth-first enumeration: :meth:`_advance` inlined, same arithmetic in the same order.
-
-        A level's own solution and its image :math:`G_{\cdot K}y` do not depend on the levels
-        above (NSB), so they are formed once per (level, subset) before the enumeration.
-        """
-        levels = self.levels
-        last = len(levels) - 1
-        R = self.R
-        # Per level and subset: (subset bits, (y_k, k) pairs or None for an empty level, λ, G_{·K}y, K).
-        table: list[list[tuple[int, list[tuple[float, int]] | None, float, list[float], list[int]]]] = []
-        for li, level in enumerate(levels):
-            row = []
-            for sub in subsets[li]:
-                if not (level.eq_rows or sub):
-                    row.append((sub, None, 0.0, [], []))
+                if step_found and not _better(norm2, best_active - 1, step_norm2, best_active - 1, largest_norm):
                     continue
-                own = self._own_solution(li, sub)
-                K, y, lam, _ = own
-                c = self._own_image(own) if li > 0 else []
-                row.append((sub, list(zip(y, K, strict=True)), lam, c, K))
-            table.append(row)
-        add_rows = self._add_rows
-
-        def explore(li: int, mask: int, z: list[float], P: list[int], L: list[list[float]], lams: tuple) -> None:
-            is_last = li == last
-            for sub, yk, lam, c, K in table[li]:
-                m = mask | sub
-                if yk is None:
-                    z2, P2, L2, lams2 = z, P, L, (*lams, 0.0)
-                else:
-                    z2 = z.copy()
-                    for yb, kb in yk:
-                        z2[kb] += yb
-                    if P:
-                        u = backward(L, forward(L, [c[p] for p in P]))
-                        for up, p in zip(u, P, strict=True):
-                            z2[p] -= up
-                    lams2 = (*lams, lam)
-                    if is_last:
-                        P2, L2 = P, L
-                    else:
-                        P2, L2 = add_rows(P, L, K)
-                if is_last:
-                    leaves.append((m, z2, lams2))
-                else:
-                    explore(li + 1, m, z2, P2, L2, lams2)
-
-        explore(0, 0, [0.0] * R, [], [], ())
-
-    def greedy(self) -> Mode | None:
-        """Greedy release from S = C: drop the task whose removal gives the best admissible mode."""
-        current = self._select([self.cascade(self.full)])
-        while current is not None and current.mask:
-            removals = [self.cascade(current.mask & ~(1 << c)) for c in range(self.n_cand) if current.mask >> c & 1]
-            step = self._select(removals)
-            if step is None or not self.better(step, current):
+                step_found = True
+                step_norm2 = norm2
+                step_z[:] = z
+                step_lams[:] = trial_lams
+                step_active[:] = in_mode
+            if not step_found or not _better(step_norm2, best_active - 1, best_norm2, best_active, largest_norm):
                 break
-            current = step
-        return current
-
-    def velocity(self, mode: Mode) -> np.ndarray:
-        r"""Joint velocity :math:`\dot q = A^T z` of a mode [rad/s]. Shape (n,)."""
-        return np.array(mode.z) @ self.A
+            best_norm2, best_active = step_norm2, best_active - 1
+            best_z[:] = step_z
+            lams[:] = step_lams
+            active[:] = step_active
+    if not found:
+        return qdot, active, lams, STATUS_NO_FINITE_MODE, evaluated, how, 1.0
+    # ---- q̇ = Aᵀz, then one scale factor into the joint velocity limits (direction kept).
+    ratio = 0.0
+    for k in range(n):
+        acc = 0.0
+        for i in range(R):
+            acc += best_z[i] * A[i, k]
+        qdot[k] = acc
+        rel = abs(acc * inv_v_max[k])
+        if not math.isfinite(rel):
+            qdot[:] = 0.0
+            return qdot, active, lams, STATUS_NON_FINITE_VELOCITY, evaluated, how, 1.0
+        ratio = max(ratio, rel)
+    scale = 1.0
+    if ratio > 1.0:
+        scale = 1.0 / ratio
+        for k in range(n):
+            qdot[k] *= scale
+    return qdot, active, lams, STATUS_OK, evaluated, how, scale

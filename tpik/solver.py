@@ -60,7 +60,13 @@ from typing import Any, ClassVar
 import numpy as np
 
 from robots import Kinematics, Robot
-from tpik.cascade import LevelRows, Mode, ModeSearch
+from tpik.cascade import (
+    SEARCH_NAMES,
+    STATUS_NO_FINITE_MODE,
+    STATUS_NON_FINITE_ROWS,
+    STATUS_OK,
+    search_modes,
+)
 from tpik.exceptions import InvalidTaskState, TpikError
 from tpik.hierarchy import Hierarchy
 from tpik.step_result import SolveStatus, StepResult, failed
@@ -285,15 +291,16 @@ class TpikSolver:
         # ---- 1. evaluate every task once; CLIK references (eq. 2) and candidates (eq. 7).
         blocks: list[np.ndarray] = []  # the rows of A, level by level
         x: list[float] = []
-        levels: list[LevelRows] = []
-        cand_row: list[int] = []
-        cand_side: list[float] = []
+        row_level: list[int] = []  # per row: index among the levels that have rows
+        row_side: list[float] = []  # per row: 0 equality, ±1 candidate past its upper/lower threshold
+        level_names: list[str] = []
         cand_names: list[str] = []
         block_names: list[str] = []
         row_shape = (1, n)
         inf = math.inf
         for lp in plan:
-            eq_rows: list[int] = []
+            li = len(level_names)
+            rows_before = len(x)
             for task in lp.equality:
                 state = task.compute_state(kin)
                 m = state.value.shape[0]
@@ -305,12 +312,11 @@ class TpikSolver:
                 ):
                     state.validate(task.name, n)  # raises InvalidTaskState naming the array
                 gain = task.gain if task.gain < k_max else k_max
-                first = len(x)
                 x.extend((state.feedforward + gain * state.error).tolist())
-                eq_rows.extend(range(first, len(x)))
+                row_level.extend([li] * m)
+                row_side.extend([0.0] * m)
                 blocks.append(state.jacobian)
                 block_names.append(task.name)
-            cands: list[int] = []
             for direct, set_task, name, gain, act_lower, act_upper, safe_lower, safe_upper in lp.set_tasks:
                 if direct is not None:
                     sigma = float(direct(kin))
@@ -331,77 +337,60 @@ class TpikSolver:
                         raise InvalidTaskState(f"task '{name}': jacobian has shape {jac.shape}, expected (1, {n})")
                 if gain > k_max:
                     gain = k_max
-                cands.append(len(cand_row))
-                cand_row.append(len(x))
-                cand_side.append(side)
                 cand_names.append(name)
                 x.append(gain * (target - sigma))
+                row_level.append(li)
+                row_side.append(side)
                 blocks.append(jac)
                 block_names.append(name)
-            if eq_rows or cands:
-                levels.append(LevelRows(lp.name, eq_rows, cands))
-        n_cand = len(cand_row)
-        extras: dict[str, Any] = {
-            "candidates": n_cand,
-            "variant": self.settings.variant,
-            "selection": self.settings.selection_rule,
-        }
+            if len(x) > rows_before:
+                level_names.append(lp.name)
+        n_cand = len(cand_names)
+        s = self.settings
+        extras: dict[str, Any] = {"candidates": n_cand, "variant": s.variant, "selection": s.selection_rule}
         if not blocks:
             # Only set-based tasks, all inside their activation thresholds: nothing to do.
             extras.update(modes_evaluated=0, search="none", velocity_scale=1.0)
             return StepResult(np.zeros(n), SolveStatus.OK, (), time.perf_counter() - t0, 0.0, {}, "", extras)
-        A = blocks[0] if len(blocks) == 1 else np.concatenate(blocks)
-        s = self.settings
-        search = ModeSearch(
-            A,
-            x,
-            levels,
-            cand_row,
-            cand_side,
-            ss=s.variant == "ss",
-            velocity_norm_max=self.velocity_norm_max,
-            rank_tol=s.rank_tolerance,
-            admissibility_tol=s.admissibility_tolerance,
-            largest_norm=s.selection_rule == "largest_norm",
-        )
-        if not search.g_finite:  # G = AAᵀ: NaN/inf anywhere in A shows here
-            _raise_non_finite(block_names, blocks)
+        A = np.concatenate(blocks, dtype=float) if len(blocks) > 1 else np.ascontiguousarray(blocks[0], dtype=float)
         t1 = time.perf_counter()
 
-        # ---- 2–4. mode search (cascade per mode, admissibility, selection).
-        mode: Mode | None
-        if n_cand == 0:
-            mode, how = search.single(0), "none"
-        elif n_cand <= s.max_exhaustive_candidates:
-            mode, how = search.exhaustive(), "exhaustive"
-        else:
-            mode, how = search.greedy(), "greedy"
-        extras["modes_evaluated"] = search.evaluated
-        extras["search"] = how
-        if mode is None:
-            return failed(n, f"{self.name}: every mode gave a non-finite velocity", **extras)
-        qdot = search.velocity(mode)
-        # ---- joint velocity limits: one scale factor, direction kept.
-        rel = (qdot * self._inv_v_max).tolist()
-        if not math.isfinite(sum(rel)):  # NaN or inf anywhere in q̇
-            return failed(n, f"{self.name}: the cascade produced a non-finite velocity", **extras)
-        ratio = max(map(abs, rel))
-        scale = 1.0
-        if ratio > 1.0:
-            scale = 1.0 / ratio
-            qdot *= scale
+        # ---- 2–4. mode search (cascade per mode, admissibility, selection), q̇ and its scaling.
+        qdot, inserted, lams, status, evaluated, how, scale = search_modes(
+            A,
+            np.array(x),
+            np.array(row_level, dtype=np.int64),
+            np.array(row_side),
+            self._inv_v_max,
+            s.variant == "ss",
+            s.selection_rule == "largest_norm",
+            self.velocity_norm_max,
+            s.rank_tolerance,
+            s.admissibility_tolerance,
+            s.max_exhaustive_candidates,
+        )
         t2 = time.perf_counter()
+        search = SEARCH_NAMES[how]
+        extras["modes_evaluated"] = evaluated
+        extras["search"] = search
+        if status != STATUS_OK:
+            if status == STATUS_NON_FINITE_ROWS:
+                _raise_non_finite(block_names, blocks)
+                return failed(n, f"{self.name}: the Gram matrix of the task rows overflowed", **extras)
+            if status == STATUS_NO_FINITE_MODE:
+                return failed(n, f"{self.name}: every mode gave a non-finite velocity", **extras)
+            return failed(n, f"{self.name}: the cascade produced a non-finite velocity", **extras)
         extras["velocity_scale"] = scale
 
-        damping = {lv.name: lam for lv, lam in zip(levels, mode.damping, strict=True)}
-        active = tuple(cand_names[c] for c in range(n_cand) if mode.mask >> c & 1)
+        damping = dict(zip(level_names, lams.tolist(), strict=True))
+        active = tuple(name for name, on in zip(cand_names, inserted.tolist(), strict=True) if on)
         reasons = []
         if scale < 1.0:
             reasons.append(f"velocity scaled by {scale:.3g} to the joint limits")
         damped = [name for name, lam in damping.items() if lam > 0.0]
         if damped:
             reasons.append(f"damped level(s): {', '.join(damped)}")
-        if how == "greedy":
+        if search == "greedy":
             reasons.append(f"greedy active-set search over {n_cand} candidates")
         return StepResult(
             qdot,
@@ -418,8 +407,8 @@ class TpikSolver:
 def _raise_non_finite(names: list[str], blocks: list[np.ndarray]) -> None:
     """Name the task whose Jacobian has non-finite entries (the slow path of the check).
 
-    Returns without raising when every Jacobian is finite (AAᵀ overflowed): the velocity check
-    then reports the failure.
+    Returns without raising when every Jacobian is finite (AAᵀ overflowed): the caller then
+    reports a failed step.
     """
     for name, block in zip(names, blocks, strict=True):
         if not np.isfinite(block).all():

@@ -58,7 +58,7 @@ class ObstacleDistanceTask(SetTask):
         if self._obstacle is None:
             return math.inf
         diff = self._obstacle - kin.frame_position(self.frame)
-        dist = float(np.sqrt(diff @ diff))
+        dist = math.sqrt(diff.dot(diff))
         return 0.0 if dist < 1e-9 else dist  # as compute_value_and_jacobian
 
     def compute_value_and_jacobian(self, kin: Kinematics) -> tuple[float, np.ndarray]:
@@ -66,9 +66,9 @@ class ObstacleDistanceTask(SetTask):
         if self._obstacle is None:
             return math.inf, np.zeros((1, kin.nq))
         diff = self._obstacle - kin.frame_position(self.frame)
-        dist = float(np.sqrt(diff @ diff))
+        dist = math.sqrt(diff.dot(diff))
         if dist < 1e-9:
             # O on P: the direction is undefined; report contact with no usable gradient.
             return 0.0, np.zeros((1, kin.nq))
-        jac = -(diff / dist) @ kin.partial_position_jacobian(self.frame, self.joint)
-        return dist, jac[None, :]
+        diff *= -1.0 / dist
+        return dist, diff.dot(kin.partial_position_jacobian(self.frame, self.joint))[None, :]

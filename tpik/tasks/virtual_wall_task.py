@@ -47,11 +47,11 @@ class VirtualWallTask(SetTask):
 
     def compute_value(self, kin: Kinematics) -> float:
         """σ = nᵀp − d [m]."""
-        return float(self.normal @ kin.frame_position(self.frame)) - self.offset
+        return float(self.normal.dot(kin.frame_position(self.frame))) - self.offset
 
     def compute_jacobian(self, kin: Kinematics) -> np.ndarray:
         """J = nᵀ J_pos, shape (1, n)."""
-        return (self.normal @ kin.position_jacobian(self.frame))[None, :]
+        return self.normal.dot(kin.position_jacobian(self.frame))[None, :]
 
     def compute_value_and_jacobian(self, kin: Kinematics) -> tuple[float, np.ndarray]:
         """σ = nᵀp − d, J = nᵀ J_pos."""
