@@ -51,7 +51,7 @@ class Kinematics:
         self._partial_jacobians: dict[tuple[str, int | None], np.ndarray] = {}
 
     def _check(self) -> None:
-        if not self.robot.is_current(self._generation):
+        if self.robot._generation != self._generation:  # Robot.is_current, inlined (hot path)
             raise StaleKinematics("this Kinematics snapshot is stale: robot.kinematics() was called again since")
 
     @property

@@ -30,8 +30,11 @@ One control step (DESIGN §3):
    only slows the convergence of the active tasks to their thresholds, so it never makes a
    set-based task cross.
 
-Modes are enumerated depth-first over the levels (a level is solved once for all the modes that
-agree above it), in the row space of the tasks (:mod:`tpik.cascade`). Above
+Steps 2–4 run in one compiled call in the row space of the tasks (:mod:`tpik.cascade`); the
+NSB term of a level is solved once per subset of its candidates and shared by every mode, and
+modes are tried level-major so that ties resolve the same way everywhere. This module keeps the
+task evaluation (step 1) and knows no task type: it reads σ, J and the thresholds through the
+:class:`~tpik.tasks.task.SetTask` interface. Above
 ``max_exhaustive_candidates`` candidates, the 2^|C| enumeration is replaced by *greedy release*:
 start from S = C and repeatedly drop the one task whose removal gives the best admissible mode,
 while that improves the selection rule: O(|C|²) cascades. Every mode it returns passes step 3,
@@ -217,6 +220,9 @@ class TpikSolver:
         self.velocity_norm_max = (
             float(np.linalg.norm(v_max)) if s.velocity_norm_max is None else float(s.velocity_norm_max)
         )
+        self._ss = s.variant == "ss"
+        self._selection = s.selection_rule
+        self._largest_norm = self._selection == "largest_norm"
         self._plan_for: Hierarchy | None = None
         self._plan: list[_LevelPlan] = []
 
@@ -347,7 +353,7 @@ class TpikSolver:
                 level_names.append(lp.name)
         n_cand = len(cand_names)
         s = self.settings
-        extras: dict[str, Any] = {"candidates": n_cand, "variant": s.variant, "selection": s.selection_rule}
+        extras: dict[str, Any] = {"candidates": n_cand, "variant": s.variant, "selection": self._selection}
         if not blocks:
             # Only set-based tasks, all inside their activation thresholds: nothing to do.
             extras.update(modes_evaluated=0, search="none", velocity_scale=1.0)
@@ -362,8 +368,8 @@ class TpikSolver:
             np.array(row_level, dtype=np.int64),
             np.array(row_side),
             self._inv_v_max,
-            s.variant == "ss",
-            s.selection_rule == "largest_norm",
+            self._ss,
+            self._largest_norm,
             self.velocity_norm_max,
             s.rank_tolerance,
             s.admissibility_tolerance,
