@@ -147,6 +147,7 @@ def _cascade(
     layout: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray],
     in_mode: np.ndarray,
     ss: bool,
+    compensate: bool,
     vnorm: float,
     tol: float,
     cache: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray],
@@ -155,6 +156,9 @@ def _cascade(
     lams: np.ndarray,
 ) -> None:
     """Solve one mode through every level into ``z`` (row coordinates) and ``lams`` (λ per level).
+
+    A level is solved in the compensated (SS) form when ``ss`` is set, or when ``compensate``
+    is set and the mode inserts one of the level's candidates; else by eq. 4 (NSB).
 
     ``layout`` is (eq_ptr, eq_rows, cand_ptr, cand_row): each level's equality rows and
     candidates. ``cache`` is (t_has, t_y, t_c, t_lam): the NSB term per (level, subset of the
@@ -179,7 +183,7 @@ def _cascade(
         if m == 0:
             lams[li] = 0.0
             continue
-        if not ss:
+        if not (ss or (compensate and sub != 0)):
             # NSB (eq. 4): q̇_K = J_K^# x_K = A_Kᵀ y, then projected on the null space above.
             if sub < t_has.shape[1]:
                 if not t_has[li, sub]:
@@ -196,7 +200,8 @@ def _cascade(
                     gP[t] = cv[P[t]]
                 forward(Lc, gP, n_p, w)
         else:
-            # SS: B = J_K N, BBᵀ = G_KK − WᵀW with W = L⁻¹ G_PK; reference compensated.
+            # SS, or an inserted set task under `compensate`: B = J_K N, BBᵀ = G_KK − WᵀW with
+            # W = L⁻¹ G_PK; the reference is compensated for the motion of the levels above.
             for a in range(m):
                 ka = K[a]
                 acc = x[ka]
@@ -287,6 +292,7 @@ def search_modes(
     row_side: np.ndarray,
     inv_v_max: np.ndarray,
     ss: bool,
+    compensate: bool,
     largest_norm: bool,
     velocity_norm_max: float,
     rank_tol: float,
@@ -311,6 +317,8 @@ def search_modes(
             activation threshold. Shape (R,).
         inv_v_max: 1 / joint velocity limits [s/rad]. Shape (n,).
         ss: Siciliano–Slotine variant instead of NSB (eq. 4).
+        compensate: NSB only: solve a level in the compensated form whenever the mode inserts
+            one of its set-based tasks (:attr:`tpik.solver.TpikSettings.compensate_set_tasks`).
         largest_norm: Selection rule: largest norm first (else fewest active first).
         velocity_norm_max: :math:`\|\dot q\|_{\max}` of the damping [rad/s].
         rank_tol: Rank tolerance on singular values.
@@ -397,7 +405,7 @@ def search_modes(
     best_norm2 = math.nan
     best_active = 0
     if n_cand == 0:
-        _cascade(G, x, layout, in_mode, ss, velocity_norm_max, rank_tol, cache, work, best_z, lams)
+        _cascade(G, x, layout, in_mode, ss, compensate, velocity_norm_max, rank_tol, cache, work, best_z, lams)
         evaluated = 1
         found = True
     elif n_cand <= max_exhaustive:
@@ -415,7 +423,7 @@ def search_modes(
                     in_mode[cand_ptr[li] + j] = on
                     if on:
                         n_in += 1
-            _cascade(G, x, layout, in_mode, ss, velocity_norm_max, rank_tol, cache, work, z, trial_lams)
+            _cascade(G, x, layout, in_mode, ss, compensate, velocity_norm_max, rank_tol, cache, work, z, trial_lams)
             evaluated += 1
             norm2, admissible = _check(G, z, in_mode, cand_row, cand_side, admissibility_tol, gz)
             if not math.isfinite(norm2) or not admissible:
@@ -430,7 +438,7 @@ def search_modes(
     else:
         how = SEARCH_GREEDY
         in_mode[:] = True
-        _cascade(G, x, layout, in_mode, ss, velocity_norm_max, rank_tol, cache, work, z, trial_lams)
+        _cascade(G, x, layout, in_mode, ss, compensate, velocity_norm_max, rank_tol, cache, work, z, trial_lams)
         evaluated = 1
         norm2, _ = _check(G, z, in_mode, cand_row, cand_side, admissibility_tol, gz)
         if math.isfinite(norm2):  # S = C is always admissible
@@ -450,7 +458,7 @@ def search_modes(
                     continue
                 in_mode[:] = active
                 in_mode[drop] = False
-                _cascade(G, x, layout, in_mode, ss, velocity_norm_max, rank_tol, cache, work, z, trial_lams)
+                _cascade(G, x, layout, in_mode, ss, compensate, velocity_norm_max, rank_tol, cache, work, z, trial_lams)
                 evaluated += 1
                 norm2, admissible = _check(G, z, in_mode, cand_row, cand_side, admissibility_tol, gz)
                 if not math.isfinite(norm2) or not admissible:

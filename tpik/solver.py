@@ -17,6 +17,17 @@ One control step (DESIGN §3):
    * ``"ss"`` (Siciliano–Slotine): :math:`\dot q_k = \dot q_{k-1} + (J_k N_{1,k-1})^\#
      (x_k - J_k \dot q_{k-1})`: each level is compensated for the motion of the levels above.
 
+   With ``compensate_set_tasks`` (default), ``nsb`` solves a level in the compensated form
+   whenever the mode inserts one of its set-based tasks; levels of equality tasks keep eq. 4.
+   Why: in eq. 4 the inserted task's rate is :math:`J_k\dot q = J_k\dot q_{above} +
+   J_kN_{1,k-1}J_k^\#x_k`, so a higher level that pushes the task outward (e.g. a joint limit
+   whose motion drives the EE into a wall) makes it cross its safety threshold although the
+   task is "active": in the hard random campaign the EE went 7.5 mm past a wall this way
+   (seed 759: wall reference −0.0038 m/s, NSB rate −0.0306 m/s). Compensated, the inserted
+   task's rate is its reference :math:`K(\sigma_s-\sigma)` whenever the levels above leave it
+   the freedom, so it converges to its threshold and never crosses it (DESIGN §3 step 2; the
+   pure eq. 4 stays available with ``compensate_set_tasks = false``).
+
    :math:`N_{1,k}` is the exact (undamped) projector onto the null space of the augmented
    Jacobian (eqs. 5–6), so a lower level never disturbs a higher one.
 3. A mode is *admissible* when no left-out candidate moves further out (eqs. 8–9):
@@ -106,6 +117,10 @@ class TpikSettings:
             (a task sticks; ``tests/tpik/test_solver_closed_loop.py`` shows it).
         max_exhaustive_candidates: Largest |C| for which all 2^|C| modes are tried; above it
             the greedy release search is used.
+        compensate_set_tasks: ``nsb`` only: solve a level in the compensated form whenever the
+            mode inserts one of its set-based tasks, so an inserted task tracks its reference
+            despite the motion of the levels above (module docstring). False = eq. 4 on every
+            level, as the paper writes it. ``ss`` compensates every level anyway.
         velocity_norm_max: :math:`\|\dot q\|_{\max}` [rad/s] of the dynamic damping; None =
             the 2-norm of the robot's joint velocity limits.
         rank_tolerance: Singular values at or below this count as zero (projectors and
@@ -117,6 +132,7 @@ class TpikSettings:
     variant: str = VARIANTS[0]
     selection: str = "auto"
     max_exhaustive_candidates: int = 6
+    compensate_set_tasks: bool = True
     velocity_norm_max: float | None = None
     rank_tolerance: float = 1e-6
     admissibility_tolerance: float = 1e-9
@@ -126,6 +142,8 @@ class TpikSettings:
             raise InvalidSettings(f"variant: unknown TPIK variant {self.variant!r}; known: {', '.join(VARIANTS)}")
         if self.selection not in SELECTIONS:
             raise InvalidSettings(f"selection: unknown rule {self.selection!r}; known: {', '.join(SELECTIONS)}")
+        if not isinstance(self.compensate_set_tasks, bool):
+            raise InvalidSettings(f"compensate_set_tasks: must be true or false, got {self.compensate_set_tasks!r}")
         if isinstance(self.max_exhaustive_candidates, bool) or not isinstance(self.max_exhaustive_candidates, int):
             raise InvalidSettings(
                 f"max_exhaustive_candidates: must be an integer, got {self.max_exhaustive_candidates!r}"
@@ -369,6 +387,7 @@ class TpikSolver:
             np.array(row_side),
             self._inv_v_max,
             self._ss,
+            s.compensate_set_tasks,
             self._largest_norm,
             self.velocity_norm_max,
             s.rank_tolerance,

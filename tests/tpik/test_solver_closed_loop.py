@@ -16,7 +16,7 @@ from compare.bench.solver_cases import apply_state, case2_hierarchy, case2_state
 from tests.tpik.conftest import JointTargetTask, one_level_each, simulate
 from tpik.hierarchy import Hierarchy, Level
 from tpik.solver import TpikSettings, TpikSolver
-from tpik.tasks import JointLimitTask, ObstacleDistanceTask, PositionTask, Thresholds, VirtualWallTask
+from tpik.tasks import JointLimitTask, ObstacleDistanceTask, PositionTask, SetTask, Thresholds, VirtualWallTask
 
 TOL = 1e-3  # [rad] or [m]
 WALL = Thresholds(-0.05, 0.0, math.inf, math.inf, 0.03)
@@ -126,3 +126,36 @@ def test_case2_hierarchy_from_the_benchmark_states_stays_safe(jaco, variant):
         _, results, m = simulate(jaco, h, solver, state.q, 300, watch=margins)
         assert m.min() >= -TOL, f"{state.name}: worst safety margins {m.min(axis=0)}"
         assert all(r.ok for r in results)
+
+
+class _JointSumTask(SetTask):
+    """σ = q_1 + q_2 [rad] with an upper safety threshold: a set task coupled to joint 1."""
+
+    def __init__(self, nq: int, upper: float) -> None:
+        super().__init__("q1_plus_q2", Thresholds(-math.inf, -math.inf, upper, upper + 0.1, 0.05), gain=2.0)
+        self._row = np.zeros((1, nq))
+        self._row[0, :2] = 1.0
+
+    def compute_value_and_jacobian(self, kin):
+        return float(kin.q[0] + kin.q[1]), self._row
+
+
+@pytest.mark.parametrize("compensate", [True, False])
+def test_inserted_set_task_holds_although_a_higher_level_pushes_it_out(jaco, compensate):
+    """Level 1 drives q1 up; level 2 keeps q1 + q2 ≤ 0.5 rad.
+
+    Eq. 4 alone gives the inserted task σ̇ = q̇1 + x₂/2 (its own term is projected off joint 1),
+    so it is dragged past its threshold at the speed of level 1; compensated, σ̇ = x₂ and it
+    stays. The pure form must cross (else this test could not detect the difference).
+    """
+    coupled = _JointSumTask(jaco.nq, upper=0.5)
+    drive = JointTargetTask("drive_q1", 1, jaco.nq, target=1.5, gain=1.0)
+    solver = TpikSolver(jaco, TpikSettings(compensate_set_tasks=compensate))
+    q0 = jaco.home.copy()
+    q0[:2] = [0.0, 0.3]
+    _, results, sigma = simulate(jaco, one_level_each(drive, coupled), solver, q0, 300, watch=coupled.compute_value)
+    if compensate:
+        assert sigma.max() <= 0.5 + TOL
+        assert results[-1].active_set == ("q1_plus_q2",)
+    else:
+        assert sigma.max() > 0.5 + 0.2
