@@ -80,6 +80,7 @@ from tpik.cascade import (
     STATUS_NON_FINITE_ROWS,
     STATUS_OK,
     search_modes,
+    warm_up,
 )
 from tpik.exceptions import InvalidTaskState, TpikError
 from tpik.hierarchy import Hierarchy
@@ -243,6 +244,7 @@ class TpikSolver:
         self._largest_norm = self._selection == "largest_norm"
         self._plan_for: Hierarchy | None = None
         self._plan: list[_LevelPlan] = []
+        warm_up()  # the compiled mode search is loaded now, not at the first control step
 
     def __repr__(self) -> str:
         return f"TpikSolver(name={self.name!r}, settings={self.settings})"

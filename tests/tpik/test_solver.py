@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import math
+import subprocess
+import sys
 
 import numpy as np
 import pytest
@@ -375,3 +377,19 @@ def test_only_inactive_set_tasks_give_zero_velocity(jaco):
     qdot, report = TpikSolver(jaco).solve(one_level_each(task), jaco.kinematics(jaco.home), DT)
     np.testing.assert_array_equal(qdot, 0.0)
     assert report.status is SolveStatus.OK
+
+
+def test_building_a_solver_loads_the_compiled_search():
+    """The compiled search is loaded when the solver is built, not at the first control step.
+
+    Loading it from numba's cache takes ~0.5 s: on the hardware path that first step used to
+    arrive half a second late, and the whole run lagged the person's motion. Checked in a fresh
+    process (in this one, earlier tests have loaded it already).
+    """
+    code = (
+        "import robots, tpik.cascade as c; from tpik.solver import TpikSolver; "
+        "assert not c.search_modes.signatures; TpikSolver(robots.load('jaco2')); "
+        "print(len(c.search_modes.signatures))"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300, check=True)
+    assert out.stdout.strip() == "1"
