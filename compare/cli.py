@@ -30,7 +30,9 @@ def _fail(message: str) -> None:
     raise typer.Exit(EXIT_USAGE)
 
 
-def _overrides(duration: float | None, time_scale: float | None, sensing: str | None) -> dict[str, object]:
+def _overrides(
+    duration: float | None, time_scale: float | None, sensing: str | None, simulation: str | None = None
+) -> dict[str, object]:
     out: dict[str, object] = {}
     if duration is not None:
         out["scenario.duration_s"] = duration
@@ -38,6 +40,8 @@ def _overrides(duration: float | None, time_scale: float | None, sensing: str | 
         out["scenario.time_scale"] = time_scale
     if sensing is not None:
         out["scenario.sensing"] = sensing
+    if simulation is not None:
+        out["scenario.simulation"] = simulation
     return out
 
 
@@ -53,6 +57,13 @@ ScaleOpt = Annotated[
     float | None, typer.Option("--time-scale", help="Override scenario.time_scale (short form of a scenario).")
 ]
 SensingOpt = Annotated[str | None, typer.Option("--sensing", help="Override scenario.sensing: depth | geometric.")]
+SimulationOpt = Annotated[
+    str | None,
+    typer.Option(
+        "--simulation",
+        help="Override scenario.simulation: dynamic (MuJoCo servos) | kinematic (q += q̇ dt, perfect tracking).",
+    ),
+]
 
 
 @app.command()
@@ -63,6 +74,7 @@ def run(
     duration: DurationOpt = None,
     time_scale: ScaleOpt = None,
     sensing: SensingOpt = None,
+    simulation: SimulationOpt = None,
     plots: Annotated[bool, typer.Option(help="Write the plots after the run.")] = True,
     quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress bar.")] = False,
 ) -> None:
@@ -71,7 +83,7 @@ def run(
     from compare.run import run_scenario
 
     try:
-        cfg, text = load_config(config, _overrides(duration, time_scale, sensing))
+        cfg, text = load_config(config, _overrides(duration, time_scale, sensing, simulation))
         if methods:
             from compare.config import parse_config
 
@@ -115,6 +127,7 @@ def sweep(
     sensing: Annotated[
         str | None, typer.Option("--sensing", help="depth | geometric (sweeps default to geometric).")
     ] = None,
+    simulation: SimulationOpt = None,
     executor: Annotated[
         str, typer.Option("--executor", help="local (worker processes) | ray (a Ray cluster, extra 'cluster').")
     ] = "local",
@@ -128,7 +141,7 @@ def sweep(
     from compare.sweep import run_sweep
 
     try:
-        cfg, text = load_config(config, _overrides(duration, time_scale, sensing or "geometric"))
+        cfg, text = load_config(config, _overrides(duration, time_scale, sensing or "geometric", simulation))
     except ConfigError as exc:
         _fail(str(exc))
         return

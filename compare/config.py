@@ -12,6 +12,7 @@ import tomllib
 from pathlib import Path
 from typing import Any, Literal
 
+import tomli_w
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
 import robots
@@ -518,7 +519,11 @@ def _check_methods(config: Config, robot: robots.Robot) -> None:
 
 
 def load_config(path: str | Path, overrides: dict[str, Any] | None = None) -> tuple[Config, str]:
-    """Read and validate a TOML config file; returns the config and the file's text.
+    """Read and validate a TOML config file; returns the config and its TOML text.
+
+    The text is the file's own when there are no overrides; with overrides it is the effective
+    configuration written back as TOML (headed by a comment naming the file and the overrides),
+    so the ``config.toml`` copied into a results directory reproduces the run.
 
     Args:
         path: TOML file.
@@ -542,4 +547,8 @@ def load_config(path: str | Path, overrides: dict[str, Any] | None = None) -> tu
         for key in parents:
             node = node.setdefault(key, {})
         node[leaf] = value
-    return parse_config(data), text
+    config = parse_config(data)
+    if overrides:
+        listed = ", ".join(f"{k} = {v!r}" for k, v in overrides.items())
+        text = f"# {p.name} with command-line overrides: {listed}\n" + tomli_w.dumps(data)
+    return config, text

@@ -95,3 +95,23 @@ def test_overrides_apply_dotted_keys():
     config, _ = load_config(CONFIGS / "case1.toml", {"scenario.time_scale": 0.25, "scenario.sensing": "geometric"})
     assert config.scenario.sim_time_s == pytest.approx(70.0 * 0.25)
     assert config.scenario.sensing == "geometric"
+
+
+def test_overrides_are_in_the_returned_text_and_reproduce_the_config():
+    plain, text = load_config(CONFIGS / "random.toml")
+    assert text == (CONFIGS / "random.toml").read_text(encoding="utf-8")
+    cfg, text = load_config(CONFIGS / "random.toml", {"scenario.simulation": "kinematic", "scenario.seed": 5})
+    assert plain.scenario.simulation == "dynamic" and cfg.scenario.simulation == "kinematic"
+    assert text.startswith("# random.toml with command-line overrides")
+    assert parse_config(tomllib.loads(text)) == cfg
+
+
+def test_cli_simulation_option_is_applied_and_recorded(tmp_path):
+    out = tmp_path / "out"
+    args = ["run", str(CONFIGS / "case1.toml"), "--out", str(out), "-q", "--no-plots", "--duration", "0.2"]
+    result = CliRunner().invoke(app, [*args, "--sensing", "geometric", "--simulation", "kinematic", "-m", "tpik"])
+    assert result.exit_code == 0, result.output
+    saved = tomllib.loads((out / "config.toml").read_text(encoding="utf-8"))
+    assert saved["scenario"]["simulation"] == "kinematic" and saved["scenario"]["sensing"] == "geometric"
+    bad = CliRunner().invoke(app, [*args, "--simulation", "quantum"])
+    assert bad.exit_code == 2 and "simulation" in bad.stderr and "Traceback" not in bad.output
