@@ -498,9 +498,6 @@ def search_modes(
     return qdot, active, lams, STATUS_OK, evaluated, how, scale
 
 
-_warm = False
-
-
 def warm_up() -> None:
     """Load the compiled search into this process (from numba's cache, or compile it).
 
@@ -508,8 +505,6 @@ def warm_up() -> None:
     :class:`~tpik.solver.TpikSolver` calls this when it is built, so that no control step — the
     first command to a real arm included — pays for it. Later calls return at once.
     """
-    global _warm
-    if not _warm:
+    if not search_modes.signatures:  # nothing loaded in this process yet
         one, level = np.ones(1), np.zeros(1, dtype=np.int64)
         search_modes(np.ones((1, 1)), one, level, np.zeros(1), one, False, True, True, 1.0, 1e-6, 1e-9, 6)
-        _warm = True

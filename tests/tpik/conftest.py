@@ -78,6 +78,18 @@ def dynamic_damping(sigma_min: float, sigma_star: float) -> float:
     return sigma_star / 2
 
 
+def svd_dls(M: np.ndarray, r: np.ndarray, vnorm: float, tol: float) -> tuple[np.ndarray, float]:
+    """M^# r by damped least squares from the SVD of M (paper's λ, rank-truncated at ``tol``).
+
+    Returns the joint velocity and λ.
+    """
+    U, s, Vt = np.linalg.svd(M, full_matrices=False)
+    sigma_min = float(s.min()) if M.shape[0] <= M.shape[1] else 0.0
+    lam = dynamic_damping(sigma_min, float(np.linalg.norm(r)) / vnorm)
+    keep = s > tol
+    return Vt[keep].T @ ((s[keep] / (s[keep] ** 2 + lam**2)) * (U[:, keep].T @ r)), lam
+
+
 def reference_cascade(
     levels: list[tuple[np.ndarray, np.ndarray]], variant: str, vnorm: float, tol: float = 1e-6
 ) -> tuple[np.ndarray, list[float]]:
@@ -94,11 +106,7 @@ def reference_cascade(
             M, r = J, x
         else:
             M, r = J @ N, x - J @ qdot
-        U, s, Vt = np.linalg.svd(M, full_matrices=False)
-        sigma_min = float(s.min()) if M.shape[0] <= n else 0.0
-        lam = dynamic_damping(sigma_min, float(np.linalg.norm(r)) / vnorm)
-        keep = s > tol
-        dq = Vt[keep].T @ ((s[keep] / (s[keep] ** 2 + lam**2)) * (U[:, keep].T @ r))
+        dq, lam = svd_dls(M, r, vnorm, tol)
         qdot = qdot + (N @ dq if variant == "nsb" else dq)
         _, s2, Vt2 = np.linalg.svd(J @ N, full_matrices=False)
         V = Vt2[s2 > tol]

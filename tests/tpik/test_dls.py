@@ -1,22 +1,12 @@
-"""The compiled damped least squares of tpik.dls against an SVD written independently."""
+"""The compiled damped least squares of tpik.dls against the SVD of the test reference (conftest)."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from tests.tpik.conftest import dynamic_damping
+from tests.tpik.conftest import svd_dls
 from tpik.dls import gram_dls, min_eigenvalue
-
-
-def _svd_dls(B: np.ndarray, r: np.ndarray, vnorm: float, tol: float) -> tuple[np.ndarray, float]:
-    """y with Bᵀy = B^# r (damped, rank-truncated), from the SVD of B."""
-    U, s, Vt = np.linalg.svd(B, full_matrices=False)
-    sigma_min = float(s.min()) if B.shape[0] <= B.shape[1] else 0.0
-    lam = dynamic_damping(sigma_min, float(np.linalg.norm(r)) / vnorm)
-    keep = s > tol
-    qdot = Vt[keep].T @ ((s[keep] / (s[keep] ** 2 + lam**2)) * (U[:, keep].T @ r))
-    return qdot, lam
 
 
 @pytest.mark.parametrize("m", [1, 2, 3, 4, 6])
@@ -36,7 +26,7 @@ def test_gram_dls_matches_the_svd_formula(m, kind):
         S = B @ B.T
         y = np.zeros(m)
         lam = gram_dls(S, r, m, vnorm, 1e-6, np.empty((m, m)), y)
-        expected, expected_lam = _svd_dls(B, r, vnorm, 1e-6)
+        expected, expected_lam = svd_dls(B, r, vnorm, 1e-6)
         assert lam == pytest.approx(expected_lam, rel=1e-6, abs=1e-9)
         np.testing.assert_allclose(B.T @ y, expected, atol=1e-8)
         assert np.linalg.norm(B.T @ y) <= vnorm * (1.0 + 1e-9)  # the damping bound of sec. II-A
