@@ -258,6 +258,7 @@ def _better(norm2: float, n_active: int, best_norm2: float, best_n_active: int, 
 def _check(
     G: np.ndarray,
     z: np.ndarray,
+    x: np.ndarray,
     in_mode: np.ndarray,
     cand_row: np.ndarray,
     cand_side: np.ndarray,
@@ -266,9 +267,18 @@ def _check(
 ) -> tuple[float, bool]:
     r"""Norm and admissibility of a solved mode.
 
+    A left-out candidate c (side s = +1 upper, −1 lower, reference :math:`x_c = K(\sigma_s -
+    \sigma)`) is admissible when :math:`s\,J_c\dot q \le \min(0, s\,x_c) +` ``adm_tol``:
+
+    * inside its safety threshold (:math:`s\,x_c \ge 0`): it does not move further out, the
+      paper's eqs. 8–9;
+    * past it (a moving obstacle or a tracking error put it there, :math:`s\,x_c < 0`): the
+      solution without it brings it back at least as fast as inserting it would. Otherwise a
+      task the arm is not moving, e.g. an obstacle distance the person closes, would be left
+      out while violated and the arm would never react.
+
     Returns:
-        (:math:`\|\dot q\|^2 = z^TGz`, whether no left-out candidate moves further out: eqs.
-        8–9, :math:`\pm J_c\dot q \le` ``adm_tol``).
+        (:math:`\|\dot q\|^2 = z^TGz`, admissible).
     """
     R = G.shape[0]
     norm2 = 0.0
@@ -279,7 +289,9 @@ def _check(
         gz[i] = acc
         norm2 += z[i] * acc
     for c in range(cand_row.shape[0]):
-        if not in_mode[c] and gz[cand_row[c]] * cand_side[c] > adm_tol:
+        r = cand_row[c]
+        s = cand_side[c]
+        if not in_mode[c] and gz[r] * s > min(0.0, x[r] * s) + adm_tol:
             return norm2, False
     return norm2, True
 
@@ -425,7 +437,7 @@ def search_modes(
                         n_in += 1
             _cascade(G, x, layout, in_mode, ss, compensate, velocity_norm_max, rank_tol, cache, work, z, trial_lams)
             evaluated += 1
-            norm2, admissible = _check(G, z, in_mode, cand_row, cand_side, admissibility_tol, gz)
+            norm2, admissible = _check(G, z, x, in_mode, cand_row, cand_side, admissibility_tol, gz)
             if not math.isfinite(norm2) or not admissible:
                 continue
             if found and not _better(norm2, n_in, best_norm2, best_active, largest_norm):
@@ -440,7 +452,7 @@ def search_modes(
         in_mode[:] = True
         _cascade(G, x, layout, in_mode, ss, compensate, velocity_norm_max, rank_tol, cache, work, z, trial_lams)
         evaluated = 1
-        norm2, _ = _check(G, z, in_mode, cand_row, cand_side, admissibility_tol, gz)
+        norm2, _ = _check(G, z, x, in_mode, cand_row, cand_side, admissibility_tol, gz)
         if math.isfinite(norm2):  # S = C is always admissible
             found = True
             best_norm2, best_active = norm2, n_cand
@@ -460,7 +472,7 @@ def search_modes(
                 in_mode[drop] = False
                 _cascade(G, x, layout, in_mode, ss, compensate, velocity_norm_max, rank_tol, cache, work, z, trial_lams)
                 evaluated += 1
-                norm2, admissible = _check(G, z, in_mode, cand_row, cand_side, admissibility_tol, gz)
+                norm2, admissible = _check(G, z, x, in_mode, cand_row, cand_side, admissibility_tol, gz)
                 if not math.isfinite(norm2) or not admissible:
                     continue
                 if step_found and not _better(norm2, best_active - 1, step_norm2, best_active - 1, largest_norm):

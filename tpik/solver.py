@@ -32,14 +32,19 @@ One control step (DESIGN §3):
    Jacobian (eqs. 5–6), so a lower level never disturbs a higher one.
 3. A mode is *admissible* when no left-out candidate moves further out (eqs. 8–9):
    :math:`J_A\dot q_S \le 0` past an upper threshold, :math:`\ge 0` past a lower one (to a
-   small tolerance). S = C is always admissible.
-4. Among admissible modes, ``nsb`` takes the one of largest :math:`\|\dot q_S\|` (the least
-   restricted motion, Moe et al. 2016; ties go to the mode with fewer active tasks); ``ss``
-   takes the one with the fewest active tasks (ties to the largest norm), see
-   :attr:`TpikSettings.selection`. The result is then scaled by one factor so that every joint
-   is within its velocity limit (direction kept). Uniform scaling keeps every sign of step 3 and
-   only slows the convergence of the active tasks to their thresholds, so it never makes a
-   set-based task cross.
+   small tolerance). A candidate already past its *safety* threshold (a moving obstacle or a
+   tracking error put it there) may be left out only if :math:`\dot q_S` brings it back at least
+   at its reference rate, :math:`J_A\dot q_S \le K(\sigma_{s,u} - \sigma) < 0` (resp.
+   :math:`\ge K(\sigma_{s,l} - \sigma) > 0`): a person walking into a still arm must not be
+   left out. S = C is always admissible.
+4. Among admissible modes, the pure eq. 4 (``nsb`` without ``compensate_set_tasks``) takes the
+   one of largest :math:`\|\dot q_S\|` (the least restricted motion, Moe et al. 2016; ties go
+   to the mode with fewer active tasks); the default (compensated) solvers take the one with the
+   fewest active tasks (ties to the largest norm): a task is released as soon as the solution
+   without it is admissible (eqs. 8–9), see :attr:`TpikSettings.selection`. The result is then
+   scaled by one factor so that every joint is within its velocity limit (direction kept).
+   Uniform scaling keeps every sign of step 3 and only slows the convergence of the active tasks
+   to their thresholds, so it never makes a set-based task cross.
 
 Steps 2–4 run in one compiled call in the row space of the tasks (:mod:`tpik.cascade`); the
 NSB term of a level is solved once per subset of its candidates and shared by every mode, and
@@ -93,8 +98,6 @@ VARIANTS: tuple[str, ...] = ("nsb", "ss")
 SELECTIONS: tuple[str, ...] = ("auto", "largest_norm", "fewest_active")
 """Rules to choose among admissible modes (see :class:`TpikSettings`)."""
 
-_AUTO_SELECTION = {"nsb": "largest_norm", "ss": "fewest_active"}
-
 
 class InvalidSettings(TpikError, ValueError):
     """A TPIK setting is unknown or has a bad value (the message names the key)."""
@@ -110,12 +113,17 @@ class TpikSettings:
             2016): largest :math:`\|\dot q_S\|`, ties to fewer active tasks.
             ``"fewest_active"`` (a literal reading of the paper's eqs. 8–9: release a task as
             soon as the solution without it is admissible): fewest active tasks, ties to the
-            largest norm. ``"auto"`` (default): ``largest_norm`` for ``nsb``, ``fewest_active``
-            for ``ss`` — in NSB the projections only shrink the lower levels' terms, so the
-            least restricted mode has the largest norm; in SS the compensated
-            :math:`(J_kN_{1,k-1})^\#` grows as more tasks are inserted, so the largest norm
-            would keep a task held at its threshold although releasing it is admissible
-            (a task sticks; ``tests/tpik/test_solver_closed_loop.py`` shows it).
+            largest norm. ``"auto"`` (default): ``largest_norm`` only for the pure eq. 4
+            (``nsb`` with ``compensate_set_tasks = false``, DESIGN §3 as written),
+            ``fewest_active`` otherwise. Why: a task inserted in its activation band is driven
+            *toward* its safety threshold (eq. 7), and a compensated level (``ss``, or ``nsb``
+            compensating an inserted set task) inverts :math:`J_kN_{1,k-1}`, which grows as
+            more tasks are inserted. Both add norm to the modes that hold a task, so the largest
+            norm holds a task that could be released: it is pulled to its threshold and sticks
+            there (``tests/tpik/test_solver_closed_loop.py``), or the choice flips every step
+            between holding and releasing (issue 9: seed 838 of the hard campaign alternated
+            ±0.09 rad/s every 10 ms for 0.2 s; with the servo lag of the dynamic arm the EE
+            went 3.5 mm past a wall).
         max_exhaustive_candidates: Largest |C| for which all 2^|C| modes are tried; above it
             the greedy release search is used.
         compensate_set_tasks: ``nsb`` only: solve a level in the compensated form whenever the
@@ -160,8 +168,11 @@ class TpikSettings:
 
     @property
     def selection_rule(self) -> str:
-        """The rule actually used: ``selection`` with ``"auto"`` resolved for the variant."""
-        return _AUTO_SELECTION[self.variant] if self.selection == "auto" else self.selection
+        """The rule actually used: ``selection`` with ``"auto"`` resolved (see ``selection``)."""
+        if self.selection != "auto":
+            return self.selection
+        pure_eq4 = self.variant == "nsb" and not self.compensate_set_tasks
+        return "largest_norm" if pure_eq4 else "fewest_active"
 
     @classmethod
     def from_dict(cls, values: Mapping[str, Any] | None) -> TpikSettings:

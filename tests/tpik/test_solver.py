@@ -219,6 +219,25 @@ def test_a_task_past_its_upper_threshold_is_held_only_when_pushed_out(jaco, solv
         assert qdot[2] == pytest.approx(-0.3)
 
 
+@pytest.mark.parametrize("pull", [0.0, -0.01, -0.3])
+def test_a_task_past_its_safety_threshold_is_released_only_when_brought_back_as_fast(jaco, solver, pull):
+    """σ = 1.05 > σ_{s,u} = 1 (an obstacle walked in): its reference is K(σ_s − σ) = −0.05.
+
+    Eqs. 8–9 alone would release it whenever the rest of the hierarchy does not push it
+    further out, so an arm holding still would never react to a person walking into it.
+    """
+    row = np.eye(jaco.nq)[2]
+    task = RowSetTask("s", 1.05, row, _th())
+    lower = MatrixTask("lower", row[None, :], np.array([pull]))
+    qdot, report = solver.solve(one_level_each(task, lower), jaco.kinematics(jaco.home), DT)
+    if pull > -0.05:  # still, or back too slowly: held, back at the reference rate
+        assert report.active_set == ("s",)
+        assert qdot[2] == pytest.approx(-0.05)
+    else:
+        assert report.active_set == ()
+        assert qdot[2] == pytest.approx(pull)
+
+
 def test_largest_norm_and_fewest_active_rules_differ_as_documented(jaco):
     """In the activation band, holding σ_d = σ_s pulls outward: larger norm than a weak release."""
     row = np.eye(jaco.nq)[2]
@@ -226,12 +245,27 @@ def test_largest_norm_and_fewest_active_rules_differ_as_documented(jaco):
     lower = MatrixTask("lower", row[None, :], np.array([-0.02]))  # weak inward pull
     h = one_level_each(task, lower)
     kin = jaco.kinematics(jaco.home)
-    _, largest = TpikSolver(jaco).solve(h, kin, DT)
+    _, largest = TpikSolver(jaco, TpikSettings(selection="largest_norm")).solve(h, kin, DT)
     _, fewest = TpikSolver(jaco, TpikSettings(selection="fewest_active")).solve(h, kin, DT)
-    _, ss_auto = TpikSolver(jaco, TpikSettings(variant="ss")).solve(h, kin, DT)
     assert largest.active_set == ("s",) and largest.extras["selection"] == "largest_norm"
     assert fewest.active_set == () and fewest.extras["selection"] == "fewest_active"
-    assert ss_auto.extras["selection"] == "fewest_active"
+
+
+@pytest.mark.parametrize(
+    ("settings", "rule"),
+    [
+        ({}, "fewest_active"),
+        ({"variant": "ss"}, "fewest_active"),
+        ({"compensate_set_tasks": False}, "largest_norm"),
+        ({"compensate_set_tasks": False, "selection": "fewest_active"}, "fewest_active"),
+        ({"selection": "largest_norm"}, "largest_norm"),
+    ],
+)
+def test_auto_selection_is_largest_norm_only_for_the_pure_eq4(jaco, settings, rule):
+    row = np.eye(jaco.nq)[2]
+    h = one_level_each(RowSetTask("s", 0.9, row, _th()), MatrixTask("lower", row[None, :], np.array([-0.02])))
+    _, report = TpikSolver(jaco, TpikSettings(**settings)).solve(h, jaco.kinematics(jaco.home), DT)
+    assert TpikSettings(**settings).selection_rule == rule and report.extras["selection"] == rule
 
 
 @pytest.mark.parametrize("max_exhaustive", [6, 0])

@@ -159,3 +159,29 @@ def test_inserted_set_task_holds_although_a_higher_level_pushes_it_out(jaco, com
         assert results[-1].active_set == ("q1_plus_q2",)
     else:
         assert sigma.max() > 0.5 + 0.2
+
+
+@pytest.mark.parametrize("selection", ["auto", "largest_norm"])
+def test_a_task_the_lower_level_pulls_inward_is_released_not_pulled_to_its_threshold(jaco, selection):
+    """Joint 4 starts in its upper activation band; level 2 pulls it 1 cm inward, slowly.
+
+    Inserted, the limit's reference K(σ_s − σ) drives q4 *toward* the safety threshold, faster
+    than the weak inward pull: the mode that holds it has the larger norm. The default rule
+    releases it (the solution without it is admissible, eqs. 8–9) and q4 reaches its target.
+    The largest-norm rule pulls it outward until holding and releasing have equal norms, then
+    flips between the two every step or two (issue 9, seed 838: the same chatter at a wall).
+    """
+    limit = JointLimitTask.from_robot(jaco, 4, safety_margin=0.1, activation_margin=0.05)
+    s_u = limit.thresholds.safety_upper
+    q0 = jaco.home.copy()
+    q0[3] = s_u - 0.02
+    pull = JointTargetTask("q4_inward", 4, jaco.nq, target=q0[3] - 0.01, gain=1.0)
+    solver = TpikSolver(jaco, TpikSettings(selection=selection))
+    q, results, _ = simulate(jaco, one_level_each(limit, pull), solver, q0, 500)
+    if selection == "auto":
+        assert q[3] == pytest.approx(q0[3] - 0.01, abs=TOL)
+        assert all(r.active_set == () for r in results)
+    else:  # pulled outward to where holding and releasing have equal norms, then flips between them
+        assert q[3] > q0[3] + 0.003
+        held = [r.active_set == (limit.name,) for r in results[-100:]]
+        assert sum(a != b for a, b in zip(held, held[1:], strict=False)) > 20
