@@ -31,7 +31,11 @@ def _fail(message: str) -> None:
 
 
 def _overrides(
-    duration: float | None, time_scale: float | None, sensing: str | None, simulation: str | None = None
+    duration: float | None,
+    time_scale: float | None,
+    sensing: str | None,
+    simulation: str | None = None,
+    drive: str | None = None,
 ) -> dict[str, object]:
     out: dict[str, object] = {}
     if duration is not None:
@@ -42,6 +46,8 @@ def _overrides(
         out["scenario.sensing"] = sensing
     if simulation is not None:
         out["scenario.simulation"] = simulation
+    if drive is not None:
+        out["scenario.drive"] = drive
     return out
 
 
@@ -61,7 +67,14 @@ SimulationOpt = Annotated[
     str | None,
     typer.Option(
         "--simulation",
-        help="Override scenario.simulation: dynamic (MuJoCo servos) | kinematic (q += q̇ dt, perfect tracking).",
+        help="Override scenario.simulation: dynamic (MuJoCo physics) | kinematic (q += q̇ dt, perfect tracking).",
+    ),
+]
+DriveOpt = Annotated[
+    str | None,
+    typer.Option(
+        "--drive",
+        help="Override scenario.drive of dynamic simulation: decoupled (inverse dynamics) | servo (MJCF P servos).",
     ),
 ]
 
@@ -75,6 +88,7 @@ def run(
     time_scale: ScaleOpt = None,
     sensing: SensingOpt = None,
     simulation: SimulationOpt = None,
+    drive: DriveOpt = None,
     plots: Annotated[bool, typer.Option(help="Write the plots after the run.")] = True,
     quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress bar.")] = False,
 ) -> None:
@@ -83,7 +97,7 @@ def run(
     from compare.run import run_scenario
 
     try:
-        cfg, text = load_config(config, _overrides(duration, time_scale, sensing, simulation))
+        cfg, text = load_config(config, _overrides(duration, time_scale, sensing, simulation, drive))
         if methods:
             from compare.config import parse_config
 
@@ -128,6 +142,7 @@ def sweep(
         str | None, typer.Option("--sensing", help="depth | geometric (sweeps default to geometric).")
     ] = None,
     simulation: SimulationOpt = None,
+    drive: DriveOpt = None,
     executor: Annotated[
         str, typer.Option("--executor", help="local (worker processes) | ray (a Ray cluster, extra 'cluster').")
     ] = "local",
@@ -141,7 +156,7 @@ def sweep(
     from compare.sweep import run_sweep
 
     try:
-        cfg, text = load_config(config, _overrides(duration, time_scale, sensing or "geometric", simulation))
+        cfg, text = load_config(config, _overrides(duration, time_scale, sensing or "geometric", simulation, drive))
     except ConfigError as exc:
         _fail(str(exc))
         return

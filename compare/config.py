@@ -43,8 +43,12 @@ class ScenarioConfig(_Strict):
         sensing_rate_hz: Depth/distance update rate (paper: 30 Hz, the Kinect's).
         sensing: ``depth`` (rendered depth + self-filter + depth-space distance) or ``geometric``
             (closest points from the MuJoCo geometry; fast, for sweeps; labelled in results).
-        simulation: ``dynamic`` (MuJoCo physics, velocity servos with gravity compensation) or
+        simulation: ``dynamic`` (MuJoCo physics, joint drives with gravity compensation) or
             ``kinematic`` (q integrated from the command).
+        drive: Joint drive of ``dynamic`` simulation (:mod:`compare.joint_drive`): ``decoupled``
+            (inverse dynamics, every joint a first-order lag 1/λ) or ``servo`` (the MJCF's P-only
+            velocity servos, coupled and slightly slow).
+        drive_bandwidth_rad_s: λ of the ``decoupled`` drive [rad/s] (100: a 10 ms lag).
         seed: Seed of every random draw (random scenario, sensor noise).
         start_q: Start configuration [rad]; default the model's ``home`` keyframe.
         fallback: What the loop commands when a solver fails: ``zero`` or ``hold_last``
@@ -60,6 +64,8 @@ class ScenarioConfig(_Strict):
     sensing_rate_hz: float = Field(30.0, gt=0.0, le=1000.0)
     sensing: Literal["depth", "geometric"] = "depth"
     simulation: Literal["dynamic", "kinematic"] = "dynamic"
+    drive: Literal["decoupled", "servo"] = "decoupled"
+    drive_bandwidth_rad_s: float = Field(100.0, gt=0.0, le=250.0)
     seed: int = Field(0, ge=0)
     start_q: tuple[float, float, float, float, float, float, float] | None = None
     fallback: Literal["zero", "hold_last"] = "zero"

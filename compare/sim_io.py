@@ -1,17 +1,20 @@
 """MuJoCo implementation of :class:`~compare.robot_io.RobotIO`.
 
-``dynamic`` mode: the arm's velocity servos (with gravity compensation) track the command
-while MuJoCo integrates the dynamics. ``kinematic`` mode: q ← q + q̇·dt exactly, then forward
+``dynamic`` mode: a joint drive (:mod:`compare.joint_drive`: the inverse-dynamics ``decoupled``
+drive, or the MJCF's own velocity servos, ``servo``) tracks the command while MuJoCo integrates
+the dynamics, with passive gravity compensation. ``kinematic`` mode: q ← q + q̇·dt exactly, then forward
 kinematics (the pure-kinematics setting the solvers are analysed in).
 """
 
 from __future__ import annotations
 
+import copy
 from collections.abc import Callable
 
 import mujoco
 import numpy as np
 
+from compare.joint_drive import DecoupledVelocityDrive, DriveKind
 from compare.robot_io import DepthFrame, JointReading, RobotIO
 
 
@@ -20,7 +23,8 @@ class SimRobotIO(RobotIO):
 
     Args:
         model: Scene model; the arm's n joints are the first n qpos/qvel entries and its
-            velocity servos the first n actuators.
+            velocity servos the first n actuators. The ``decoupled`` drive steps a copy with
+            the actuators disabled; ``model`` itself is not changed.
         nq: Number of arm joints.
         dt: Control period [s].
         q0: Start configuration [rad].
@@ -30,6 +34,13 @@ class SimRobotIO(RobotIO):
         depth_camera: Renders a :class:`DepthFrame` from ``data``; called at most once per
             ``depth_period_s`` and only when :meth:`read_depth` asks for a newer frame.
         depth_period_s: Camera frame period [s] (1/30 s).
+        drive: Joint drive in ``dynamic`` mode: ``decoupled`` or ``servo``
+            (:mod:`compare.joint_drive`).
+        drive_bandwidth_rad_s: λ of the ``decoupled`` drive [rad/s].
+
+    Raises:
+        ValueError: Unknown ``mode`` or ``drive``, or a bandwidth the model's timestep cannot
+            integrate.
     """
 
     def __init__(
@@ -42,9 +53,17 @@ class SimRobotIO(RobotIO):
         scene_update: Callable[[float, mujoco.MjData], None] | None = None,
         depth_camera: Callable[[mujoco.MjData], DepthFrame] | None = None,
         depth_period_s: float = 1.0 / 30.0,
+        drive: DriveKind = "decoupled",
+        drive_bandwidth_rad_s: float = 100.0,
     ) -> None:
         if mode not in ("dynamic", "kinematic"):
             raise ValueError(f"mode must be 'dynamic' or 'kinematic', got {mode!r}")
+        if drive not in ("decoupled", "servo"):
+            raise ValueError(f"drive must be 'decoupled' or 'servo', got {drive!r}")
+        self._drive: DecoupledVelocityDrive | None = None
+        if mode == "dynamic" and drive == "decoupled":
+            model = copy.copy(model)
+            self._drive = DecoupledVelocityDrive(model, nq, drive_bandwidth_rad_s)
         self.model = model
         self.data = mujoco.MjData(model)
         self.nq = nq
@@ -82,7 +101,7 @@ class SimRobotIO(RobotIO):
         return self._frame
 
     def send_velocity(self, qdot: np.ndarray) -> None:
-        """Velocity servo references [rad/s] (clipped to ``ctrlrange`` by MuJoCo)."""
+        """Joint velocity command [rad/s] (clipped to the servos' ``ctrlrange`` by the drive)."""
         self._command = np.asarray(qdot, dtype=float).copy()
         self.data.ctrl[: self.nq] = self._command
 
@@ -93,7 +112,10 @@ class SimRobotIO(RobotIO):
             if self._scene_update is not None:
                 # Scripted bodies move at most ~2 cm per control period: updated once per period.
                 self._scene_update(d.time, d)
-            mujoco.mj_step(m, d, nstep=self._substeps)
+            if self._drive is not None:
+                self._drive.step(m, d, self._command, self._substeps)
+            else:
+                mujoco.mj_step(m, d, nstep=self._substeps)
         else:
             d.qpos[: self.nq] += self._command * self.dt
             d.qvel[: self.nq] = self._command

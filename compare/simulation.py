@@ -67,6 +67,8 @@ def build_simulation(config: Config, robot: robots.Robot, q0: np.ndarray) -> Sim
         sc.dt,
         q0,
         mode=sc.simulation,
+        drive=sc.drive,
+        drive_bandwidth_rad_s=sc.drive_bandwidth_rad_s,
         scene_update=person.apply,
         depth_camera=depth_camera,
         depth_period_s=1.0 / sc.sensing_rate_hz,
