@@ -32,6 +32,7 @@ from __future__ import annotations
 from typing import Literal
 
 import mujoco
+import numba
 import numpy as np
 
 DriveKind = Literal["decoupled", "servo"]
@@ -78,36 +79,78 @@ class DecoupledVelocityDrive:
 
         The command is clipped to the velocity limits (the servos' ``ctrlrange``) first, as the
         servo drive's MuJoCo actuators do. When τ would exceed a joint's torque limit, the
-        acceleration demand a = λ (q̇_c − q̇) is scaled down as a whole, τ = M s a + c + D q̇
+        acceleration demand a = λ (q̇_c − q̇) is scaled down as a whole, τ = (M + hD) s a + c + D q̇
         with the largest s ∈ [0, 1] that fits every limit: the joints slow down together and a
         joint commanded to stay still still gets zero acceleration. Only when c + D q̇ alone
         exceeds a limit (s = 0) is τ clipped per joint.
         """
-        n = self.nq
-        mujoco.mj_fullM(model, data, self._mass)
-        qd = data.qvel[:n]
-        qd_c = np.clip(command, self._ctrl_lo, self._ctrl_hi)
-        hold = data.qfrc_bias[:n] - data.qfrc_gravcomp[:n] + self._damping * qd
-        push = self._inertia(model) @ (self.bandwidth_rad_s * (qd_c - qd))
-        tau = hold + push
-        over = np.abs(tau) > self._tau_max
-        if not over.any():
-            return tau
-        room = np.where(push > 0.0, self._tau_max - hold, -self._tau_max - hold)
-        with np.errstate(divide="ignore", invalid="ignore"):
-            ratio = np.where(over & (push != 0.0), room / push, np.inf)
-        scale = float(np.clip(np.min(ratio), 0.0, 1.0))
-        return np.clip(hold + scale * push, -self._tau_max, self._tau_max)
+        tau = np.zeros(self.nq)
+        self._torque_into(model, data, np.clip(command, self._ctrl_lo, self._ctrl_hi), tau)
+        return tau
 
-    def _inertia(self, model: mujoco.MjModel) -> np.ndarray:
-        """M + h D: the inertia the ``implicitfast`` step divides by (it treats D implicitly)."""
-        n = self.nq
-        return self._mass[:n, :n] + np.diag(model.opt.timestep * self._damping)
+    def _torque_into(self, model: mujoco.MjModel, data: mujoco.MjData, qd_c: np.ndarray, out: np.ndarray) -> None:
+        mujoco.mj_fullM(model, data, self._mass)
+        _drive_torque(
+            qd_c,
+            data.qvel,
+            data.qfrc_bias,
+            data.qfrc_gravcomp,
+            self._mass,
+            self._damping,
+            model.opt.timestep,
+            self.bandwidth_rad_s,
+            self._tau_max,
+            out,
+        )
 
     def step(self, model: mujoco.MjModel, data: mujoco.MjData, command: np.ndarray, substeps: int) -> None:
         """Advance ``substeps`` physics steps, recomputing the torque before each."""
-        n = self.nq
+        qd_c = np.clip(command, self._ctrl_lo, self._ctrl_hi)
+        applied = data.qfrc_applied[: self.nq]
         for _ in range(substeps):
             mujoco.mj_step1(model, data)
-            data.qfrc_applied[:n] = self.torque(model, data, command)
+            self._torque_into(model, data, qd_c, applied)
             mujoco.mj_step2(model, data)
+
+
+@numba.njit(cache=True, nogil=True)
+def _drive_torque(
+    qd_c: np.ndarray,
+    qvel: np.ndarray,
+    bias: np.ndarray,
+    gravcomp: np.ndarray,
+    mass: np.ndarray,
+    damping: np.ndarray,
+    h: float,
+    lam: float,
+    tau_max: np.ndarray,
+    out: np.ndarray,
+) -> None:
+    """Torque into ``out``: hold + s·push, s the largest in [0, 1] within ±τ_max (see the module).
+
+    hold = c + D q̇, push = (M + hD) λ (q̇_c − q̇).
+
+    c = qfrc_bias − qfrc_gravcomp (the bias the passive gravity compensation leaves); the
+    implicitfast step divides by M + hD, so (M + hD) a yields the acceleration a exactly.
+    """
+    n = qd_c.shape[0]
+    acc = np.empty(n)
+    for i in range(n):
+        acc[i] = lam * (qd_c[i] - qvel[i])
+    scale = 1.0
+    hold = np.empty(n)
+    push = np.empty(n)
+    for i in range(n):
+        p = h * damping[i] * acc[i]
+        for j in range(n):
+            p += mass[i, j] * acc[j]
+        push[i] = p
+        hold[i] = bias[i] - gravcomp[i] + damping[i] * qvel[i]
+        t = hold[i] + p
+        if t > tau_max[i] and p > 0.0:
+            scale = min(scale, (tau_max[i] - hold[i]) / p)
+        elif t < -tau_max[i] and p < 0.0:
+            scale = min(scale, (-tau_max[i] - hold[i]) / p)
+    scale = max(scale, 0.0)
+    for i in range(n):
+        out[i] = min(max(hold[i] + scale * push[i], -tau_max[i]), tau_max[i])

@@ -115,3 +115,19 @@ def test_cli_simulation_option_is_applied_and_recorded(tmp_path):
     assert saved["scenario"]["simulation"] == "kinematic" and saved["scenario"]["sensing"] == "geometric"
     bad = CliRunner().invoke(app, [*args, "--simulation", "quantum"])
     assert bad.exit_code == 2 and "simulation" in bad.stderr and "Traceback" not in bad.output
+
+
+def test_cli_drive_option_is_applied_recorded_and_checked(tmp_path):
+    out = tmp_path / "out"
+    args = ["run", str(CONFIGS / "case1.toml"), "--out", str(out), "-q", "--no-plots", "--duration", "0.2"]
+    result = CliRunner().invoke(app, [*args, "--sensing", "geometric", "--drive", "servo", "-m", "tpik"])
+    assert result.exit_code == 0, result.output
+    saved = tomllib.loads((out / "config.toml").read_text(encoding="utf-8"))
+    assert saved["scenario"]["drive"] == "servo"
+    bad = CliRunner().invoke(app, [*args, "--drive", "hydraulic"])
+    assert bad.exit_code == 2 and "drive" in bad.stderr and "Traceback" not in bad.output
+
+
+def test_a_drive_bandwidth_the_physics_step_cannot_integrate_is_a_config_error(tmp_path):
+    with pytest.raises(ConfigError, match="drive_bandwidth_rad_s"):
+        load_config(CONFIGS / "random.toml", {"scenario.drive_bandwidth_rad_s": 1000.0})
