@@ -48,7 +48,8 @@ class ScenarioConfig(_Strict):
         drive: Joint drive of ``dynamic`` simulation (:mod:`compare.joint_drive`): ``decoupled``
             (inverse dynamics, every joint a first-order lag 1/λ) or ``servo`` (the MJCF's P-only
             velocity servos, coupled and slightly slow).
-        drive_bandwidth_rad_s: λ of the ``decoupled`` drive [rad/s] (100: a 10 ms lag).
+        drive_bandwidth_rad_s: λ of the ``decoupled`` drive [rad/s] (100: a 10 ms lag; at most
+            250, i.e. λ·h ≤ 0.5 with the model's 2 ms physics step).
         seed: Seed of every random draw (random scenario, sensor noise).
         start_q: Start configuration [rad]; default the model's ``home`` keyframe.
         fallback: What the loop commands when a solver fails: ``zero`` or ``hold_last``

@@ -10,16 +10,16 @@ business, and it decides how far a held constraint is overshot in ``dynamic`` si
   An end effector sliding fast along a held wall drifts into it until the task's gain K·e
   balances that drift: 1–5 mm in about 3 % of the hard random runs (docs/benchmarks.md).
 * ``decoupled`` (default) — a drive that cancels the arm's dynamics, the assumption every
-  velocity-level IK scheme (and the paper's eq. 1–2) makes of its low-level controller:
+  velocity-level IK scheme (and the paper's eqs. 1–2) makes of its low-level controller:
 
-      τ = M(q) λ (q̇_c − q̇) + c(q, q̇) + D q̇,     clipped to the joint torque limits,
+      τ = (M(q) + h D) λ (q̇_c − q̇) + c(q, q̇) + D q̇,     within the joint torque limits,
 
-  with M the joint-space inertia (plus h D, h the physics step: ``implicitfast`` integrates the
-  damping implicitly, dividing by M + h D), c the Coriolis/centrifugal (and any gravity that the passive
-  ``gravcomp`` does not cancel) forces, D the joint damping and λ the drive bandwidth [rad/s].
+  with M the joint-space inertia, h the physics step (``implicitfast`` integrates the damping
+  implicitly, i.e. divides by M + h D), c the Coriolis/centrifugal forces (and any gravity the
+  passive ``gravcomp`` does not cancel), D the joint damping and λ the drive bandwidth [rad/s].
   Every joint then follows q̈ = λ (q̇_c − q̇): the same first-order lag 1/λ on every joint,
   independent of posture and of the other joints, with no steady-state error (per physics step
-  h the velocity error shrinks by 1 − λh). At a torque limit the acceleration demand is scaled
+  the velocity error shrinks by 1 − λh). At a torque limit the acceleration demand is scaled
   down for all joints together (:meth:`DecoupledVelocityDrive.torque`), so the joints stay
   decoupled. The default λ = 100 rad/s (10 ms) is no faster than the slowest servo joint above.
 
@@ -37,7 +37,8 @@ import numpy as np
 
 DriveKind = Literal["decoupled", "servo"]
 
-#: Largest λ·timestep: the explicit first-order update q̇ += λ dt (q̇_c − q̇) is monotone below 1.
+#: Largest λ·h accepted: the update q̇ += λ h (q̇_c − q̇) per physics step h overshoots the command
+#: from λh = 1 on; half of that keeps every joint's response monotone with a margin.
 MAX_BANDWIDTH_TIMESTEP = 0.5
 
 
@@ -52,8 +53,7 @@ class DecoupledVelocityDrive:
         bandwidth_rad_s: λ [rad/s]; the joint velocity's time constant is 1/λ.
 
     Raises:
-        ValueError: λ ≤ 0, or λ·timestep above :data:`MAX_BANDWIDTH_TIMESTEP` (the explicit
-            update would overshoot the command).
+        ValueError: λ ≤ 0, or λ·timestep above :data:`MAX_BANDWIDTH_TIMESTEP`.
     """
 
     def __init__(self, model: mujoco.MjModel, nq: int, bandwidth_rad_s: float) -> None:

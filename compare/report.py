@@ -213,6 +213,12 @@ def render_sweep_report(sweep_dir: Path, command: str | None = None) -> Path:
             + f" of {campaign.get('runs_requested', '?')} runs"
             + (f" in {wall / 60.0:.1f} min ({per:.2f} s per run)" if wall and per else "")
         )
+    plant = campaign.get("plant")
+    if plant:
+        drive = f", {plant['drive']} joint drive" if plant.get("drive") else ""
+        if plant.get("drive_bandwidth_rad_s"):
+            drive += f" (λ = {plant['drive_bandwidth_rad_s']:g} rad/s)"
+        out.append(f"- plant: {plant.get('simulation', '?')} simulation{drive}, {plant.get('sensing', '?')} sensing")
     if summary.get("skipped_finished_runs"):
         out.append(f"- resumed: {summary['skipped_finished_runs']} runs were already finished")
     out += ["", "## Safety and failures per method", ""]

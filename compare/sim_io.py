@@ -2,8 +2,8 @@
 
 ``dynamic`` mode: a joint drive (:mod:`compare.joint_drive`: the inverse-dynamics ``decoupled``
 drive, or the MJCF's own velocity servos, ``servo``) tracks the command while MuJoCo integrates
-the dynamics, with passive gravity compensation. ``kinematic`` mode: q ← q + q̇·dt exactly, then forward
-kinematics (the pure-kinematics setting the solvers are analysed in).
+the dynamics, with passive gravity compensation. ``kinematic`` mode: q ← q + q̇·dt exactly, then
+forward kinematics (the pure-kinematics setting the solvers are analysed in).
 """
 
 from __future__ import annotations

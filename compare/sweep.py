@@ -126,6 +126,7 @@ def run_sweep(
         "wall_time_s": wall,
         "wall_time_per_run_s": wall / len(jobs) if jobs else None,
         "command": command or " ".join(shlex.quote(a) for a in sys.argv),
+        "plant": _plant(config),
     }
     if failures:
         summary["failed_runs"] = failures
@@ -145,3 +146,14 @@ def run_sweep(
         except Exception as exc:
             log.warning("sweep report failed: %s", exc)
     return summary
+
+
+def _plant(config: Config) -> dict[str, object]:
+    """What the runs were simulated with: sensing, simulation and (dynamic) joint drive."""
+    sc = config.scenario
+    plant: dict[str, object] = {"sensing": sc.sensing, "simulation": sc.simulation}
+    if sc.simulation == "dynamic":
+        plant["drive"] = sc.drive
+        if sc.drive == "decoupled":
+            plant["drive_bandwidth_rad_s"] = sc.drive_bandwidth_rad_s
+    return plant

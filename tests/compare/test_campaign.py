@@ -157,6 +157,7 @@ def test_fifty_run_campaign_keeps_joint_limits_and_walls_for_tpik_and_hqp(tmp_pa
     assert summary["methods"]["tpik"]["share_runs_obstacle_violation"] > 0.0
     report = (out / "sweep_report.md").read_text()
     assert "joint-limit or wall violation" in report and "ISO" in report
+    assert summary["campaign"]["plant"]["drive"] == "decoupled"
     for png in ("sweep_min_distance_cdf", "sweep_iso_margin_cdf", "sweep_solve_vs_violation"):
         assert (out / "plots" / f"{png}.png").is_file()
 

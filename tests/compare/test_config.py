@@ -106,26 +106,19 @@ def test_overrides_are_in_the_returned_text_and_reproduce_the_config():
     assert parse_config(tomllib.loads(text)) == cfg
 
 
-def test_cli_simulation_option_is_applied_and_recorded(tmp_path):
+@pytest.mark.parametrize(
+    ("option", "value", "bad"), [("simulation", "kinematic", "quantum"), ("drive", "servo", "hydraulic")]
+)
+def test_cli_scenario_option_is_applied_recorded_and_checked(tmp_path, option, value, bad):
+    """--simulation / --drive land in the run's config.toml; a bad value is one line and exit 2."""
     out = tmp_path / "out"
     args = ["run", str(CONFIGS / "case1.toml"), "--out", str(out), "-q", "--no-plots", "--duration", "0.2"]
-    result = CliRunner().invoke(app, [*args, "--sensing", "geometric", "--simulation", "kinematic", "-m", "tpik"])
+    result = CliRunner().invoke(app, [*args, "--sensing", "geometric", f"--{option}", value, "-m", "tpik"])
     assert result.exit_code == 0, result.output
     saved = tomllib.loads((out / "config.toml").read_text(encoding="utf-8"))
-    assert saved["scenario"]["simulation"] == "kinematic" and saved["scenario"]["sensing"] == "geometric"
-    bad = CliRunner().invoke(app, [*args, "--simulation", "quantum"])
-    assert bad.exit_code == 2 and "simulation" in bad.stderr and "Traceback" not in bad.output
-
-
-def test_cli_drive_option_is_applied_recorded_and_checked(tmp_path):
-    out = tmp_path / "out"
-    args = ["run", str(CONFIGS / "case1.toml"), "--out", str(out), "-q", "--no-plots", "--duration", "0.2"]
-    result = CliRunner().invoke(app, [*args, "--sensing", "geometric", "--drive", "servo", "-m", "tpik"])
-    assert result.exit_code == 0, result.output
-    saved = tomllib.loads((out / "config.toml").read_text(encoding="utf-8"))
-    assert saved["scenario"]["drive"] == "servo"
-    bad = CliRunner().invoke(app, [*args, "--drive", "hydraulic"])
-    assert bad.exit_code == 2 and "drive" in bad.stderr and "Traceback" not in bad.output
+    assert saved["scenario"][option] == value and saved["scenario"]["sensing"] == "geometric"
+    rejected = CliRunner().invoke(app, [*args, f"--{option}", bad])
+    assert rejected.exit_code == 2 and option in rejected.stderr and "Traceback" not in rejected.output
 
 
 def test_a_drive_bandwidth_the_physics_step_cannot_integrate_is_a_config_error(tmp_path):

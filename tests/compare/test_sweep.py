@@ -42,6 +42,10 @@ def test_sweep_runs_four_seeds_then_skips_them(tmp_path):
     assert seeds == [0, 1, 2, 3]
     summary = json.loads((out / "sweep_summary.json").read_text())
     assert summary["runs"] == 4 and set(summary["methods"]) == {"tpik", "hqp-daqp"}
+    plant = {"sensing": "geometric", "simulation": "dynamic", "drive": "decoupled", "drive_bandwidth_rad_s": 100.0}
+    assert summary["campaign"]["plant"] == plant
+    report = (out / "sweep_report.md").read_text()
+    assert "- plant: dynamic simulation, decoupled joint drive (λ = 100 rad/s), geometric sensing" in report
     stamps = [(r / "summary.json").stat().st_mtime_ns for r in runs]
 
     again = CliRunner().invoke(app, args)
