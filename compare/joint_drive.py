@@ -65,6 +65,7 @@ class DecoupledVelocityDrive:
             )
         self.nq = nq
         self.bandwidth_rad_s = float(bandwidth_rad_s)
+        self._step_s = step  # h: the λ bound above was checked against it
         n = nq
         self._ctrl_lo = model.actuator_ctrlrange[:n, 0].copy()
         self._ctrl_hi = model.actuator_ctrlrange[:n, 1].copy()
@@ -97,7 +98,7 @@ class DecoupledVelocityDrive:
             data.qfrc_gravcomp,
             self._mass,
             self._damping,
-            model.opt.timestep,
+            self._step_s,
             self.bandwidth_rad_s,
             self._tau_max,
             out,
