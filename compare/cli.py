@@ -120,7 +120,7 @@ def run(
 def _print_summary(summary: dict[str, object], out_dir: Path) -> None:
     from rich.console import Console
 
-    from compare.report import summary_table
+    from compare.analysis.report import summary_table
 
     console = Console()
     if not console.is_terminal or console.width < 140:
@@ -152,8 +152,8 @@ def sweep(
     ] = None,
 ) -> None:
     """Run a randomized batch in parallel; finished runs are skipped when re-run (resumable)."""
+    from compare.campaign.sweep import run_sweep
     from compare.config import ConfigError, load_config
-    from compare.sweep import run_sweep
 
     try:
         cfg, text = load_config(config, _overrides(duration, time_scale, sensing or "geometric", simulation, drive))
@@ -182,7 +182,7 @@ def sweep(
 @app.command()
 def plot(results: Annotated[Path, typer.Argument(help="A run or sweep results directory.")]) -> None:
     """Draw the plots of a finished run (summary.json) or sweep (runs/)."""
-    from compare.plots import plot_campaign, plot_run, plot_sweep
+    from compare.analysis.plots import plot_campaign, plot_run, plot_sweep
 
     if (results / "summary.json").is_file():
         paths = plot_run(results)

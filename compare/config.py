@@ -45,7 +45,7 @@ class ScenarioConfig(_Strict):
             (closest points from the MuJoCo geometry; fast, for sweeps; labelled in results).
         simulation: ``dynamic`` (MuJoCo physics, joint drives with gravity compensation) or
             ``kinematic`` (q integrated from the command).
-        drive: Joint drive of ``dynamic`` simulation (:mod:`compare.joint_drive`): ``decoupled``
+        drive: Joint drive of ``dynamic`` simulation (:mod:`compare.loop.joint_drive`): ``decoupled``
             (inverse dynamics, every joint a first-order lag 1/λ) or ``servo`` (the MJCF's P-only
             velocity servos, coupled and slightly slow).
         drive_bandwidth_rad_s: λ of the ``decoupled`` drive [rad/s] (100: a 10 ms lag; at most
@@ -242,14 +242,14 @@ FaultKind = Literal[
     "solver_fail",
     "solver_timeout",
 ]
-"""Kinds of injected faults (``compare.faults`` documents each one)."""
+"""Kinds of injected faults (``compare.loop.faults`` documents each one)."""
 
 
 class FaultSpec(_Strict):
     """One injected fault, active on ``[start_s, end_s)`` (both scaled by ``scenario.time_scale``).
 
     Attributes:
-        kind: See :data:`FaultKind` and ``compare.faults``.
+        kind: See :data:`FaultKind` and ``compare.loop.faults``.
         start_s: Start [s].
         end_s: End [s] (exclusive); ``inf`` = until the end of the run.
         fraction: ``depth_nan`` / ``depth_zero`` / ``depth_dropout``: fraction of the pixels hit
@@ -283,7 +283,7 @@ class FaultSpec(_Strict):
 
 
 class FaultsConfig(_Strict):
-    """Faults injected identically into every method's run (``[faults]``, ``compare.faults``).
+    """Faults injected identically into every method's run (``[faults]``, ``compare.loop.faults``).
 
     Attributes:
         inject: The faults (``[[faults.inject]]`` tables); empty = a fault-free run.
@@ -295,7 +295,7 @@ class FaultsConfig(_Strict):
 
 
 class Iso15066Config(_Strict):
-    r"""Speed-and-separation margin of ISO/TS 15066:2016 clause 5.5.4 (``compare.iso15066``).
+    r"""Speed-and-separation margin of ISO/TS 15066:2016 clause 5.5.4 (``compare.analysis.iso15066``).
 
     .. math:: S_p = S_h + S_r + S_s + C + Z_d + Z_r,\quad S_h = v_h (T_r + T_s),\quad S_r = v_r T_r
 

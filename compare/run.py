@@ -12,16 +12,16 @@ import pandas as pd
 from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 
 import robots
-from compare import iso15066
+from compare.analysis import iso15066
+from compare.analysis.metrics import RunMeta, SetTaskInfo, compute_summary
+from compare.analysis.results import ResultsWriter
+from compare.campaign.random_scenario import realize
 from compare.config import Config
-from compare.faults import FaultInjector, unsafe_commands
-from compare.loop import LoopSettings, ObstacleSource, run_loop
+from compare.loop.closed_loop import LoopSettings, ObstacleSource, run_loop
+from compare.loop.faults import FaultInjector, unsafe_commands
+from compare.loop.simulation import build_simulation
+from compare.loop.waypoints import WaypointSchedule
 from compare.methods import make_method
-from compare.metrics import RunMeta, SetTaskInfo, compute_summary
-from compare.results import ResultsWriter
-from compare.scenarios import realize
-from compare.simulation import build_simulation
-from compare.waypoints import WaypointSchedule
 from tpik.hierarchy import Hierarchy
 from tpik.tasks import JointLimitTask, ObstacleDistanceTask, VirtualWallTask
 
@@ -74,7 +74,7 @@ def loop_setup(
 def write_plots(out_dir: Path) -> None:
     """Draw the run's plots; a plotting error is logged and never loses the results."""
     try:
-        from compare.plots import plot_run
+        from compare.analysis.plots import plot_run
 
         plot_run(Path(out_dir))
     except Exception as exc:  # plots must never lose the results

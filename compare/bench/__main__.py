@@ -23,7 +23,8 @@ from rich.console import Console
 from rich.table import Table
 
 from compare.bench.solvers import DEFAULT_METHODS, run_candidate_bench, run_solver_bench
-from compare.bench.timing import BenchRow, versions
+from compare.bench.timing import BenchRow
+from compare.versions import versions
 
 
 def _parser() -> argparse.ArgumentParser:

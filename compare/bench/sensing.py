@@ -28,7 +28,7 @@ import numpy as np  # noqa: E402
 from scipy.spatial import cKDTree  # noqa: E402
 
 import robots  # noqa: E402
-from compare.bench.timing import BenchRow, summarize, time_calls, versions  # noqa: E402
+from compare.bench.timing import BenchRow, summarize, time_calls  # noqa: E402
 from compare.sensing import (  # noqa: E402
     DepthPipeline,
     DepthSensingSettings,
@@ -41,6 +41,7 @@ from compare.sensing import (  # noqa: E402
     point_cloud,
     valid_fraction,
 )
+from compare.versions import versions  # noqa: E402
 
 CASE = "512x424-rho0.5"
 RHO_M = 0.5

@@ -2,11 +2,9 @@
 
 from __future__ import annotations
 
-import platform
 import time
 from collections.abc import Callable
 from dataclasses import asdict, dataclass
-from importlib import metadata
 
 import numpy as np
 
@@ -59,42 +57,3 @@ def summarize(name: str, case: str, samples_us: np.ndarray, **extra: float) -> B
         int(samples_us.size),
         {k: float(v) for k, v in extra.items()},
     )
-
-
-_VERSIONED = (
-    "tpik-compare",
-    "numpy",
-    "mujoco",
-    "pin",
-    "qpsolvers",
-    "mink",
-    "daqp",
-    "osqp",
-    "proxsuite",
-    "clarabel",
-    "piqp",
-    "quadprog",
-    "scipy",
-)
-
-
-def versions() -> dict[str, str]:
-    """Versions of the project and its numerical dependencies, plus Python and the CPU."""
-    out = {"python": platform.python_version(), "machine": platform.machine(), "cpu": _cpu_name()}
-    for dist in _VERSIONED:
-        try:
-            out["project" if dist == "tpik-compare" else dist] = metadata.version(dist)
-        except metadata.PackageNotFoundError:
-            continue
-    return out
-
-
-def _cpu_name() -> str:
-    try:
-        with open("/proc/cpuinfo", encoding="utf-8") as fh:
-            for line in fh:
-                if line.startswith("model name"):
-                    return line.split(":", 1)[1].strip()
-    except OSError:
-        pass
-    return platform.processor() or "unknown"

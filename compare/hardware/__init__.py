@@ -1,7 +1,7 @@
 """Hardware bridge: the same control loop on a real Jaco² and depth camera through ROS 1 (docs/hardware.md).
 
 * :mod:`compare.hardware.ros_io` — :class:`~compare.hardware.ros_io.RosRobotIO`, the ROS backend of
-  :class:`~compare.robot_io.RobotIO` (kinova-ros driver topics, depth camera, command stream, watchdog);
+  :class:`~compare.loop.robot_io.RobotIO` (kinova-ros driver topics, depth camera, command stream, watchdog);
 * :mod:`compare.hardware.safety` — velocity/acceleration clamps, watchdog, start-up checks (no ROS);
 * :mod:`compare.hardware.conversions` — units at the ROS boundary (deg/s, mm, quaternions; no ROS);
 * :mod:`compare.hardware.sensing` — depth-space obstacle distance on live frames;

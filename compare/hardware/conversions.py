@@ -14,7 +14,7 @@ from collections.abc import Sequence
 import numpy as np
 
 from compare.hardware.exceptions import HardwareError
-from compare.robot_io import CameraModel
+from compare.loop.robot_io import CameraModel
 
 DEG_PER_RAD = 180.0 / math.pi
 
@@ -49,7 +49,7 @@ def decode_depth(encoding: str, height: int, width: int, step: int, is_bigendian
     """A ``sensor_msgs/Image`` depth payload → depth [m], float32, shape (height, width).
 
     Invalid pixels (0 in 16UC1, NaN/±inf/≤0 in 32FC1) become 0 (no return), as in
-    :class:`~compare.robot_io.DepthFrame`. Row padding (``step`` > width × pixel size) is skipped.
+    :class:`~compare.loop.robot_io.DepthFrame`. Row padding (``step`` > width × pixel size) is skipped.
 
     Raises:
         HardwareError: unknown encoding or a payload of the wrong size.

@@ -1,11 +1,11 @@
-"""ROS 1 implementation of :class:`~compare.robot_io.RobotIO`: the kinova-ros driver and a depth camera.
+"""ROS 1 implementation of :class:`~compare.loop.robot_io.RobotIO`: the kinova-ros driver and a depth camera.
 
 Data flow (one process; rospy's receive threads fill the latest values, the control loop reads them):
 
 * ``hardware.joint_state_topic`` (``sensor_msgs/JointState``, rad) → :meth:`RosRobotIO.read_joints`;
   the 7 arm joints are picked by name, fingers are ignored;
 * ``hardware.depth_topic`` + ``hardware.camera_info_topic`` → :meth:`RosRobotIO.read_depth`, a
-  :class:`~compare.robot_io.DepthFrame` with the calibrated camera pose from the config;
+  :class:`~compare.loop.robot_io.DepthFrame` with the calibrated camera pose from the config;
 * :meth:`RosRobotIO.send_velocity` [rad/s] holds the command; the *command stream* thread
   publishes it on ``hardware.velocity_topic`` (``kinova_msgs/JointVelocity``, **deg/s**) on a
   fixed 100 Hz schedule, through the clamps and the :class:`~compare.hardware.safety.Watchdog`.
@@ -44,7 +44,7 @@ from compare.hardware.conversions import (
 from compare.hardware.exceptions import HardwareError, MasterUnreachable, StartRefused
 from compare.hardware.ros_env import RosApi, load_ros
 from compare.hardware.safety import CommandLimiter, Watchdog, WatchdogEvent
-from compare.robot_io import CameraModel, DepthFrame, JointReading, RobotIO
+from compare.loop.robot_io import CameraModel, DepthFrame, JointReading, RobotIO
 
 log = logging.getLogger(__name__)
 

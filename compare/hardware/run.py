@@ -7,11 +7,11 @@ Sequence (docs/hardware.md, "Safety behaviour"):
 2. connect to ROS, wait for joint states (and camera info + depth), check the joint state rate;
 3. take the first joint state (and a first depth update): refuse if any set-based task is
    outside its safety thresholds;
-4. run :func:`compare.loop.run_loop` — the same loop as in simulation — on a
+4. run :func:`compare.loop.closed_loop.run_loop` — the same loop as in simulation — on a
    :class:`~compare.hardware.ros_io.RosRobotIO`;
 5. whatever happens (end, Ctrl-C, SIGTERM, an exception): stream zero velocity, shut down;
-6. write ``summary.json`` + per-step table (the same :class:`~compare.results.ResultsWriter` and
-   :func:`~compare.metrics.compute_summary`), and the plots.
+6. write ``summary.json`` + per-step table (the same :class:`~compare.analysis.results.ResultsWriter` and
+   :func:`~compare.analysis.metrics.compute_summary`), and the plots.
 
 On hardware there is no ground truth: obstacle metrics use the measured distances, and the
 summary says so (``obstacle_distance_source``).
@@ -34,7 +34,7 @@ from compare.config import Config
 from compare.hardware.exceptions import StartRefused
 from compare.hardware.ros_io import RosRobotIO
 from compare.hardware.safety import start_problems
-from compare.loop import CONTROL_POINTS, ObstacleSource, run_loop
+from compare.loop.closed_loop import CONTROL_POINTS, ObstacleSource, run_loop
 from compare.methods import make_method
 from tpik.hierarchy import Hierarchy
 from tpik.tasks import ObstacleDistanceTask
@@ -157,8 +157,8 @@ def run_hardware(
         MasterUnreachable: no ROS master.
         RosUnavailable: ROS 1 not installed.
     """
-    from compare.metrics import RunMeta, compute_summary
-    from compare.results import ResultsWriter
+    from compare.analysis.metrics import RunMeta, compute_summary
+    from compare.analysis.results import ResultsWriter
     from compare.run import loop_setup, set_task_infos, write_plots
 
     robot = robots.load("jaco2")

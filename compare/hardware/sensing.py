@@ -28,7 +28,7 @@ import numpy as np
 
 from compare.config import Config
 from compare.hardware.exceptions import HardwareError
-from compare.robot_io import CameraModel, DepthFrame
+from compare.loop.robot_io import CameraModel, DepthFrame
 from compare.sensing.camera import valid_fraction
 from compare.sensing.depth_distance import DepthDistance
 from compare.sensing.pipeline import DepthSensingSettings
@@ -58,7 +58,7 @@ def make_self_filter(robot: Robot, camera: CameraModel, settings: DepthSensingSe
 
 
 class HardwareDepthSensing:
-    """An :class:`~compare.loop.ObstacleSource` on live depth frames.
+    """An :class:`~compare.loop.closed_loop.ObstacleSource` on live depth frames.
 
     Args:
         robot: The arm model (its visual geoms are what the self-filter removes).

@@ -7,7 +7,7 @@ tested end to end without hardware::
 
 * subscribes to ``hardware.velocity_topic`` (``kinova_msgs/JointVelocity``, **deg/s**); a command
   is held for ``--hold-s`` (the real arm stops when the stream stops);
-* steps the simulation (:class:`~compare.sim_io.SimRobotIO`, the scenario's scene with the scripted
+* steps the simulation (:class:`~compare.loop.sim_io.SimRobotIO`, the scenario's scene with the scripted
   person) in real time and publishes ``hardware.joint_state_topic`` (``sensor_msgs/JointState``,
   rad, the driver's 13 names: 7 arm joints, 3 fingers, 3 finger tips) at ``hardware.state_rate_hz``;
 * renders the depth camera (robot included, as a real sensor sees it) and publishes
@@ -42,6 +42,7 @@ import numpy as np
 os.environ.setdefault("MUJOCO_GL", "egl")
 
 import robots  # noqa: E402
+from compare.campaign.random_scenario import realize  # noqa: E402
 from compare.config import Config, ConfigError, load_config  # noqa: E402
 from compare.hardware.conversions import (  # noqa: E402
     deg_s_to_rad_s,
@@ -50,9 +51,8 @@ from compare.hardware.conversions import (  # noqa: E402
 )
 from compare.hardware.ros_env import RosApi, load_ros  # noqa: E402
 from compare.hardware.ros_io import init_node, master_online  # noqa: E402
-from compare.robot_io import CameraModel, DepthFrame  # noqa: E402
-from compare.scenarios import realize  # noqa: E402
-from compare.sim_io import SimRobotIO  # noqa: E402
+from compare.loop.robot_io import CameraModel, DepthFrame  # noqa: E402
+from compare.loop.sim_io import SimRobotIO  # noqa: E402
 
 log = logging.getLogger("compare.hardware.standin")
 
@@ -81,7 +81,7 @@ class World:
 
 def build_world(config: Config, robot: robots.Robot) -> World:
     """The scenario's simulation (scene, scripted person, raw depth camera) for the stand-in."""
-    from compare.simulation import build_simulation
+    from compare.loop.simulation import build_simulation
 
     sc = config.scenario
     q0 = np.array(sc.start_q) if sc.start_q is not None else robot.home.copy()

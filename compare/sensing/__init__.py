@@ -4,7 +4,7 @@ Scene: ``robots/kinova_j2s7s300/scene_workcell.xml`` (arm on its table, Kinect-v
 camera, capsule person on mocap bodies). Two sensing modes with one result type
 (:class:`DistanceResult` holding an :class:`ObstacleReading` per control point):
 
-* **depth**: :class:`DepthPipeline` renders a :class:`~compare.robot_io.DepthFrame`
+* **depth**: :class:`DepthPipeline` renders a :class:`~compare.loop.robot_io.DepthFrame`
   (:class:`DepthCamera`, noise and dropout), removes the static scene
   (:class:`StaticBackground`) and the arm (:class:`SelfFilter`), and computes the
   depth-space distance of each control point (:class:`DepthDistance`, Flacco et al.);
@@ -30,8 +30,8 @@ Example (headless: ``MUJOCO_GL=egl``)::
     exact = GeometricDistance(model).compute(data, points)
     depth.close()
 
-In the closed loop (``compare.simulation``): ``person.apply`` is the ``scene_update`` of
-``compare.sim_io.SimRobotIO``, ``DepthPipeline.render`` its ``depth_camera``,
+In the closed loop (``compare.loop.simulation``): ``person.apply`` is the ``scene_update`` of
+``compare.loop.sim_io.SimRobotIO``, ``DepthPipeline.render`` its ``depth_camera``,
 ``DepthPipeline.source(io.read_depth)`` or ``GeometricObstacleSource`` the loop's obstacle
 source, and ``truth_function(model, io.data)`` its ground truth.
 """

@@ -21,7 +21,7 @@ from dataclasses import dataclass
 import mujoco
 import numpy as np
 
-from compare.robot_io import CameraModel, DepthFrame
+from compare.loop.robot_io import CameraModel, DepthFrame
 from compare.sensing.exceptions import SensingError, UnknownSceneElement
 
 DEFAULT_RANGE_M = (0.5, 4.5)

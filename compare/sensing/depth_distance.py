@@ -40,7 +40,7 @@ from collections.abc import Mapping
 
 import numpy as np
 
-from compare.robot_io import CameraModel, DepthFrame
+from compare.loop.robot_io import CameraModel, DepthFrame
 from compare.sensing._kernels import closest_in_boxes, surveillance_boxes
 from compare.sensing.camera import base_to_sensor, normalized_coordinates, sensor_to_base, valid_fraction
 from compare.sensing.exceptions import SensingError

@@ -342,7 +342,7 @@ class Person:
         Call before ``mj_step`` (or follow with ``mj_kinematics``/``mj_forward``). Cheap: a
         pose already written while the person stands still is not rewritten, and a moving
         pose costs ~20 µs. Usable as the ``scene_update(t, data)`` callback of
-        :class:`compare.sim_io.SimRobotIO`.
+        :class:`compare.loop.sim_io.SimRobotIO`.
         """
         if self._keys:
             k, alpha = self._segment(t)

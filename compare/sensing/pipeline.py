@@ -1,7 +1,7 @@
 """The sensing pipelines the loop uses: depth (render → filter → distance) and geometric.
 
 Both produce :class:`~compare.sensing.results.DistanceResult` and both offer an
-``update(t, kin)`` source matching ``compare.loop.ObstacleSource``.
+``update(t, kin)`` source matching ``compare.loop.closed_loop.ObstacleSource``.
 """
 
 from __future__ import annotations
@@ -14,7 +14,7 @@ from typing import Any
 import mujoco
 import numpy as np
 
-from compare.robot_io import DepthFrame
+from compare.loop.robot_io import DepthFrame
 from compare.sensing.camera import DepthNoise, valid_fraction
 from compare.sensing.depth_distance import DepthDistance
 from compare.sensing.geometric_distance import GeometricDistance
@@ -158,7 +158,7 @@ def _blind(frames: Iterable[str], t: float) -> DistanceResult:
 
 
 class DepthObstacleSource:
-    """``compare.loop.ObstacleSource`` in depth mode.
+    """``compare.loop.closed_loop.ObstacleSource`` in depth mode.
 
     Each update takes the latest frame from ``read_frame``, removes the arm at the current
     joint positions ``kin.q`` (in simulation the frame was rendered in the same control step),
@@ -197,7 +197,7 @@ class DepthObstacleSource:
 
 
 class GeometricObstacleSource:
-    """``compare.loop.ObstacleSource`` in geometric mode: exact distances to the person's capsules.
+    """``compare.loop.closed_loop.ObstacleSource`` in geometric mode: exact distances to the person's capsules.
 
     Args:
         distance: The geometric distance (its ρ decides "in range").
@@ -220,7 +220,7 @@ class GeometricObstacleSource:
 def truth_function(
     model: mujoco.MjModel, data: mujoco.MjData, frames: Iterable[str] = CONTROL_POINTS
 ) -> Callable[[Kinematics], dict[str, float]]:
-    """``truth(kin)`` for ``compare.loop.run_loop``: true distance per control point [m] (no ρ cut)."""
+    """``truth(kin)`` for ``compare.loop.closed_loop.run_loop``: true distance per control point [m] (no ρ cut)."""
     geometric = GeometricDistance(model, rho_m=math.inf)
     names = tuple(frames)
 

@@ -21,7 +21,7 @@ from __future__ import annotations
 import mujoco
 import numpy as np
 
-from compare.robot_io import CameraModel, DepthFrame
+from compare.loop.robot_io import CameraModel, DepthFrame
 from compare.sensing.camera import DepthNoise, camera_id, camera_model_from_mujoco
 from compare.sensing.exceptions import SensingError
 

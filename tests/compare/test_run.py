@@ -15,7 +15,7 @@ import pytest
 from typer.testing import CliRunner
 
 from compare.cli import app
-from tests.compare.test_metrics import REQUIRED_KEYS
+from tests.compare.analysis.test_metrics import REQUIRED_KEYS
 
 CONFIGS = Path(__file__).resolve().parents[2] / "configs"
 SAFETY_TOL = {"joint_limits": 2e-3, "walls": 2e-3}

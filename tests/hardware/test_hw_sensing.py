@@ -20,7 +20,7 @@ from compare.hardware.sensing import (
     save_background,
     static_background,
 )
-from compare.robot_io import DepthFrame
+from compare.loop.robot_io import DepthFrame
 
 pytestmark = [
     pytest.mark.rendering,

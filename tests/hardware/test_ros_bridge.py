@@ -78,7 +78,7 @@ def _stop(proc: Proc, record: Path) -> dict[str, Any]:
 
 def _measured_safety(steps: Any, summary: dict[str, Any]) -> dict[str, Any]:
     """The simulation's metrics recomputed from measured distances only, as on the hardware path."""
-    from compare.metrics import RunMeta, compute_summary, set_tasks_from_summary
+    from compare.analysis.metrics import RunMeta, compute_summary, set_tasks_from_summary
 
     steps = steps.drop(columns=[c for c in steps.columns if c.startswith(("truth:", "dist_true:"))])
     meta = RunMeta("case1", 0, "tpik", summary["dt"], summary["sim_time_s"], summary["wall_time_s"], "depth",
@@ -138,7 +138,7 @@ def test_case1_via_stand_in_is_as_safe_as_in_simulation_at_the_expected_rates(ro
         env=ros_env, cwd=ROOT, capture_output=True, text=True, timeout=TIMEOUT_S,
     )  # fmt: skip
     assert sim_res.returncode == 0, sim_res.stderr[-3000:]
-    from compare.results import load_steps
+    from compare.analysis.results import load_steps
 
     sim = read_json(sim_out / "summary.json")["methods"]["tpik"]
     sim_measured = _measured_safety(load_steps(sim_out, "tpik"), sim)  # the hardware path has no ground truth

@@ -10,11 +10,11 @@ import pytest
 from matplotlib.image import imread
 from rich.console import Console
 
-from compare.metrics import compute_summary
-from compare.plots import plot_run, plot_sweep, wall_axis
-from compare.report import render_report, summary_table
-from compare.results import ResultsWriter, load_summary, sweep_run_dir
-from tests.compare.test_metrics import WALL_X_MAX, make_meta, make_steps
+from compare.analysis.metrics import compute_summary
+from compare.analysis.plots import plot_run, plot_sweep, wall_axis
+from compare.analysis.report import render_report, summary_table
+from compare.analysis.results import ResultsWriter, load_summary, sweep_run_dir
+from tests.compare.analysis.test_metrics import WALL_X_MAX, make_meta, make_steps
 
 MIN_PNG_BYTES = 8_000
 

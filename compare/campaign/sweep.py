@@ -2,7 +2,7 @@
 
 ``run_sweep`` runs seeds ``seed .. seed + n − 1``; a run whose ``summary.json`` already holds
 every method is skipped, so an interrupted campaign is resumed by running the same command
-again. The executor (:mod:`compare.executors`) only decides *where* a run executes: the same
+again. The executor (:mod:`compare.campaign.executors`) only decides *where* a run executes: the same
 seed gives the same results on either.
 
 Afterwards the sweep directory holds ``runs/<index>/`` (one run each), ``sweep_runs.csv`` (one
@@ -21,9 +21,7 @@ from typing import Any
 
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
 
-from compare.config import Config, parse_config
-from compare.executors import Job, SweepExecutor, make_executor
-from compare.results import (
+from compare.analysis.results import (
     SWEEP_SUMMARY_FILE,
     collect_sweep,
     is_finished,
@@ -31,6 +29,8 @@ from compare.results import (
     write_json_atomic,
     write_sweep_summary,
 )
+from compare.campaign.executors import Job, SweepExecutor, make_executor
+from compare.config import Config, parse_config
 
 log = logging.getLogger(__name__)
 
@@ -84,7 +84,7 @@ def run_sweep(
         n: Number of runs.
         workers: Local worker processes, or CPUs of the local Ray instance.
         methods: Methods to run instead of the config's.
-        executor: ``local`` (default), ``ray``, or a :class:`~compare.executors.SweepExecutor`.
+        executor: ``local`` (default), ``ray``, or a :class:`~compare.campaign.executors.SweepExecutor`.
         address: Ray cluster address (``--address``); None = a local Ray instance.
         progress: Show a progress bar.
         report: Write the plots and ``sweep_report.md`` at the end.
@@ -94,7 +94,7 @@ def run_sweep(
         The sweep summary written to ``out_dir/sweep_summary.json``.
 
     Raises:
-        compare.executors.ExecutorUnavailable: The executor cannot run here.
+        compare.campaign.executors.ExecutorUnavailable: The executor cannot run here.
     """
     out_dir.mkdir(parents=True, exist_ok=True)
     (out_dir / "config.toml").write_text(config_text, encoding="utf-8")
@@ -133,14 +133,14 @@ def run_sweep(
     write_json_atomic(out_dir / SWEEP_SUMMARY_FILE, summary)
     if report:
         try:
-            from compare.plots import plot_campaign, plot_sweep
+            from compare.analysis.plots import plot_campaign, plot_sweep
 
             plot_sweep(out_dir)
             plot_campaign(out_dir)
         except Exception as exc:  # plots must never lose the results
             log.warning("sweep plots failed: %s", exc)
         try:
-            from compare.report import render_sweep_report
+            from compare.analysis.report import render_sweep_report
 
             render_sweep_report(out_dir)
         except Exception as exc:

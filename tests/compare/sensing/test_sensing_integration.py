@@ -21,7 +21,7 @@ from compare.sensing import (
 
 @pytest.mark.rendering
 def test_person_steps_in_and_out_of_range_through_sim_io(jaco):
-    from compare.sim_io import SimRobotIO
+    from compare.loop.sim_io import SimRobotIO
 
     model = load_workcell()
     # Stands 1.35 m away, steps in with the right hand raised at t = 0.3 s, leaves at t = 0.9 s.

@@ -1,6 +1,6 @@
-"""MuJoCo implementation of :class:`~compare.robot_io.RobotIO`.
+"""MuJoCo implementation of :class:`~compare.loop.robot_io.RobotIO`.
 
-``dynamic`` mode: a joint drive (:mod:`compare.joint_drive`: the inverse-dynamics ``decoupled``
+``dynamic`` mode: a joint drive (:mod:`compare.loop.joint_drive`: the inverse-dynamics ``decoupled``
 drive, or the MJCF's own velocity servos, ``servo``) tracks the command while MuJoCo integrates
 the dynamics, with passive gravity compensation. ``kinematic`` mode: q ← q + q̇·dt exactly, then
 forward kinematics (the pure-kinematics setting the solvers are analysed in).
@@ -14,8 +14,8 @@ from collections.abc import Callable
 import mujoco
 import numpy as np
 
-from compare.joint_drive import DecoupledVelocityDrive, DriveKind
-from compare.robot_io import DepthFrame, JointReading, RobotIO
+from compare.loop.joint_drive import DecoupledVelocityDrive, DriveKind
+from compare.loop.robot_io import DepthFrame, JointReading, RobotIO
 
 
 class SimRobotIO(RobotIO):
@@ -35,7 +35,7 @@ class SimRobotIO(RobotIO):
             ``depth_period_s`` and only when :meth:`read_depth` asks for a newer frame.
         depth_period_s: Camera frame period [s] (1/30 s).
         drive: Joint drive in ``dynamic`` mode: ``decoupled`` or ``servo``
-            (:mod:`compare.joint_drive`).
+            (:mod:`compare.loop.joint_drive`).
         drive_bandwidth_rad_s: λ of the ``decoupled`` drive [rad/s].
 
     Raises:

@@ -16,15 +16,14 @@ import pytest
 from typer.testing import CliRunner
 
 import robots
+from compare.analysis.results import deterministic_view, load_summary, sweep_run_dir
+from compare.campaign.random_scenario import _wall_box, realize
+from compare.campaign.sweep import run_sweep
 from compare.cli import app
 from compare.config import load_config
-from compare.results import deterministic_view, load_summary, sweep_run_dir
 from compare.run import run_method
-from compare.scenarios import realize
-from compare.scenarios.random_scenario import _wall_box
-from compare.sweep import run_sweep
 
-CONFIGS = Path(__file__).resolve().parents[2] / "configs"
+CONFIGS = Path(__file__).resolve().parents[3] / "configs"
 SAFETY_TOL = {"joint_limits": 2e-3, "walls": 2e-3}  # as tests/compare/test_run.py
 SAFE_METHODS = ["tpik", "hqp-daqp"]
 HAVE_RAY = importlib.util.find_spec("ray") is not None
@@ -187,7 +186,7 @@ def test_campaign_worst_seeds_stay_inside_their_thresholds(seed, method, duratio
     Seeds 610 (hqp-daqp) and 132 (tpik) are the servo drive's deepest wall overshoots left
     after that: the EE slides along a held wall at the velocity limits and the P servos' coupling
     drift pushes it 4.5 mm (14.34 s) and 1.5 mm (7.1 s) past the threshold. The decoupled drive
-    (compare/joint_drive.py, the default) tracks the command without that drift.
+    (compare/loop/joint_drive.py, the default) tracks the command without that drift.
     """
     overrides = {"scenario.seed": seed, "scenario.duration_s": duration_s, "scenario.drive": drive}
     config, _ = load_config(CONFIGS / "random.toml", overrides)

@@ -9,7 +9,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from compare.metrics import (
+from compare.analysis.metrics import (
     MetricsError,
     RunMeta,
     SetTaskInfo,

@@ -27,17 +27,17 @@ column                     unit     meaning
 ``reason``                 str      why the command was replaced: ``sensing: <why>`` (safe stop)
                                     and/or ``fallback: <why>``; empty otherwise
 ``fault:K``                bool     injected fault of kind ``K`` altered this step's data
-                                    (``compare.faults``; only with ``[faults]``)
+                                    (``compare.loop.faults``; only with ``[faults]``)
 ``iso_margin_m:F``         m        ISO/TS 15066 margin d − S_p of control point ``F``
-                                    (``compare.iso15066``; NaN: nothing within range)
+                                    (``compare.analysis.iso15066``; NaN: nothing within range)
 ``iso_sp_m:F``             m        protective separation distance S_p
 ``iso_vh_mps:F``           m/s      estimated human speed toward ``F``
 ``iso_vr_mps:F``           m/s      speed of ``F`` toward the person
 ========================== ======== ===========================================================
 
 ``compare.run.run_method`` adds per method ``faults`` (per fault kind: injected steps,
-reaction, latencies; :meth:`compare.faults.FaultInjector.summarize`), ``unsafe_commands``
-and ``iso15066`` (:func:`compare.iso15066.summarize`) to the summary.
+reaction, latencies; :meth:`compare.loop.faults.FaultInjector.summarize`), ``unsafe_commands``
+and ``iso15066`` (:func:`compare.analysis.iso15066.summarize`) to the summary.
 
 Margins are signed, in the task's unit, positive inside the allowed set:
 

@@ -8,7 +8,7 @@ import mujoco
 import numpy as np
 import pytest
 
-from compare.robot_io import DepthFrame
+from compare.loop.robot_io import DepthFrame
 from compare.sensing import (
     CONTROL_POINTS,
     PERSON_GROUP,

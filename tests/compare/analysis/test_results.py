@@ -10,8 +10,8 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from compare.metrics import compute_summary
-from compare.results import (
+from compare.analysis.metrics import compute_summary
+from compare.analysis.results import (
     ResultsWriter,
     collect_sweep,
     is_finished,
@@ -21,7 +21,7 @@ from compare.results import (
     write_json_atomic,
     write_sweep_summary,
 )
-from tests.compare.test_metrics import REQUIRED_KEYS, make_meta, make_steps
+from tests.compare.analysis.test_metrics import REQUIRED_KEYS, make_meta, make_steps
 
 
 def _method_result(
@@ -99,7 +99,7 @@ def test_a_crash_during_a_rewrite_leaves_the_previous_summary(tmp_path, monkeypa
     def boom(*args, **kwargs):
         raise OSError("disk full")
 
-    monkeypatch.setattr("compare.results.os.replace", boom)
+    monkeypatch.setattr("compare.analysis.results.os.replace", boom)
     with pytest.raises(OSError, match="disk full"):
         writer.add_error("mink", "crash")
     assert set(load_summary(tmp_path)["methods"]) == {"tpik"}

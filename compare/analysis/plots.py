@@ -4,7 +4,7 @@ Everything is drawn on :class:`matplotlib.figure.Figure` objects with the Agg ca
 ``pyplot``: no display, no global backend switch, safe in worker processes. Files are PNG
 under ``<results>/plots/``.
 
-Thresholds come from the ``set_tasks`` list that :func:`compare.metrics.compute_summary`
+Thresholds come from the ``set_tasks`` list that :func:`compare.analysis.metrics.compute_summary`
 stores in each method's entry of ``summary.json``.
 """
 
@@ -23,8 +23,8 @@ from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 from matplotlib.ticker import FuncFormatter, LogLocator, NullFormatter
 
-from compare.metrics import GROUPS, VIOLATION_TOLERANCE, SetTaskInfo, set_tasks_from_summary
-from compare.results import RUNS_DIR, collect_sweep, load_steps, load_summary, safe_name, summarize_sweep_rows
+from compare.analysis.metrics import GROUPS, VIOLATION_TOLERANCE, SetTaskInfo, set_tasks_from_summary
+from compare.analysis.results import RUNS_DIR, collect_sweep, load_steps, load_summary, safe_name, summarize_sweep_rows
 
 log = logging.getLogger(__name__)
 
@@ -247,7 +247,7 @@ def plot_ee_walls(steps: pd.DataFrame, method: str, wall_tasks: Sequence[SetTask
 
 
 def plot_iso15066(steps: pd.DataFrame, method: str, control_points: Sequence[str], path: Path) -> Path | None:
-    """ISO/TS 15066 speed-and-separation margin per control point (``compare.iso15066``).
+    """ISO/TS 15066 speed-and-separation margin per control point (``compare.analysis.iso15066``).
 
     Top: margin d − S_p [m] per control point, 0 in red, time below zero shaded. Bottom: the
     estimated human speed v_h and the robot's speed toward the person v_r [m/s]. None when the

@@ -6,17 +6,17 @@ A run directory holds::
     summary.json             {"scenario", "seed", "sim_time_s", "versions", "methods": {...},
                               "errors": {...} (only if a method failed)}
     steps/<method>.parquet   per-step table (``steps/<method>.csv`` if Parquet is unavailable)
-    plots/*.png              written by :mod:`compare.plots`
-    report.md                written by :mod:`compare.report`
+    plots/*.png              written by :mod:`compare.analysis.plots`
+    report.md                written by :mod:`compare.analysis.report`
 
 ``summary.json`` is rewritten atomically after every method, so a crash leaves the methods
 finished so far intact. Each method entry is the output of
-:func:`compare.metrics.compute_summary`; its ``set_tasks`` list holds the thresholds of every
+:func:`compare.analysis.metrics.compute_summary`; its ``set_tasks`` list holds the thresholds of every
 set task (infinite bounds as ``null``), which the plots read.
 
 A sweep directory holds ``runs/<index:05d>/`` run directories, ``sweep_runs.csv`` (one row per
 run and method), ``sweep_summary.json`` (per-method aggregates), ``plots/`` and
-``sweep_report.md`` (:func:`compare.report.render_sweep_report`).
+``sweep_report.md`` (:func:`compare.analysis.report.render_sweep_report`).
 """
 
 from __future__ import annotations
@@ -36,8 +36,8 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from compare.bench.timing import versions
-from compare.metrics import GROUPS, to_jsonable
+from compare.analysis.metrics import GROUPS, to_jsonable
+from compare.versions import versions
 
 log = logging.getLogger(__name__)
 
@@ -79,7 +79,7 @@ def write_json_atomic(path: Path, data: Any) -> None:
     """Write ``data`` as JSON to ``path`` through a temporary file and :func:`os.replace`.
 
     Readers never see a half-written file. NaN/inf are refused (encode them as ``None`` first,
-    see :func:`compare.metrics.to_jsonable`).
+    see :func:`compare.analysis.metrics.to_jsonable`).
     """
     path = Path(path)
     text = json.dumps(data, indent=2, allow_nan=False)
@@ -141,7 +141,7 @@ class ResultsWriter:
 
         Args:
             name: Method key (``tpik``, ``hqp-daqp``, ``mink``, ...).
-            summary: Output of :func:`compare.metrics.compute_summary` (extra keys allowed).
+            summary: Output of :func:`compare.analysis.metrics.compute_summary` (extra keys allowed).
             steps: Per-step table.
 
         Returns:

@@ -8,19 +8,19 @@ import numpy as np
 import pytest
 
 import robots
-from compare.config import ConfigError, Iso15066Config, load_config, parse_config
-from compare.iso15066 import (
+from compare.analysis.iso15066 import (
     IsoParameters,
     SeparationMonitor,
     protective_separation_distance,
     separation_margin,
     separation_terms,
 )
+from compare.config import ConfigError, Iso15066Config, load_config, parse_config
 from compare.run import run_method
 from compare.sensing.results import DistanceResult, ObstacleReading
 from compare.sensing.scene import control_point_positions
 
-CONFIGS = Path(__file__).resolve().parents[2] / "configs"
+CONFIGS = Path(__file__).resolve().parents[3] / "configs"
 DEFAULTS = IsoParameters()  # T_r 0.1 s, T_s 0.2 s, S_s = v_r T_s / 2, C 0, Z_d 0.02 m, Z_r 0.01 m
 
 

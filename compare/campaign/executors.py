@@ -2,7 +2,7 @@
 
 Both executors run the same function on the same (config, seed) jobs, so a run's
 ``summary.json`` is the same whichever executed it (timings aside: see
-:data:`compare.results.TIMING_KEYS`).
+:data:`compare.analysis.results.TIMING_KEYS`).
 
 * :class:`LocalExecutor`: a :class:`concurrent.futures.ProcessPoolExecutor`; each worker writes
   its run directory directly.

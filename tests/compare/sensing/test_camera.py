@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from compare.robot_io import DepthFrame
+from compare.loop.robot_io import DepthFrame
 from compare.sensing import (
     DepthCamera,
     DepthNoise,

@@ -2,7 +2,7 @@
 
 One control step (period ``dt``, 100 Hz in the paper):
 
-1. read the joint state from the :class:`~compare.robot_io.RobotIO`;
+1. read the joint state from the :class:`~compare.loop.robot_io.RobotIO`;
 2. at the sensing rate (30 Hz), update the closest obstacle point of each control point
    from the obstacle source; between updates the latest estimate is used;
 3. advance the waypoint schedule and set the EE target;
@@ -35,8 +35,8 @@ from typing import Protocol
 import numpy as np
 import pandas as pd
 
-from compare.robot_io import RobotIO
-from compare.waypoints import WaypointSchedule
+from compare.loop.robot_io import RobotIO
+from compare.loop.waypoints import WaypointSchedule
 from robots import Kinematics, Robot
 from tpik.hierarchy import Hierarchy
 from tpik.step_result import IkSolver, SolveStatus
@@ -102,7 +102,7 @@ class LoopOutput:
     """What one run of the loop produced.
 
     Attributes:
-        steps: Per-step table (columns documented in :mod:`compare.metrics`).
+        steps: Per-step table (columns documented in :mod:`compare.analysis.metrics`).
         wall_time_s: Wall-clock time of the loop [s].
         sim_time_s: Time covered on the backend's clock [s].
         events: Log lines of safety reactions (fallbacks, blind sensing).

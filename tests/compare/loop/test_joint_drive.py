@@ -1,4 +1,4 @@
-"""The decoupled joint drive (compare/joint_drive.py) against its equation and against the servos.
+"""The decoupled joint drive (compare/loop/joint_drive.py) against its equation and against the servos.
 
 τ = M(q) λ (q̇_c − q̇) + c(q, q̇) + D q̇ is checked term by term against pinocchio (an independent
 implementation of M and c); the closed-loop properties it exists for — one first-order lag per
@@ -14,8 +14,8 @@ import pinocchio as pin
 import pytest
 
 import robots
-from compare.joint_drive import MAX_BANDWIDTH_TIMESTEP, DecoupledVelocityDrive
-from compare.sim_io import SimRobotIO
+from compare.loop.joint_drive import MAX_BANDWIDTH_TIMESTEP, DecoupledVelocityDrive
+from compare.loop.sim_io import SimRobotIO
 from tests.conftest import random_configuration
 
 DT = 0.01  # control period [s]

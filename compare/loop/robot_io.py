@@ -1,6 +1,6 @@
 """The robot-and-sensor interface of the control loop, implemented by the simulator and by ROS.
 
-The closed loop (``compare.loop``) only talks to a :class:`RobotIO`: it reads the latest
+The closed loop (``compare.loop.closed_loop``) only talks to a :class:`RobotIO`: it reads the latest
 joint state and depth frame, sends a joint velocity, and waits for the next control period.
 The MuJoCo simulation steps physics in :meth:`RobotIO.wait`; a hardware backend sleeps
 until the next tick of its real clock.

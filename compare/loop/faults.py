@@ -1,6 +1,6 @@
 r"""Fault injection from config (``[faults]``), identical for every method, as wrappers.
 
-The closed loop (:func:`compare.loop.run_loop`) stays one loop: faults are injected by wrapping
+The closed loop (:func:`compare.loop.closed_loop.run_loop`) stays one loop: faults are injected by wrapping
 what it talks to, and every method of a run gets wrappers built from the same specs and seeds,
 so each sees the same faults at the same times.
 
@@ -55,8 +55,8 @@ import numpy as np
 import pandas as pd
 
 from compare.config import FaultsConfig, FaultSpec
-from compare.loop import DistanceResultLike, ObstacleSource
-from compare.robot_io import DepthFrame, JointReading, RobotIO
+from compare.loop.closed_loop import DistanceResultLike, ObstacleSource
+from compare.loop.robot_io import DepthFrame, JointReading, RobotIO
 from compare.sensing.results import DistanceResult, ObstacleReading
 from robots import Kinematics
 from tpik.hierarchy import Hierarchy

@@ -52,7 +52,7 @@ import numpy as np
 import pandas as pd
 
 from compare.config import Iso15066Config
-from compare.loop import CONTROL_POINTS, DistanceResultLike, ObstacleSource, sensing_problem
+from compare.loop.closed_loop import CONTROL_POINTS, DistanceResultLike, ObstacleSource, sensing_problem
 from compare.sensing.scene import control_point_positions
 from robots import Kinematics, Robot
 
@@ -166,7 +166,7 @@ class _Update:
 
 @dataclass
 class SeparationMonitor:
-    """An :class:`~compare.loop.ObstacleSource` wrapper that records what the controller senses.
+    """An :class:`~compare.loop.closed_loop.ObstacleSource` wrapper that records what the controller senses.
 
     Sits between the (possibly faulty) source and the loop; every update is passed through
     unchanged and logged with the control point positions, and :meth:`margins` turns the log and

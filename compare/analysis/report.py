@@ -1,6 +1,6 @@
 """Human-readable views of a run: a rich table for the terminal and a Markdown report.
 
-Both read only ``summary.json`` (DESIGN §7); the report links the PNGs of :mod:`compare.plots`.
+Both read only ``summary.json`` (DESIGN §7); the report links the PNGs of :mod:`compare.analysis.plots`.
 """
 
 from __future__ import annotations
@@ -14,11 +14,11 @@ from typing import Any
 from rich.table import Table
 from rich.text import Text
 
-from compare.metrics import GROUPS
-from compare.results import load_summary
+from compare.analysis.metrics import GROUPS
+from compare.analysis.results import load_summary
 
 REPORT_FILE = "report.md"
-PLOTS_DIR = "plots"  # as compare.plots.PLOTS_DIR; not imported to keep matplotlib out of the CLI table
+PLOTS_DIR = "plots"  # as compare.analysis.plots.PLOTS_DIR; not imported to keep matplotlib out of the CLI table
 
 _HEADERS: tuple[tuple[str, str], ...] = (
     ("method", "left"),
@@ -292,7 +292,7 @@ def render_sweep_report(sweep_dir: Path, command: str | None = None) -> Path:
         "",
         "ISO margin: measured separation minus the protective separation distance S_p of ISO/TS 15066 clause"
         " 5.5.4 (formula (1)), with the human speed estimated from the sensing; negative = the arm could not stop"
-        " before contact if the person kept coming (compare/iso15066.py).",
+        " before contact if the person kept coming (compare/analysis/iso15066.py).",
     ]
     failed = summary.get("failed_runs") or []
     if failed:

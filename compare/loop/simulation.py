@@ -13,7 +13,8 @@ import numpy as np
 
 import robots
 from compare.config import Config
-from compare.loop import ObstacleSource
+from compare.loop.closed_loop import ObstacleSource
+from compare.loop.sim_io import SimRobotIO
 from compare.sensing.geometric_distance import GeometricDistance
 from compare.sensing.person import Person
 from compare.sensing.pipeline import (
@@ -23,12 +24,11 @@ from compare.sensing.pipeline import (
     truth_function,
 )
 from compare.sensing.scene import load_workcell
-from compare.sim_io import SimRobotIO
 
 
 @dataclass
 class Simulation:
-    """Everything :func:`compare.loop.run_loop` needs for one simulated run.
+    """Everything :func:`compare.loop.closed_loop.run_loop` needs for one simulated run.
 
     Attributes:
         io: The MuJoCo RobotIO (owns ``model``/``data``).

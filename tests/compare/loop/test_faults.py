@@ -15,12 +15,12 @@ import pytest
 
 import robots
 from compare.config import ConfigError, load_config, parse_config
-from compare.faults import FRAME_KINDS, FaultInjector
-from compare.loop import sensing_problem
+from compare.loop.closed_loop import sensing_problem
+from compare.loop.faults import FRAME_KINDS, FaultInjector
 from compare.run import run_method
 from compare.sensing.results import DistanceResult, ObstacleReading
 
-CONFIGS = Path(__file__).resolve().parents[2] / "configs"
+CONFIGS = Path(__file__).resolve().parents[3] / "configs"
 METHODS = ("tpik", "hqp-daqp", "mink")
 PERIOD_S = 1.0 / 30.0
 DT = 0.01

@@ -1,0 +1,1 @@
+"""What a run produced, measured and shown: metrics, ISO/TS 15066 margin, results files, reports, plots."""

@@ -1,0 +1,1 @@
+"""Many runs of one scenario family: randomized scenarios from a seed, sweeps, executors."""
