@@ -47,11 +47,23 @@ BAD_CONFIGS = [
     (
         "levels.1.tasks",
         [{"type": "obstacle_distance", "frames": ["link_4"], "safety_distance": 0.05}],
-        r"levels: .*physical_lower=0.1 must be < safety_lower=0.05",
+        r"levels\[1\]\.tasks\[0\]\.safety_distance: must be > physical_distance=0.1 m, got 0.05$",
     ),
-    ("levels.0.tasks", [{"type": "joint_limit", "joints": [1]}], r"levels: .*joint 1 is continuous"),
-    ("levels.2.tasks", [{"type": "position", "frame": "elbow"}], r"levels: .*unknown frame 'elbow'"),
-    ("levels.0.tasks", [{"type": "joint_limit", "joints": [2], "safety_margn": 0.1}], r"unknown key 'safety_margn'"),
+    (
+        "levels.0.tasks",
+        [{"type": "joint_limit", "joints": [1]}],
+        r"levels\[0\]\.tasks\[0\]\.joints: joint 1 is continuous",
+    ),
+    (
+        "levels.2.tasks",
+        [{"type": "position", "frame": "elbow"}],
+        r"levels\[2\]\.tasks\[0\]\.frame: unknown frame 'elbow'",
+    ),
+    (
+        "levels.0.tasks",
+        [{"type": "joint_limit", "joints": [2], "safety_margn": 0.1}],
+        r"levels\[0\]\.tasks\[0\]: unknown key 'safety_margn' for task type joint_limit",
+    ),
 ]
 
 

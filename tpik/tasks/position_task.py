@@ -4,9 +4,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from robots import Kinematics
+from robots import Kinematics, Robot
 from tpik.exceptions import TargetNotSet
 from tpik.tasks._targets import as_finite_vector
+from tpik.tasks.registry import FRAME_KEY, GAIN_KEY, TaskKey, TaskSpec
 from tpik.tasks.task import Task, TaskState
 
 
@@ -59,3 +60,19 @@ class PositionTask(Task):
         return TaskState(
             kin.frame_position(self.frame), kin.position_jacobian(self.frame), self._target, self._velocity
         )
+
+
+POSITION_KEYS: tuple[TaskKey, ...] = (
+    TaskKey("name", "task name (default `position_<frame>`)", None),
+    FRAME_KEY,
+    GAIN_KEY,
+    TaskKey("target", "fixed target position p_d, base frame (default: the scenario's waypoints set it)", None, "m"),
+)
+"""Keys of a ``position`` description."""
+
+
+def build_position(spec: TaskSpec, robot: Robot) -> list[Task]:
+    """``position``: one :class:`PositionTask`."""
+    frame = spec.frame("frame")
+    name = spec.optional_text("name") or f"position_{frame}"
+    return [PositionTask(name, frame, spec.number("gain", positive=True), spec.optional_array("target", (3,)))]
