@@ -42,9 +42,11 @@ demo: install
 	$(VENV)/bin/tpik-compare run configs/case1.toml --out results/case1
 	$(VENV)/bin/tpik-compare run configs/case2.toml --out results/case2
 
+# mypy checks the packages listed in pyproject.toml ([tool.mypy] files): robots, tpik, qp_baseline.
 lint: install
 	$(VENV)/bin/ruff check .
 	$(VENV)/bin/ruff format --check .
+	$(VENV)/bin/mypy
 
 format: install
 	$(VENV)/bin/ruff check --fix .
@@ -57,4 +59,4 @@ bench: install
 	$(PY) -m compare.bench
 
 clean:
-	rm -rf $(VENV) results .pytest_cache .ruff_cache
+	rm -rf $(VENV) results .pytest_cache .ruff_cache .mypy_cache

@@ -599,7 +599,9 @@ def _check_methods(config: Config, robot: robots.Robot) -> None:
 def _resolve_extension_files(data: dict[str, Any], base: Path) -> None:
     """Make relative ``.py`` paths of ``[extensions] modules`` relative to the config's folder."""
     extensions = data.get("extensions")
-    modules = extensions.get("modules") if isinstance(extensions, dict) else None
+    if not isinstance(extensions, dict):
+        return
+    modules = extensions.get("modules")
     if isinstance(modules, list):
         extensions["modules"] = [
             str((base / m).resolve()) if isinstance(m, str) and m.endswith(".py") and not Path(m).is_absolute() else m
