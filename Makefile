@@ -5,7 +5,7 @@ PY      = $(VENV)/bin/python
 STAMP   = $(VENV)/.installed
 export MUJOCO_GL ?= egl
 
-.PHONY: install system-deps hw-deps demo test lint format bench clean
+.PHONY: install system-deps hw-deps demo test lint format docs bench clean
 
 # Headless MuJoCo rendering needs EGL + Mesa; installed from Debian only when missing.
 system-deps:
@@ -54,6 +54,10 @@ format: install
 
 test: lint
 	$(VENV)/bin/pytest
+
+# docs/config.md from the config models (tests/compare/test_config_doc.py fails when it is stale).
+docs: install
+	$(PY) -m compare.config_doc
 
 bench: install
 	$(PY) -m compare.bench

@@ -126,7 +126,11 @@ class PersonKeyframe(_Strict):
 
 
 class PersonConfig(_Strict):
-    """The person's scripted trajectory; no keyframes = nobody in the scene."""
+    """The person's scripted trajectory; no keyframes = nobody in the scene.
+
+    Attributes:
+        keyframes: Poses over time (``[[person.keyframes]]`` tables), linearly interpolated.
+    """
 
     keyframes: list[PersonKeyframe] = Field(default_factory=list)
 
@@ -345,7 +349,12 @@ class Iso15066Config(_Strict):
 
 
 class LevelConfig(_Strict):
-    """One priority level; task tables are checked by :meth:`tpik.Hierarchy.from_description`."""
+    """One priority level, highest first; task tables are checked by :meth:`tpik.Hierarchy.from_description`.
+
+    Attributes:
+        name: Level name (e.g. ``joint_limits``, ``operational``).
+        tasks: Task tables ``{type = "...", ...}`` of the level; each type's keys are listed below.
+    """
 
     name: str
     tasks: list[dict[str, Any]] = Field(min_length=1)

@@ -91,7 +91,11 @@ register_task(
     summary="translational manipulability of a frame as a gradient task (unitless)",
 )
 
+BUILTIN_TASK_TYPES: tuple[str, ...] = tuple(t.name for t in task_types())
+"""The task types registered above (``docs/config.md`` lists these; extensions add their own)."""
+
 __all__ = [
+    "BUILTIN_TASK_TYPES",
     "REQUIRED",
     "Activation",
     "JointLimitTask",
