@@ -111,3 +111,10 @@ def test_the_example_task_errors_name_the_key(jaco_model):
         build_tasks({"type": "elbow_height", "min_height_m": "low"}, jaco_model, "levels[1].tasks[0]")
     with pytest.raises(TaskDefinitionError, match=r"^levels\[1\]\.tasks\[0\]\.frame: unknown frame 'elbow'"):
         build_tasks({"type": "elbow_height", "frame": "elbow"}, jaco_model, "levels[1].tasks[0]")
+
+
+def test_the_page_shows_the_example_files_as_they_are():
+    page = (EXAMPLES.parent / "extending.md").read_text(encoding="utf-8")
+    for name, fence in (("elbow_height.py", "python"), ("elbow_height.toml", "toml")):
+        source = (EXAMPLES / name).read_text(encoding="utf-8").rstrip()
+        assert f"```{fence}\n{source}\n```" in page, f"docs/extending.md does not show {name} as it is"
