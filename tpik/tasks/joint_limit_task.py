@@ -94,10 +94,8 @@ def build_joint_limits(spec: TaskSpec, robot: Robot) -> list[Task]:
     margin = spec.number("safety_margin", positive=True)
     eps = spec.number("activation_margin", positive=True)
     gain = spec.number("gain", positive=True)
-    name = spec.optional_text("name")
+    name = spec.name_for(len(joints), "joint")
     group = spec.optional_text("group")
-    if name is not None and len(joints) > 1:
-        raise spec.error("name", "needs a single 'joint'")
     for j in joints:
         if not 1 <= j <= robot.nq:
             raise spec.error(key, f"joint must be in 1..{robot.nq}, got {j}")

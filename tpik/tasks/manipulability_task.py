@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from robots import Kinematics, Robot
-from tpik.tasks.registry import FRAME_KEY, GAIN_KEY, TaskKey, TaskSpec
+from tpik.tasks.registry import TaskKey, TaskSpec, frame_task_keys
 from tpik.tasks.task import Task, TaskState
 
 
@@ -58,10 +58,8 @@ class ManipulabilityTask(Task):
         return TaskState(np.array([w]), grad[None, :], np.array([self.target]), np.zeros(1))
 
 
-MANIPULABILITY_KEYS: tuple[TaskKey, ...] = (
-    TaskKey("name", "task name (default `manipulability_<frame>`)", None),
-    FRAME_KEY,
-    GAIN_KEY,
+MANIPULABILITY_KEYS: tuple[TaskKey, ...] = frame_task_keys(
+    "manipulability",
     TaskKey("target", "desired translational manipulability w (unitless, m³ scale)", 0.2),
 )
 """Keys of a ``manipulability`` description."""

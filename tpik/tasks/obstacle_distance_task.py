@@ -100,10 +100,8 @@ def build_obstacle_distances(spec: TaskSpec, robot: Robot) -> list[Task]:
     physical = spec.number("physical_distance")
     eps = spec.number("activation_margin", positive=True)
     gain = spec.number("gain", positive=True)
-    name = spec.optional_text("name")
+    name = spec.name_for(len(frames), "frame")
     group = spec.optional_text("group")
-    if name is not None and len(frames) > 1:
-        raise spec.error("name", "needs a single 'frame'")
     if not physical < safety:
         raise spec.error("safety_distance", f"must be > physical_distance={physical:g} m, got {safety:g}")
     th = Thresholds(physical, safety, math.inf, math.inf, eps)

@@ -5,10 +5,10 @@ from __future__ import annotations
 import numpy as np
 import pinocchio as pin
 
-from robots import Kinematics, Robot
+from robots import Kinematics
 from tpik.exceptions import TargetNotSet
 from tpik.tasks._targets import as_rotation
-from tpik.tasks.registry import FRAME_KEY, GAIN_KEY, TaskKey, TaskSpec
+from tpik.tasks.registry import TaskKey, frame_task_builder, frame_task_keys
 from tpik.tasks.task import Task, TaskState
 
 
@@ -60,19 +60,12 @@ class OrientationTask(Task):
         return TaskState(value, jac, value + error, np.zeros(3), error)
 
 
-ORIENTATION_KEYS: tuple[TaskKey, ...] = (
-    TaskKey("name", "task name (default `orientation_<frame>`)", None),
-    FRAME_KEY,
-    GAIN_KEY,
+ORIENTATION_KEYS: tuple[TaskKey, ...] = frame_task_keys(
+    "orientation",
     TaskKey("target", "target rotation matrix R_d (3×3, rows) in the base frame (default: none set)", None),
 )
 """Keys of an ``orientation`` description."""
 
 
-def build_orientation(spec: TaskSpec, robot: Robot) -> list[Task]:
-    """``orientation``: one :class:`OrientationTask`."""
-    frame = spec.frame("frame")
-    name = spec.optional_text("name") or f"orientation_{frame}"
-    target = spec.optional_array("target", (3, 3))
-    with spec.about("target"):
-        return [OrientationTask(name, frame, spec.number("gain", positive=True), target)]
+build_orientation = frame_task_builder(OrientationTask, "orientation", (3, 3))
+"""Builder of a ``orientation`` description."""

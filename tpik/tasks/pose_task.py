@@ -4,10 +4,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from robots import Kinematics, Robot
+from robots import Kinematics
 from tpik.tasks.orientation_task import OrientationTask
 from tpik.tasks.position_task import PositionTask
-from tpik.tasks.registry import FRAME_KEY, GAIN_KEY, TaskKey, TaskSpec
+from tpik.tasks.registry import TaskKey, frame_task_builder, frame_task_keys
 from tpik.tasks.task import Task, TaskState
 
 
@@ -53,19 +53,12 @@ class PoseTask(Task):
         )
 
 
-POSE_KEYS: tuple[TaskKey, ...] = (
-    TaskKey("name", "task name (default `pose_<frame>`)", None),
-    FRAME_KEY,
-    GAIN_KEY,
+POSE_KEYS: tuple[TaskKey, ...] = frame_task_keys(
+    "pose",
     TaskKey("target", "target 4×4 homogeneous transform (rows; translation in m) in the base frame", None),
 )
 """Keys of a ``pose`` description."""
 
 
-def build_pose(spec: TaskSpec, robot: Robot) -> list[Task]:
-    """``pose``: one :class:`PoseTask`."""
-    frame = spec.frame("frame")
-    name = spec.optional_text("name") or f"pose_{frame}"
-    target = spec.optional_array("target", (4, 4))
-    with spec.about("target"):
-        return [PoseTask(name, frame, spec.number("gain", positive=True), target)]
+build_pose = frame_task_builder(PoseTask, "pose", (4, 4))
+"""Builder of a ``pose`` description."""

@@ -4,10 +4,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from robots import Kinematics, Robot
+from robots import Kinematics
 from tpik.exceptions import TargetNotSet
 from tpik.tasks._targets import as_finite_vector
-from tpik.tasks.registry import FRAME_KEY, GAIN_KEY, TaskKey, TaskSpec
+from tpik.tasks.registry import TaskKey, frame_task_builder, frame_task_keys
 from tpik.tasks.task import Task, TaskState
 
 
@@ -62,17 +62,12 @@ class PositionTask(Task):
         )
 
 
-POSITION_KEYS: tuple[TaskKey, ...] = (
-    TaskKey("name", "task name (default `position_<frame>`)", None),
-    FRAME_KEY,
-    GAIN_KEY,
+POSITION_KEYS: tuple[TaskKey, ...] = frame_task_keys(
+    "position",
     TaskKey("target", "fixed target position p_d, base frame (default: the scenario's waypoints set it)", None, "m"),
 )
 """Keys of a ``position`` description."""
 
 
-def build_position(spec: TaskSpec, robot: Robot) -> list[Task]:
-    """``position``: one :class:`PositionTask`."""
-    frame = spec.frame("frame")
-    name = spec.optional_text("name") or f"position_{frame}"
-    return [PositionTask(name, frame, spec.number("gain", positive=True), spec.optional_array("target", (3,)))]
+build_position = frame_task_builder(PositionTask, "position", (3,))
+"""Builder of a ``position`` description."""

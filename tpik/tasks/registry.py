@@ -73,8 +73,28 @@ GROUP_KEY = TaskKey(
     "group", "metrics group its violations are counted under in summary.json (default: the task's own)", None
 )
 
+
+def frame_task_keys(prefix: str, target: TaskKey) -> tuple[TaskKey, ...]:
+    """Keys of a task on one frame: ``name`` (default ``<prefix>_<frame>``), ``frame``, ``gain``, ``target``."""
+    return (TaskKey("name", f"task name (default `{prefix}_<frame>`)", None), FRAME_KEY, GAIN_KEY, target)
+
+
 TaskBuilder = Callable[["TaskSpec", Robot], Sequence[Task]]
 """Builds the task(s) one description entry stands for."""
+
+
+def frame_task_builder(cls: Callable[..., Task], prefix: str, target_shape: tuple[int, ...]) -> TaskBuilder:
+    """Builder of ``cls(name, frame, gain, target)`` from :func:`frame_task_keys` (target an array or unset)."""
+
+    def build(spec: TaskSpec, robot: Robot) -> list[Task]:
+        frame = spec.frame("frame")
+        target = spec.optional_array("target", target_shape)
+        gain = spec.number("gain", positive=True)
+        with spec.about("target"):
+            return [cls(spec.optional_text("name") or f"{prefix}_{frame}", frame, gain, target)]
+
+    build.__doc__ = f"``{prefix}``: one ``{getattr(cls, '__name__', prefix)}`` on a frame."
+    return build
 
 
 @dataclass(frozen=True)
@@ -278,6 +298,13 @@ class TaskSpec:
             raise self.error(key, f"must be one frame name, got {value!r}")
         return self.frames(key)[0]
 
+    def name_for(self, count: int, single: str) -> str | None:
+        """The optional ``name`` of an entry that builds ``count`` tasks; only one task may be named."""
+        name = self.optional_text("name")
+        if name is not None and count > 1:
+            raise self.error("name", f"needs a single '{single}'")
+        return name
+
     def one_or_many(self, single: str, many: str) -> str:
         """Which of two alternative keys (``joint`` / ``joints``) the entry gives; exactly one must be."""
         if self.given(single) == self.given(many):
@@ -342,6 +369,8 @@ __all__ = [
     "TaskSpec",
     "TaskType",
     "build_tasks",
+    "frame_task_builder",
+    "frame_task_keys",
     "get_task_type",
     "register_task",
     "task_types",
