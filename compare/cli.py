@@ -1,22 +1,65 @@
 """``tpik-compare``: run scenarios, sweeps, plots, benchmarks and the viewer (DESIGN §7).
 
 User mistakes (bad config, unknown method, missing directory) print one line on stderr
-and exit with code 2; no traceback.
+and exit with code 2; no traceback. Every command gets that for the error roots of the
+packages (:data:`USER_ERRORS`) from :class:`_App`.
 """
 
 from __future__ import annotations
 
+import functools
 import logging
 import os
 import sys
+from collections.abc import Callable
 from pathlib import Path
-from typing import Annotated
+from typing import Annotated, Any, TypeVar
 
 import typer
 
+from compare.exceptions import CompareError
+from qp_baseline.exceptions import HqpError
+from robots.exceptions import RobotError
+from tpik.exceptions import TpikError
+
 os.environ.setdefault("MUJOCO_GL", "egl")
 
-app = typer.Typer(
+USER_ERRORS: tuple[type[Exception], ...] = (CompareError, TpikError, RobotError, HqpError)
+"""The error roots of the packages: what a user mistake raises (config, method, settings, files)."""
+
+log = logging.getLogger(__name__)
+
+_F = TypeVar("_F", bound=Callable[..., Any])
+
+
+def _one_line_errors(command: _F) -> _F:
+    """Run a command; a :data:`USER_ERRORS` exception becomes ``error: <message>`` and exit code 2."""
+
+    @functools.wraps(command)
+    def wrapper(*args: Any, **kwargs: Any) -> Any:
+        try:
+            return command(*args, **kwargs)
+        except USER_ERRORS as exc:
+            log.debug("%s", exc, exc_info=True)
+            _fail(str(exc))
+
+    return wrapper  # type: ignore[return-value]
+
+
+class _App(typer.Typer):
+    """A Typer app whose every command turns a user mistake into one line (:func:`_one_line_errors`)."""
+
+    def command(self, *args: Any, **kwargs: Any) -> Callable[[_F], _F]:  # type: ignore[override]
+        register = super().command(*args, **kwargs)
+
+        def decorator(fn: _F) -> _F:
+            register(_one_line_errors(fn))
+            return fn
+
+        return decorator
+
+
+app = _App(
     add_completion=False,
     no_args_is_help=True,
     help="Set-based task-priority IK vs hierarchical QP vs mink on a Kinova Jaco², side by side.",
@@ -26,7 +69,8 @@ EXIT_USAGE = 2
 
 
 def _fail(message: str) -> None:
-    typer.echo(f"error: {message}", err=True)
+    first = message.strip().splitlines()[0] if message.strip() else "unknown error"
+    typer.echo(f"error: {first}", err=True)
     raise typer.Exit(EXIT_USAGE)
 
 

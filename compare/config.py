@@ -7,20 +7,27 @@ whose message names the key, e.g. ``scenario.duration_s: Input should be greater
 
 from __future__ import annotations
 
+import hashlib
+import importlib
+import importlib.util
 import math
+import sys
 import tomllib
 from pathlib import Path
+from types import ModuleType
 from typing import Any, Literal
 
 import tomli_w
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
 import robots
+from compare.exceptions import CompareError
+from qp_baseline.exceptions import HqpError
 from tpik.exceptions import TpikError
 from tpik.hierarchy import Hierarchy
 
 
-class ConfigError(ValueError):
+class ConfigError(CompareError, ValueError):
     """A configuration problem, with the offending key in the message."""
 
 
@@ -36,7 +43,8 @@ class ScenarioConfig(_Strict):
 
     Attributes:
         name: Scenario name written to ``summary.json``.
-        kind: ``case1`` / ``case2`` (scripted, the paper) or ``random`` (drawn from ``seed``).
+        kind: ``case1`` / ``case2`` (scripted, the paper), ``random`` (drawn from ``seed``) or
+            ``scripted`` (any other fixed scenario, e.g. a random draw frozen as a file).
         duration_s: Simulated time [s], before ``time_scale``.
         time_scale: Multiplies every event time and the duration (a short form keeps the events).
         control_rate_hz: Control loop rate (paper: 100 Hz).
@@ -58,7 +66,7 @@ class ScenarioConfig(_Strict):
     """
 
     name: str = "scenario"
-    kind: Literal["case1", "case2", "random"] = "case1"
+    kind: Literal["case1", "case2", "random", "scripted"] = "case1"
     duration_s: float = Field(70.0, gt=0.0)
     time_scale: float = Field(1.0, gt=0.0, le=10.0)
     control_rate_hz: float = Field(100.0, gt=0.0, le=2000.0)
@@ -118,7 +126,11 @@ class PersonKeyframe(_Strict):
 
 
 class PersonConfig(_Strict):
-    """The person's scripted trajectory; no keyframes = nobody in the scene."""
+    """The person's scripted trajectory; no keyframes = nobody in the scene.
+
+    Attributes:
+        keyframes: Poses over time (``[[person.keyframes]]`` tables), linearly interpolated.
+    """
 
     keyframes: list[PersonKeyframe] = Field(default_factory=list)
 
@@ -337,7 +349,12 @@ class Iso15066Config(_Strict):
 
 
 class LevelConfig(_Strict):
-    """One priority level; task tables are checked by :meth:`tpik.Hierarchy.from_description`."""
+    """One priority level, highest first; task tables are checked by :meth:`tpik.Hierarchy.from_description`.
+
+    Attributes:
+        name: Level name (e.g. ``joint_limits``, ``operational``).
+        tasks: Task tables ``{type = "...", ...}`` of the level; each type's keys are listed below.
+    """
 
     name: str
     tasks: list[dict[str, Any]] = Field(min_length=1)
@@ -458,6 +475,20 @@ class HardwareConfig(_Strict):
         return self.camera_translation_m is not None and self.camera_quaternion_xyzw is not None
 
 
+class ExtensionsConfig(_Strict):
+    """Python modules imported before the hierarchy is built, e.g. new task types (docs/extending.md).
+
+    Attributes:
+        modules: Module names importable from ``sys.path`` (``my_package.my_tasks``) or ``.py``
+            files; a relative file path is relative to the config file (to the working directory
+            when the config does not come from a file). Each module registers its task types with
+            :func:`tpik.register_task` when imported; every process that builds the hierarchy
+            (sweep workers included) imports them.
+    """
+
+    modules: list[str] = Field(default_factory=list)
+
+
 class Config(_Strict):
     """A whole scenario file."""
 
@@ -471,14 +502,66 @@ class Config(_Strict):
     hardware: HardwareConfig = Field(default_factory=HardwareConfig)
     faults: FaultsConfig = Field(default_factory=FaultsConfig)
     iso15066: Iso15066Config = Field(default_factory=Iso15066Config)
+    extensions: ExtensionsConfig = Field(default_factory=ExtensionsConfig)
 
     def hierarchy_description(self) -> list[dict[str, Any]]:
         """The levels as the plain description :meth:`Hierarchy.from_description` takes."""
         return [{"name": lv.name, "tasks": [dict(t) for t in lv.tasks]} for lv in self.levels]
 
     def build_hierarchy(self, robot: robots.Robot) -> Hierarchy:
-        """A fresh hierarchy (each method gets its own: tasks carry targets and obstacles)."""
+        """A fresh hierarchy (each method gets its own: tasks carry targets and obstacles).
+
+        The ``[extensions]`` modules are imported first (once per process).
+
+        Raises:
+            ConfigError: An extension module cannot be imported.
+            tpik.TaskDefinitionError: A bad task description (naming ``levels[i].tasks[k]`` and the key).
+        """
+        import_extensions(self.extensions.modules)
         return Hierarchy.from_description(self.hierarchy_description(), robot)
+
+
+_EXTENSIONS: dict[str, ModuleType] = {}
+"""Extension modules imported in this process, by their ``[extensions]`` entry."""
+
+
+def import_extensions(modules: list[str]) -> None:
+    """Import the ``[extensions] modules`` not imported yet in this process.
+
+    Raises:
+        ConfigError: naming ``extensions.modules[i]``, when a module cannot be found or fails while
+            being imported (a bad registration included).
+    """
+    for i, entry in enumerate(modules):
+        if entry in _EXTENSIONS:
+            continue
+        where = f"extensions.modules[{i}]"
+        try:
+            module = _import_file(Path(entry), where) if entry.endswith(".py") else importlib.import_module(entry)
+        except ConfigError:
+            raise
+        except Exception as exc:  # noqa: BLE001 - whatever a user module raises on import is a config error
+            raise ConfigError(f"{where}: cannot import {entry!r}: {type(exc).__name__}: {exc}") from exc
+        _EXTENSIONS[entry] = module
+
+
+def _import_file(path: Path, where: str) -> ModuleType:
+    """Import a ``.py`` file as a module named after its absolute path (the same file is one module)."""
+    path = path.resolve()
+    if not path.is_file():
+        raise ConfigError(f"{where}: no Python file {path}")
+    name = f"tpik_extension_{path.stem}_{hashlib.sha1(str(path).encode()).hexdigest()[:8]}"
+    spec = importlib.util.spec_from_file_location(name, path)
+    if spec is None or spec.loader is None:
+        raise ConfigError(f"{where}: cannot load {path} as a Python module")
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[name] = module
+    try:
+        spec.loader.exec_module(module)
+    except BaseException:
+        del sys.modules[name]
+        raise
+    return module
 
 
 def _format_validation_error(exc: ValidationError) -> str:
@@ -503,10 +586,9 @@ def parse_config(data: dict[str, Any], robot: robots.Robot | None = None) -> Con
     robot = robot or robots.load("jaco2")
     try:
         config.build_hierarchy(robot)
-    except TpikError as exc:
-        raise ConfigError(f"levels: {exc}") from None
-    except robots.RobotError as exc:
-        raise ConfigError(f"levels: {exc}") from None
+    except (TpikError, robots.RobotError) as exc:
+        message = str(exc)
+        raise ConfigError(message if message.startswith("levels") else f"levels: {message}") from None
     _check_methods(config, robot)
     return config
 
@@ -519,10 +601,21 @@ def _check_methods(config: Config, robot: robots.Robot) -> None:
             make_method(name, robot, config.methods.settings.get(name))
         except UnknownMethod as exc:
             raise ConfigError(f"methods.names[{i}]: {exc}") from None
-        except (TypeError, ValueError, KeyError) as exc:
+        except (TpikError, HqpError) as exc:  # InvalidSettings (backend rejections wrapped), UnknownSolver
             raise ConfigError(f"methods.settings.{name}: {exc}") from None
-        except Exception as exc:  # a backend's own error type for a bad setting
-            raise ConfigError(f"methods.settings.{name}: {type(exc).__name__}: {exc}") from None
+
+
+def _resolve_extension_files(data: dict[str, Any], base: Path) -> None:
+    """Make relative ``.py`` paths of ``[extensions] modules`` relative to the config's folder."""
+    extensions = data.get("extensions")
+    if not isinstance(extensions, dict):
+        return
+    modules = extensions.get("modules")
+    if isinstance(modules, list):
+        extensions["modules"] = [
+            str((base / m).resolve()) if isinstance(m, str) and m.endswith(".py") and not Path(m).is_absolute() else m
+            for m in modules
+        ]
 
 
 def load_config(path: str | Path, overrides: dict[str, Any] | None = None) -> tuple[Config, str]:
@@ -554,6 +647,7 @@ def load_config(path: str | Path, overrides: dict[str, Any] | None = None) -> tu
         for key in parents:
             node = node.setdefault(key, {})
         node[leaf] = value
+    _resolve_extension_files(data, p.parent)
     config = parse_config(data)
     if overrides:
         listed = ", ".join(f"{k} = {v!r}" for k, v in overrides.items())

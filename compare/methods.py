@@ -10,11 +10,12 @@ from __future__ import annotations
 from collections.abc import Mapping
 from typing import Any
 
+from compare.exceptions import CompareError
 from robots import Robot
 from tpik.step_result import IkSolver
 
 
-class UnknownMethod(ValueError):
+class UnknownMethod(CompareError, ValueError):
     """The method name is not available; the message lists the available ones."""
 
     def __init__(self, name: str, available: list[str]) -> None:

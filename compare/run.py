@@ -17,34 +17,48 @@ from compare.analysis.metrics import RunMeta, SetTaskInfo, compute_summary
 from compare.analysis.results import ResultsWriter
 from compare.campaign.random_scenario import realize
 from compare.config import Config
-from compare.loop.closed_loop import LoopSettings, ObstacleSource, run_loop
+from compare.loop.closed_loop import LoopOutput, LoopSettings, ObstacleSource, run_loop
 from compare.loop.faults import FaultInjector, unsafe_commands
 from compare.loop.simulation import build_simulation
 from compare.loop.waypoints import WaypointSchedule
 from compare.methods import make_method
 from tpik.hierarchy import Hierarchy
-from tpik.tasks import JointLimitTask, ObstacleDistanceTask, VirtualWallTask
 
 log = logging.getLogger(__name__)
 
 
 def set_task_infos(hierarchy: Hierarchy) -> tuple[SetTaskInfo, ...]:
-    """Group and thresholds of every set-based task, for the metrics."""
+    """Group (:attr:`tpik.tasks.SetTask.group`) and thresholds of every set-based task, for the metrics."""
     infos = []
     for task in hierarchy.set_tasks:
-        if isinstance(task, JointLimitTask):
-            group = "joint_limits"
-        elif isinstance(task, VirtualWallTask):
-            group = "walls"
-        elif isinstance(task, ObstacleDistanceTask):
-            group = "obstacles"
-        else:
-            group = "other"
         th = task.thresholds
         infos.append(
-            SetTaskInfo(task.name, group, th.physical_lower, th.safety_lower, th.safety_upper, th.physical_upper)
+            SetTaskInfo(task.name, task.group, th.physical_lower, th.safety_lower, th.safety_upper, th.physical_upper)
         )
     return tuple(infos)
+
+
+def run_meta(config: Config, method: str, hierarchy: Hierarchy, out: LoopOutput, sensing: str) -> RunMeta:
+    """What the metrics need besides the per-step table, for a simulated or a hardware run.
+
+    Args:
+        config: The (realized) scenario.
+        method: Method key.
+        hierarchy: The hierarchy the run used (its set tasks' groups and thresholds).
+        out: The loop's output (simulated and wall time).
+        sensing: How obstacles were sensed (``depth``, ``geometric``, ``none``).
+    """
+    sc = config.scenario
+    return RunMeta(
+        scenario=sc.name,
+        seed=sc.seed,
+        method=method,
+        dt=sc.dt,
+        sim_time_s=out.sim_time_s,
+        wall_time_s=out.wall_time_s,
+        sensing=sensing,
+        set_tasks=set_task_infos(hierarchy),
+    )
 
 
 def loop_setup(
@@ -119,17 +133,7 @@ def run_method(config: Config, method: str, robot: robots.Robot, progress: Progr
     steps = injector.annotate(out.steps)
     if monitor is not None:
         steps = pd.concat([steps, monitor.margins(steps, robot, config.iso15066)], axis=1)
-    meta = RunMeta(
-        scenario=sc.name,
-        seed=sc.seed,
-        method=method,
-        dt=sc.dt,
-        sim_time_s=out.sim_time_s,
-        wall_time_s=out.wall_time_s,
-        sensing=sc.sensing,
-        set_tasks=set_task_infos(hierarchy),
-    )
-    summary = compute_summary(steps, meta)
+    summary = compute_summary(steps, run_meta(config, method, hierarchy, out, sc.sensing))
     summary["faults"] = injector.summarize(steps, settings.sensing_period_s)
     summary["unsafe_commands"] = unsafe_commands(steps, robot.v_max)
     if monitor is not None:

@@ -1,9 +1,15 @@
-"""Errors of the hierarchical-QP baseline and the mink peer: one root, :class:`HqpError`."""
+"""Errors of the hierarchical-QP baseline and the mink peer: one root, :class:`HqpError`.
+
+A bad solver setting raises :class:`tpik.exceptions.InvalidSettings`, the one settings error of
+every solver (re-exported here), which derives from ``TpikError`` and ``ValueError``.
+"""
 
 from __future__ import annotations
 
 from collections.abc import Sequence
 from typing import Any
+
+from tpik.exceptions import InvalidSettings
 
 
 class HqpError(Exception):
@@ -25,20 +31,6 @@ class UnknownSolver(HqpError, ValueError):
         super().__init__(f"unknown QP solver '{name}'; available: {listed}")
 
 
-class InvalidSettings(HqpError, ValueError):
-    """A solver setting is unknown or has an unusable value; the message names it.
-
-    Attributes:
-        solver: QP solver (or ``"mink"``) the settings were meant for.
-        key: The offending setting, when it is known.
-    """
-
-    def __init__(self, solver: str, message: str, key: str | None = None) -> None:
-        self.solver = solver
-        self.key = key
-        super().__init__(f"{solver}: {message}")
-
-
 class NoSolutionFound(HqpError):
     """A priority level of the cascade could not be solved.
 
@@ -57,3 +49,6 @@ class NoSolutionFound(HqpError):
         self.solution = solution
         self.reason = reason
         super().__init__(f"priority level {level}: {reason}")
+
+
+__all__ = ["HqpError", "InvalidSettings", "NoSolutionFound", "UnknownSolver"]

@@ -174,7 +174,7 @@ def _cascade(
     tol2 = tol * tol
     K, P = iw[0], iw[1]
     r, y, gP, u, w, c_own = fw[0], fw[1], fw[2], fw[3], fw[4], fw[5]
-    S, Lc, W, work = mw[0], mw[1], mw[2], mw[3]
+    S, Lc, W, scratch = mw[0], mw[1], mw[2], mw[3]
     for j in range(R):
         z[j] = 0.0
     n_p = 0
@@ -187,11 +187,11 @@ def _cascade(
             # NSB (eq. 4): q̇_K = J_K^# x_K = A_Kᵀ y, then projected on the null space above.
             if sub < t_has.shape[1]:
                 if not t_has[li, sub]:
-                    t_lam[li, sub] = _own_solution(G, x, K, m, vnorm, tol, S, r, work, t_y[li, sub], t_c[li, sub])
+                    t_lam[li, sub] = _own_solution(G, x, K, m, vnorm, tol, S, r, scratch, t_y[li, sub], t_c[li, sub])
                     t_has[li, sub] = True
                 yv, cv, lam = t_y[li, sub], t_c[li, sub], t_lam[li, sub]
             else:
-                lam = _own_solution(G, x, K, m, vnorm, tol, S, r, work, y, c_own)
+                lam = _own_solution(G, x, K, m, vnorm, tol, S, r, scratch, y, c_own)
                 yv, cv = y, c_own
             for b in range(m):
                 z[K[b]] += yv[b]
@@ -224,7 +224,7 @@ def _cascade(
                 for a in range(m):
                     for b in range(m):
                         S[a, b] = G[K[a], K[b]]
-            lam = gram_dls(S, r, m, vnorm, tol, work, y)
+            lam = gram_dls(S, r, m, vnorm, tol, scratch, y)
             if n_p > 0:
                 for t in range(n_p):
                     acc = 0.0

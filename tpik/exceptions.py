@@ -39,8 +39,35 @@ class EmptyHierarchy(TaskDefinitionError):
     """A hierarchy or one of its levels holds no task."""
 
 
+class InvalidSettings(TpikError, ValueError):
+    """A solver setting is unknown or has an unusable value; the message names it.
+
+    The one settings error of every solver: TPIK's (:class:`tpik.solver.TpikSettings`), the HQP
+    cascade's and its QP backends', and the mink peer's (:mod:`qp_baseline` re-exports it).
+
+    ``InvalidSettings(solver, message, key)`` prefixes the message with the solver;
+    ``InvalidSettings(message)`` is for a message that already says whose setting it is.
+
+    Attributes:
+        solver: Solver (``"tpik"``, a QP backend name, ``"mink"``) the settings were meant for,
+            or ``None`` when the message alone says it.
+        key: The offending setting, when it is known.
+    """
+
+    def __init__(self, solver: str, message: str | None = None, key: str | None = None) -> None:
+        if message is None:
+            self.solver: str | None = None
+            text = solver
+        else:
+            self.solver = solver
+            text = f"{solver}: {message}"
+        self.key = key
+        super().__init__(text)
+
+
 __all__ = [
     "EmptyHierarchy",
+    "InvalidSettings",
     "InvalidTaskState",
     "TargetNotSet",
     "TaskDefinitionError",

@@ -2,27 +2,14 @@
 
 from __future__ import annotations
 
-import math
-from collections.abc import Callable, Iterator, Mapping, Sequence
+from collections.abc import Iterator, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
 
-import numpy as np
-
 from robots import Robot
 from tpik.exceptions import EmptyHierarchy, TaskDefinitionError
-from tpik.tasks import (
-    JointLimitTask,
-    ManipulabilityTask,
-    ObstacleDistanceTask,
-    OrientationTask,
-    PoseTask,
-    PositionTask,
-    SetTask,
-    Task,
-    Thresholds,
-    VirtualWallTask,
-)
+from tpik.tasks import SetTask, Task
+from tpik.tasks.registry import build_tasks
 
 
 @dataclass(frozen=True)
@@ -103,162 +90,43 @@ class Hierarchy:
                                            "safety_margin": 0.1, "activation_margin": 0.05}]},
              {"name": "operational", "tasks": [{"type": "position", "frame": "end_effector"}]}]
 
-        Task types: ``position``, ``orientation``, ``pose``, ``manipulability``,
-        ``joint_limit`` (``joint`` or ``joints``), ``virtual_wall`` (one plane),
-        ``wall_box`` (six walls of an axis-aligned box), ``obstacle_distance`` (``frame`` or
-        ``frames``). See :data:`TASK_BUILDERS` for each type's keys.
+        Task types are those of the registry (:func:`tpik.register_task`); built in:
+        ``position``, ``orientation``, ``pose``, ``manipulability``, ``joint_limit`` (``joint``
+        or ``joints``), ``virtual_wall`` (one plane), ``wall_box`` (six walls of an
+        axis-aligned box), ``obstacle_distance`` (``frame`` or ``frames``). Each type's keys,
+        units and defaults: ``docs/config.md``.
 
         Raises:
-            TaskDefinitionError: naming ``levels[i].tasks[k]`` and the bad key or value.
+            TaskDefinitionError: naming ``levels[i]`` or ``levels[i].tasks[k]`` and the bad key
+                or value (an unknown frame included).
         """
+        if not levels:
+            raise EmptyHierarchy("levels: a hierarchy needs at least one level")
         built: list[Level] = []
+        seen: dict[str, str] = {}
         for i, level in enumerate(levels):
             where = f"levels[{i}]"
             unknown = set(level) - {"name", "tasks"}
             if unknown:
                 raise TaskDefinitionError(f"{where}: unknown key '{sorted(unknown)[0]}'")
+            entries = level.get("tasks", [])
+            if not isinstance(entries, Sequence) or isinstance(entries, str):
+                raise TaskDefinitionError(f"{where}.tasks: must be a list of task tables, got {entries!r}")
             tasks: list[Task] = []
-            for k, spec in enumerate(level.get("tasks", [])):
-                tasks.extend(build_tasks(spec, robot, f"{where}.tasks[{k}]"))
-            built.append(Level(str(level.get("name", f"level_{i}")), tuple(tasks)))
+            for k, entry in enumerate(entries):
+                at = f"{where}.tasks[{k}]"
+                if not isinstance(entry, Mapping):
+                    raise TaskDefinitionError(f"{at}: must be a table, got {entry!r}")
+                for task in build_tasks(entry, robot, at):
+                    if task.name in seen:
+                        raise TaskDefinitionError(f"{at}: duplicate task name '{task.name}' (also {seen[task.name]})")
+                    seen[task.name] = at
+                    tasks.append(task)
+            name = str(level.get("name", f"level_{i}"))
+            if not tasks:
+                raise EmptyHierarchy(f"{where}: level '{name}' holds no task")
+            built.append(Level(name, tuple(tasks)))
         return cls(built)
 
 
-def _thresholds(lo_phys: float, lo_safe: float, hi_safe: float, hi_phys: float, eps: float) -> Thresholds:
-    return Thresholds(float(lo_phys), float(lo_safe), float(hi_safe), float(hi_phys), float(eps))
-
-
-def _joint_limits(spec: dict[str, Any], robot: Robot) -> list[Task]:
-    joints = spec.pop("joints", None) or [spec.pop("joint")]
-    margin = spec.pop("safety_margin", 0.1)
-    eps = spec.pop("activation_margin", 0.05)
-    gain = spec.pop("gain", 1.0)
-    name = spec.pop("name", None)
-    if name is not None and len(joints) > 1:
-        raise TaskDefinitionError("'name' needs a single 'joint'")
-    return [JointLimitTask.from_robot(robot, int(j), margin, eps, gain, name) for j in joints]
-
-
-_AXES = {"x": np.array([1.0, 0.0, 0.0]), "y": np.array([0.0, 1.0, 0.0]), "z": np.array([0.0, 0.0, 1.0])}
-
-
-def _wall_box(spec: dict[str, Any], robot: Robot) -> list[Task]:
-    frame = spec.pop("frame", "end_effector")
-    lower = np.asarray(spec.pop("lower"), dtype=float)
-    upper = np.asarray(spec.pop("upper"), dtype=float)
-    phys = spec.pop("physical_margin", 0.05)
-    eps = spec.pop("activation_margin", 0.03)
-    gain = spec.pop("gain", 1.0)
-    if lower.shape != (3,) or upper.shape != (3,):
-        raise TaskDefinitionError("wall_box: 'lower' and 'upper' need 3 entries [m]")
-    walls: list[Task] = []
-    for axis_index, axis in enumerate("xyz"):
-        lo, hi = float(lower[axis_index]), float(upper[axis_index])
-        if not lo < hi:
-            raise TaskDefinitionError(f"wall_box: lower {axis}={lo:g} must be < upper {axis}={hi:g}")
-        n = _AXES[axis]
-        # σ = n·p − d ≥ 0 inside; the wall itself is the safety threshold.
-        th = _thresholds(-phys, 0.0, math.inf, math.inf, eps)
-        walls.append(VirtualWallTask(f"wall_{axis}_min", frame, n, lo, th, gain))
-        walls.append(VirtualWallTask(f"wall_{axis}_max", frame, -n, -hi, th, gain))
-    return walls
-
-
-def _virtual_wall(spec: dict[str, Any], robot: Robot) -> list[Task]:
-    phys = spec.pop("physical_margin", 0.05)
-    eps = spec.pop("activation_margin", 0.03)
-    th = _thresholds(-phys, 0.0, math.inf, math.inf, eps)
-    return [
-        VirtualWallTask(
-            spec.pop("name"),
-            spec.pop("frame", "end_effector"),
-            spec.pop("normal"),
-            spec.pop("offset"),
-            th,
-            spec.pop("gain", 1.0),
-        )
-    ]
-
-
-def _obstacles(spec: dict[str, Any], robot: Robot) -> list[Task]:
-    frames = spec.pop("frames", None) or [spec.pop("frame")]
-    safety = float(spec.pop("safety_distance", 0.35))
-    physical = float(spec.pop("physical_distance", 0.1))
-    eps = spec.pop("activation_margin", 0.05)
-    gain = spec.pop("gain", 1.0)
-    name = spec.pop("name", None)
-    if name is not None and len(frames) > 1:
-        raise TaskDefinitionError("'name' needs a single 'frame'")
-    tasks: list[Task] = []
-    for frame in frames:
-        robot.frame_id(frame)
-        th = _thresholds(physical, safety, math.inf, math.inf, eps)
-        tasks.append(ObstacleDistanceTask(name or f"obstacle_{frame}", frame, th, gain))
-    return tasks
-
-
-def _position(spec: dict[str, Any], robot: Robot) -> list[Task]:
-    frame = spec.pop("frame", "end_effector")
-    robot.frame_id(frame)
-    return [PositionTask(spec.pop("name", f"position_{frame}"), frame, spec.pop("gain", 1.0), spec.pop("target", None))]
-
-
-def _orientation(spec: dict[str, Any], robot: Robot) -> list[Task]:
-    frame = spec.pop("frame", "end_effector")
-    robot.frame_id(frame)
-    return [
-        OrientationTask(
-            spec.pop("name", f"orientation_{frame}"), frame, spec.pop("gain", 1.0), spec.pop("target", None)
-        )
-    ]
-
-
-def _pose(spec: dict[str, Any], robot: Robot) -> list[Task]:
-    frame = spec.pop("frame", "end_effector")
-    robot.frame_id(frame)
-    return [PoseTask(spec.pop("name", f"pose_{frame}"), frame, spec.pop("gain", 1.0), spec.pop("target", None))]
-
-
-def _manipulability(spec: dict[str, Any], robot: Robot) -> list[Task]:
-    frame = spec.pop("frame", "end_effector")
-    robot.frame_id(frame)
-    return [
-        ManipulabilityTask(
-            spec.pop("name", f"manipulability_{frame}"), frame, spec.pop("gain", 1.0), spec.pop("target", 0.2)
-        )
-    ]
-
-
-TASK_BUILDERS: dict[str, Callable[[dict[str, Any], Robot], list[Task]]] = {
-    "joint_limit": _joint_limits,
-    "wall_box": _wall_box,
-    "virtual_wall": _virtual_wall,
-    "obstacle_distance": _obstacles,
-    "position": _position,
-    "orientation": _orientation,
-    "pose": _pose,
-    "manipulability": _manipulability,
-}
-"""Task ``type`` → builder. Each builder pops the keys it knows; any key left is an error."""
-
-
-def build_tasks(spec: Mapping[str, Any], robot: Robot, where: str = "task") -> list[Task]:
-    """Build the task(s) one description entry stands for.
-
-    Raises:
-        TaskDefinitionError: unknown type, missing or unknown key, invalid value — the
-            message starts with ``where``.
-    """
-    rest = dict(spec)
-    kind = rest.pop("type", None)
-    if kind not in TASK_BUILDERS:
-        raise TaskDefinitionError(f"{where}: unknown task type {kind!r}; known: {', '.join(TASK_BUILDERS)}")
-    try:
-        tasks = TASK_BUILDERS[kind](rest, robot)
-    except KeyError as exc:
-        raise TaskDefinitionError(f"{where}: {kind} needs key {exc.args[0]!r}") from None
-    except (TypeError, ValueError) as exc:
-        raise TaskDefinitionError(f"{where}: {exc}") from None
-    if rest:
-        raise TaskDefinitionError(f"{where}: unknown key '{sorted(rest)[0]}' for task type {kind}")
-    return tasks
+__all__ = ["Hierarchy", "Level", "build_tasks"]

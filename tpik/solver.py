@@ -87,7 +87,7 @@ from tpik.cascade import (
     search_modes,
     warm_up,
 )
-from tpik.exceptions import InvalidTaskState, TpikError
+from tpik.exceptions import InvalidSettings, InvalidTaskState, TpikError
 from tpik.hierarchy import Hierarchy
 from tpik.step_result import SolveStatus, StepResult, failed
 from tpik.tasks.task import SetTask, Task
@@ -97,10 +97,6 @@ VARIANTS: tuple[str, ...] = ("nsb", "ss")
 
 SELECTIONS: tuple[str, ...] = ("auto", "largest_norm", "fewest_active")
 """Rules to choose among admissible modes (see :class:`TpikSettings`)."""
-
-
-class InvalidSettings(TpikError, ValueError):
-    """A TPIK setting is unknown or has a bad value (the message names the key)."""
 
 
 @dataclass(frozen=True)

@@ -51,6 +51,7 @@ range, or a row the loop could not fill) contributes nothing.
 from __future__ import annotations
 
 import math
+from collections.abc import Iterable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -58,13 +59,19 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
+from compare.exceptions import CompareError
+
 GROUPS: tuple[str, ...] = ("joint_limits", "walls", "obstacles")
-"""Set-task groups reported in ``summary.json`` (DESIGN §7), in that order."""
+"""The DESIGN §7 set-task groups, always in ``summary.json`` (``None`` when the run has none).
+
+Every group, these and any other a set task names (:attr:`tpik.tasks.SetTask.group`, e.g. a
+new safety task's), is also under ``"groups"``: ``summary["groups"][<group>]`` (:func:`task_groups`).
+"""
 
 DEFAULT_CONTROL_POINTS: tuple[str, ...] = ("link_4", "link_6", "link_7")
 
 
-class MetricsError(ValueError):
+class MetricsError(CompareError, ValueError):
     """The per-step table does not match the run description (missing columns, empty table)."""
 
 
@@ -74,8 +81,8 @@ class SetTaskInfo:
 
     Attributes:
         name: Task name (the ``sigma:<name>`` / ``active:<name>`` columns).
-        group: ``joint_limits``, ``walls`` or ``obstacles`` (other groups are kept in
-            ``set_tasks`` and ``set_task_metrics`` but not in the group summaries).
+        group: The task's metrics group (:attr:`tpik.tasks.SetTask.group`): ``joint_limits``,
+            ``walls``, ``obstacles`` or any other; each group is summarised under its name.
         physical_lower: σ_m, physical lower threshold (−inf if none) [task unit].
         safety_lower: σ_{s,l}, safety lower threshold (−inf if none) [task unit].
         safety_upper: σ_{s,u}, safety upper threshold (+inf if none) [task unit].
@@ -197,6 +204,24 @@ def rising_edges(flag: np.ndarray) -> int:
     return int(flag[0]) + int(np.count_nonzero(flag[1:] & ~flag[:-1]))
 
 
+def task_groups(set_tasks: Iterable[SetTaskInfo]) -> tuple[str, ...]:
+    """Groups summarised for these tasks: :data:`GROUPS`, then every other group in task order."""
+    extra = [task.group for task in set_tasks if task.group not in GROUPS]
+    return GROUPS + tuple(dict.fromkeys(extra))
+
+
+def summary_groups(method_summary: dict[str, Any]) -> tuple[str, ...]:
+    """The set-task groups of a method summary (the keys of its ``groups``; :data:`GROUPS` if absent)."""
+    return tuple(method_summary.get("groups") or GROUPS)
+
+
+def group_summary(method_summary: dict[str, Any], group: str) -> dict[str, Any] | None:
+    """The metrics of one group in a method summary (``None`` when the run has no task of it)."""
+    groups = method_summary.get("groups")
+    value = groups.get(group) if isinstance(groups, dict) else method_summary.get(group)
+    return value if isinstance(value, dict) else None
+
+
 def _nanmin(x: np.ndarray) -> float | None:
     x = np.asarray(x, dtype=float)
     x = x[np.isfinite(x)]
@@ -216,8 +241,8 @@ def _bool_column(steps: pd.DataFrame, name: str) -> np.ndarray:
 
 
 def task_sigma_for_safety(steps: pd.DataFrame, task: SetTaskInfo) -> np.ndarray:
-    """σ used for the safety metrics: ``truth:N`` for obstacle tasks when recorded, else ``sigma:N``."""
-    if task.group == "obstacles" and f"truth:{task.name}" in steps.columns:
+    """σ used for the safety metrics: ``truth:N`` when recorded (obstacle tasks), else ``sigma:N``."""
+    if f"truth:{task.name}" in steps.columns:
         return _column(steps, f"truth:{task.name}")
     return _column(steps, f"sigma:{task.name}")
 
@@ -348,8 +373,9 @@ def compute_summary(steps: pd.DataFrame, meta: RunMeta, waypoint_tolerance_m: fl
         ``dt``, ``sim_time_s``, ``wall_time_s``, ``sensing``, ``blind_steps``,
         ``activation_toggles``, ``waypoints_reached``, ``time_to_waypoint_s``,
         ``waypoint_sequence``, ``waypoint_tolerance_m``, ``peak_joint_acceleration_rad_s2``,
-        ``solve_time_us_by_active_count``, ``set_task_metrics`` (per task) and ``set_tasks``
-        (thresholds of every set task, infinite bounds as ``None``; read by the plots).
+        ``solve_time_us_by_active_count``, ``set_task_metrics`` (per task), ``set_tasks``
+        (thresholds of every set task, infinite bounds as ``None``; read by the plots),
+        ``groups`` (every group of :func:`task_groups`, those of :data:`GROUPS` included).
         A group with no task is ``None``; a group whose σ was never finite has ``None`` margins
         and zero violations.
 
@@ -367,7 +393,7 @@ def compute_summary(steps: pd.DataFrame, meta: RunMeta, waypoint_tolerance_m: fl
 
     per_task_raw = {task.name: _task_metrics(task_sigma_for_safety(steps, task), task, dt) for task in meta.set_tasks}
     groups: dict[str, Any] = {}
-    for group in GROUPS:
+    for group in task_groups(meta.set_tasks):
         groups[group] = _group_metrics(per_task_raw, [task for task in meta.set_tasks if task.group == group], dt)
     per_task = {name: {k: v for k, v in m.items() if not k.startswith("_")} for name, m in per_task_raw.items()}
 
@@ -432,6 +458,7 @@ def compute_summary(steps: pd.DataFrame, meta: RunMeta, waypoint_tolerance_m: fl
         "control_points": list(meta.control_points),
         "set_task_metrics": per_task,
         "set_tasks": [task.to_dict() for task in meta.set_tasks],
+        "groups": groups,
     }
     return to_jsonable(summary)
 
@@ -447,9 +474,12 @@ __all__ = [
     "RunMeta",
     "SetTaskInfo",
     "compute_summary",
+    "group_summary",
     "margins",
     "rising_edges",
     "set_tasks_from_summary",
+    "summary_groups",
+    "task_groups",
     "to_jsonable",
     "waypoint_times",
 ]

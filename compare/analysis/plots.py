@@ -23,7 +23,14 @@ from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 from matplotlib.ticker import FuncFormatter, LogLocator, NullFormatter
 
-from compare.analysis.metrics import GROUPS, VIOLATION_TOLERANCE, SetTaskInfo, set_tasks_from_summary
+from compare.analysis.metrics import (
+    GROUPS,
+    VIOLATION_TOLERANCE,
+    SetTaskInfo,
+    group_summary,
+    set_tasks_from_summary,
+    summary_groups,
+)
 from compare.analysis.results import RUNS_DIR, collect_sweep, load_steps, load_summary, safe_name, summarize_sweep_rows
 
 log = logging.getLogger(__name__)
@@ -298,9 +305,11 @@ def plot_comparison(methods: dict[str, dict[str, Any]], path: Path, title: str =
     """Solve time (median ●, bar to p99) against the worst safety margin, one panel per group.
 
     x is logarithmic [µs]; y is the group's minimum safety margin in its own unit, with the
-    violation boundary (0) in red. Without set tasks the y axis is the final EE error.
+    violation boundary (0) in red. Without set tasks the y axis is the final EE error. A group
+    beyond joint limits, walls and obstacles (a new safety task's) gets its own panel.
     """
-    groups = [g for g in GROUPS if any(isinstance(m.get(g), dict) for m in methods.values())]
+    every = dict.fromkeys([*GROUPS, *(g for m in methods.values() for g in summary_groups(m))])
+    groups = [g for g in every if any(group_summary(m, g) is not None for m in methods.values())]
     panels = groups or ["ee_error"]
     fig, axes = _figure(1, len(panels), height_in=4.0, width_in=max(5.0, 4.2 * len(panels)))
     colors = _colors(list(methods))
@@ -312,7 +321,7 @@ def plot_comparison(methods: dict[str, dict[str, Any]], path: Path, title: str =
             if panel == "ee_error":
                 y = (m.get("ee_error_m") or {}).get("final")
             else:
-                y = (m.get(panel) or {}).get("safety_margin_min")
+                y = (group_summary(m, panel) or {}).get("safety_margin_min")
             if x is None or y is None or x <= 0:
                 skipped.append(name)
                 continue
@@ -323,8 +332,9 @@ def plot_comparison(methods: dict[str, dict[str, Any]], path: Path, title: str =
             ax.set_ylabel("final EE error [m]")
         else:
             ax.axhline(0.0, **SAFETY_STYLE)
-            ax.set_ylabel(f"min safety margin [{GROUP_UNITS[panel]}] (< 0: violated)")
-            ax.set_title(GROUP_TITLES[panel] + (f"\n(no data: {', '.join(skipped)})" if skipped else ""))
+            unit = GROUP_UNITS.get(panel, "task unit")
+            ax.set_ylabel(f"min safety margin [{unit}] (< 0: violated)")
+            ax.set_title(GROUP_TITLES.get(panel, panel) + (f"\n(no data: {', '.join(skipped)})" if skipped else ""))
         ax.grid(alpha=0.3, which="both")
     if title:
         fig.suptitle(title)

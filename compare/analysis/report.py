@@ -14,25 +14,33 @@ from typing import Any
 from rich.table import Table
 from rich.text import Text
 
-from compare.analysis.metrics import GROUPS
+from compare.analysis.metrics import GROUPS, group_summary, summary_groups
 from compare.analysis.results import load_summary
 
 REPORT_FILE = "report.md"
 PLOTS_DIR = "plots"  # as compare.analysis.plots.PLOTS_DIR; not imported to keep matplotlib out of the CLI table
 
-_HEADERS: tuple[tuple[str, str], ...] = (
-    ("method", "left"),
-    ("solve median [µs]", "right"),
-    ("solve p99 [µs]", "right"),
-    ("realtime ×", "right"),
-    ("joint margin [rad]", "right"),
-    ("wall margin [m]", "right"),
-    ("obstacle margin [m]", "right"),
-    ("min obstacle dist. [m]", "right"),
-    ("EE final error [m]", "right"),
-    ("failures / fallbacks", "right"),
-)
-_GROUP_COLUMNS = {"joint_limits": 4, "walls": 5, "obstacles": 6}
+_GROUP_HEADERS = {"joint_limits": "joint margin [rad]", "walls": "wall margin [m]", "obstacles": "obstacle margin [m]"}
+_FIRST_GROUP_COLUMN = 4
+
+
+def _groups(methods: dict[str, dict[str, Any]]) -> list[str]:
+    """:data:`GROUPS`, then any other set-task group of some method (a new safety task's)."""
+    found = [g for m in methods.values() for g in summary_groups(m)]
+    return list(dict.fromkeys([*GROUPS, *found]))
+
+
+def _headers(groups: list[str]) -> list[tuple[str, str]]:
+    return [
+        ("method", "left"),
+        ("solve median [µs]", "right"),
+        ("solve p99 [µs]", "right"),
+        ("realtime ×", "right"),
+        *[(_GROUP_HEADERS.get(g, f"{g} margin"), "right") for g in groups],
+        ("min obstacle dist. [m]", "right"),
+        ("EE final error [m]", "right"),
+        ("failures / fallbacks", "right"),
+    ]
 
 
 def _fmt(x: Any, fmt: str = ".3g") -> str:
@@ -46,7 +54,7 @@ def _min_finite(values: list[Any]) -> float | None:
     return min(finite) if finite else None
 
 
-def _cells(name: str, m: dict[str, Any]) -> list[str]:
+def _cells(name: str, m: dict[str, Any], groups: list[str]) -> list[str]:
     solve = m.get("solve_time_us") or {}
     cells = [
         name,
@@ -54,9 +62,9 @@ def _cells(name: str, m: dict[str, Any]) -> list[str]:
         _fmt(solve.get("p99"), ".1f"),
         _fmt(m.get("realtime_factor"), ".2f"),
     ]
-    for group in GROUPS:
-        g = m.get(group)
-        if not isinstance(g, dict):
+    for group in groups:
+        g = group_summary(m, group)
+        if g is None:
             cells.append("n/a")
             continue
         cell = _fmt(g.get("safety_margin_min"), "+.3f")
@@ -72,30 +80,34 @@ def _cells(name: str, m: dict[str, Any]) -> list[str]:
 
 
 def _negative(m: dict[str, Any], group: str) -> bool:
-    g = m.get(group)
-    return isinstance(g, dict) and g.get("safety_margin_min") is not None and g["safety_margin_min"] < 0
+    g = group_summary(m, group)
+    return g is not None and g.get("safety_margin_min") is not None and g["safety_margin_min"] < 0
 
 
 def summary_table(summary: dict[str, Any]) -> Table:
     """Terminal table of a run's ``summary.json``: one row per method, failed methods in red.
 
     Margins are the worst safety margins (negative = violated, shown in red with the number of
-    violations and their total time); ``n/a`` when the scenario has no task of that group.
+    violations and their total time); ``n/a`` when the scenario has no task of that group. A
+    set-task group beyond joint limits, walls and obstacles (a new safety task's) gets its own column.
     """
     title = f"{summary.get('scenario', '?')} (seed {summary.get('seed', '?')}, {_fmt(summary.get('sim_time_s'))} s)"
     table = Table(title=title)
-    for header, justify in _HEADERS:
+    methods = summary.get("methods") or {}
+    groups = _groups(methods)
+    headers = _headers(groups)
+    for header, justify in headers:
         table.add_column(Text(header), justify=justify)  # type: ignore[arg-type]
-    for name, m in (summary.get("methods") or {}).items():
-        cells = [Text(cell) for cell in _cells(name, m)]  # Text: no rich markup in names or messages
-        for group, col in _GROUP_COLUMNS.items():
+    for name, m in methods.items():
+        cells = [Text(cell) for cell in _cells(name, m, groups)]  # Text: no rich markup in names or messages
+        for col, group in enumerate(groups, start=_FIRST_GROUP_COLUMN):
             if _negative(m, group):
                 cells[col].stylize("bold red")
         if m.get("failures") or m.get("fallbacks"):
             cells[-1].stylize("yellow")
         table.add_row(*cells)
     for name, message in (summary.get("errors") or {}).items():
-        table.add_row(Text(name, style="red"), Text(f"failed: {message}", style="red"), *[""] * (len(_HEADERS) - 2))
+        table.add_row(Text(name, style="red"), Text(f"failed: {message}", style="red"), *[""] * (len(headers) - 2))
     return table
 
 
@@ -144,7 +156,9 @@ def render_report(results_dir: Path, command: str | None = None) -> Path:
         out.append("- versions: " + ", ".join(f"{k} {v}" for k, v in sorted(libs.items())))
     out += ["", "## Summary", ""]
     if methods:
-        out.append(_markdown_table([h for h, _ in _HEADERS], [_cells(n, m) for n, m in methods.items()]))
+        groups = _groups(methods)
+        rows = [_cells(n, m, groups) for n, m in methods.items()]
+        out.append(_markdown_table([h for h, _ in _headers(groups)], rows))
         out += [
             "",
             "Margins: worst signed distance to the safety threshold over the run (negative = violated;"
@@ -222,6 +236,9 @@ def render_sweep_report(sweep_dir: Path, command: str | None = None) -> Path:
     if summary.get("skipped_finished_runs"):
         out.append(f"- resumed: {summary['skipped_finished_runs']} runs were already finished")
     out += ["", "## Safety and failures per method", ""]
+    other_groups = list(
+        dict.fromkeys(g for m in methods.values() for g in (m.get("worst_safety_margin") or {}) if g not in GROUPS)
+    )
     headers = [
         "method",
         "runs",
@@ -229,6 +246,7 @@ def render_sweep_report(sweep_dir: Path, command: str | None = None) -> Path:
         "obstacle violation",
         "worst joint margin [rad]",
         "worst wall margin [m]",
+        *[f"worst {g} margin" for g in other_groups],
         "runs with failures / fallbacks",
         "failures / fallbacks (steps)",
         "unsafe commands",
@@ -244,6 +262,7 @@ def render_sweep_report(sweep_dir: Path, command: str | None = None) -> Path:
                 _pct(m.get("share_runs_obstacle_violation")),
                 _fmt(worst.get("joint_limits"), "+.4f"),
                 _fmt(worst.get("walls"), "+.4f"),
+                *[_fmt(worst.get(g), "+.4f") for g in other_groups],
                 f"{_pct(m.get('share_runs_with_failures'))} / {_pct(m.get('share_runs_with_fallbacks'))}",
                 f"{m.get('failures', 0)} / {m.get('fallbacks', 0)}",
                 str(m.get("unsafe_commands", 0)),

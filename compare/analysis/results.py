@@ -36,7 +36,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from compare.analysis.metrics import GROUPS, to_jsonable
+from compare.analysis.metrics import GROUPS, group_summary, summary_groups, to_jsonable
 from compare.versions import versions
 
 log = logging.getLogger(__name__)
@@ -265,10 +265,10 @@ def flatten_method(summary: dict[str, Any]) -> dict[str, Any]:
         "solve_max_us": solve.get("max"),
         "realtime_factor": summary.get("realtime_factor"),
     }
-    for group in GROUPS:
-        g = summary.get(group)
-        row[f"{group}_present"] = isinstance(g, dict)
-        g = g if isinstance(g, dict) else {}
+    for group in summary_groups(summary):
+        g = group_summary(summary, group)
+        row[f"{group}_present"] = g is not None
+        g = g or {}
         row[f"{group}_safety_margin_min"] = g.get("safety_margin_min")
         row[f"{group}_physical_margin_min"] = g.get("physical_margin_min")
         row[f"{group}_violations"] = int(g.get("violations") or 0)
@@ -364,6 +364,12 @@ def summarize_sweep_rows(runs: pd.DataFrame) -> dict[str, dict[str, Any]]:
     return {str(method): _method_aggregate(rows) for method, rows in runs.groupby("method", sort=False)}
 
 
+def _groups_in(rows: pd.DataFrame) -> list[str]:
+    """:data:`GROUPS`, then any other set-task group with columns in a :func:`collect_sweep` table."""
+    found = [c.removesuffix("_present") for c in rows.columns if c.endswith("_present")]
+    return list(dict.fromkeys([*GROUPS, *found]))
+
+
 def _method_aggregate(rows: pd.DataFrame) -> dict[str, Any]:
     ok = rows[rows["error"].isna()] if "error" in rows.columns else rows
     n = len(ok)
@@ -379,20 +385,24 @@ def _method_aggregate(rows: pd.DataFrame) -> dict[str, Any]:
 
     limits_or_walls = violated("joint_limits") | violated("walls")
     obstacles = violated("obstacles")
+    groups = _groups_in(ok)
+    other = pd.Series(False, index=ok.index)
+    for group in groups[len(GROUPS) :]:  # a new safety task's group
+        other |= violated(group)
     return {
         "runs": n,
         "errors": int(len(rows) - n),
         "share_runs_limit_or_wall_violation": share(limits_or_walls),
         "share_runs_obstacle_violation": share(obstacles),
-        "share_runs_any_violation": share(limits_or_walls | obstacles),
+        "share_runs_any_violation": share(limits_or_walls | obstacles | other),
         "solve_time_us": {
             "median_of_medians": _stat(values("solve_median_us"), "median"),
             "p99_of_medians": _stat(values("solve_median_us"), "p99"),
             "median_of_p99": _stat(values("solve_p99_us"), "median"),
             "max": _stat(values("solve_max_us"), "max"),
         },
-        "worst_safety_margin": {g: _stat(values(f"{g}_safety_margin_min"), "min") for g in GROUPS},
-        "worst_physical_margin": {g: _stat(values(f"{g}_physical_margin_min"), "min") for g in GROUPS},
+        "worst_safety_margin": {g: _stat(values(f"{g}_safety_margin_min"), "min") for g in groups},
+        "worst_physical_margin": {g: _stat(values(f"{g}_physical_margin_min"), "min") for g in groups},
         "min_obstacle_distance_m": _stat(values("min_obstacle_distance_m"), "min"),
         "ee_error_final_m": {
             "median": _stat(values("ee_error_final_m"), "median"),

@@ -2,9 +2,11 @@
 
 from __future__ import annotations
 
+from compare.exceptions import CompareError
 
-class HardwareError(RuntimeError):
-    """Root of the hardware bridge's errors."""
+
+class HardwareError(CompareError, RuntimeError):
+    """Root of the hardware bridge's errors (under :class:`compare.exceptions.CompareError`)."""
 
 
 class RosUnavailable(HardwareError):

@@ -157,9 +157,9 @@ def run_hardware(
         MasterUnreachable: no ROS master.
         RosUnavailable: ROS 1 not installed.
     """
-    from compare.analysis.metrics import RunMeta, compute_summary
+    from compare.analysis.metrics import compute_summary
     from compare.analysis.results import ResultsWriter
-    from compare.run import loop_setup, set_task_infos, write_plots
+    from compare.run import loop_setup, run_meta, write_plots
 
     robot = robots.load("jaco2")
     sc = config.scenario
@@ -212,17 +212,7 @@ def run_hardware(
             io.close()
 
     steps = out.steps.drop(columns=[c for c in out.steps.columns if c.startswith(("truth:", "dist_true:"))])
-    meta = RunMeta(
-        scenario=sc.name,
-        seed=sc.seed,
-        method=method,
-        dt=sc.dt,
-        sim_time_s=out.sim_time_s,
-        wall_time_s=out.wall_time_s,
-        sensing="depth" if use_depth else "none",
-        set_tasks=set_task_infos(hierarchy),
-    )
-    summary = compute_summary(steps, meta)
+    summary = compute_summary(steps, run_meta(config, method, hierarchy, out, "depth" if use_depth else "none"))
     measured = [steps[f"dist_meas:{cp}"].to_numpy(dtype=float) for cp in CONTROL_POINTS if f"dist_meas:{cp}" in steps]
     summary["min_obstacle_distance_m"] = [_finite_min(d) for d in measured]
     summary["obstacle_distance_source"] = "measured (depth camera; no ground truth on hardware)"

@@ -2,9 +2,11 @@
 
 from __future__ import annotations
 
+from compare.exceptions import CompareError
 
-class SensingError(Exception):
-    """Root of the sensing errors: bad scene, camera or sensing parameters."""
+
+class SensingError(CompareError):
+    """Root of the sensing errors: bad scene, camera or sensing parameters (under :class:`CompareError`)."""
 
 
 class UnknownSceneElement(SensingError):

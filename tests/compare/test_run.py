@@ -11,6 +11,8 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+import numpy as np
+import pandas as pd
 import pytest
 from typer.testing import CliRunner
 
@@ -20,6 +22,11 @@ from tests.compare.analysis.test_metrics import REQUIRED_KEYS
 CONFIGS = Path(__file__).resolve().parents[2] / "configs"
 SAFETY_TOL = {"joint_limits": 2e-3, "walls": 2e-3}
 SAFE_METHODS = ("tpik", "hqp-daqp")
+CASE1_SCALE = 0.4
+# configs/case1.toml, scaled: the person starts stepping in at 35 s, is in by 37 s, starts
+# leaving at 55 s and is back in place at 57 s.
+CASE1_APPROACH_S, CASE1_IN_S, CASE1_LEAVE_S, CASE1_GONE_S = (CASE1_SCALE * t for t in (35.0, 37.0, 55.0, 57.0))
+CASE1_P1, CASE1_P2 = np.array([-0.5, 0.4, 0.7]), np.array([0.5, 0.4, 0.7])
 
 
 def _run(tmp_path: Path, config: str, *extra: str) -> dict:
@@ -30,11 +37,16 @@ def _run(tmp_path: Path, config: str, *extra: str) -> dict:
 
 
 @pytest.fixture(scope="module")
-def case1(tmp_path_factory) -> dict:
+def case1_dir(tmp_path_factory) -> Path:
     tmp = tmp_path_factory.mktemp("case1")
-    return _run(
-        tmp, "case1.toml", "--time-scale", "0.4", "--sensing", "geometric", "-m", "tpik", "-m", "hqp-daqp", "-m", "mink"
-    )
+    methods = ["-m", "tpik", "-m", "hqp-daqp", "-m", "mink"]
+    _run(tmp, "case1.toml", "--time-scale", str(CASE1_SCALE), "--sensing", "geometric", *methods)
+    return tmp / "case1"
+
+
+@pytest.fixture(scope="module")
+def case1(case1_dir) -> dict:
+    return json.loads((case1_dir / "summary.json").read_text())
 
 
 @pytest.fixture(scope="module")
@@ -52,8 +64,44 @@ def test_case1_keeps_joint_limits_and_physical_distance(case1, method):
     assert m["joint_limits"]["safety_margin_min"] > -SAFETY_TOL["joint_limits"]
     assert m["obstacles"]["physical_margin_min"] > 0.0
     assert m["failures"] == 0 and m["fallbacks"] == 0
-    # The person steps in: the obstacle tasks must have been active at some point.
-    assert min(d for d in m["min_obstacle_distance_m"] if d is not None) < 0.5
+
+
+def _obstacle_activity(steps: pd.DataFrame) -> np.ndarray:
+    columns = [c for c in steps.columns if c.startswith("active:obstacle_")]
+    assert len(columns) == 3
+    return steps[columns].to_numpy(dtype=bool).any(axis=1)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("method", SAFE_METHODS)
+def test_case1_obstacle_tasks_are_active_exactly_while_the_person_is_in(case1_dir, method):
+    steps = pd.read_parquet(case1_dir / "steps" / f"{method}.parquet")
+    t, active = steps["t"].to_numpy(), _obstacle_activity(steps)
+    assert not active[t < CASE1_APPROACH_S].any()  # standing near the arm, outside the activation band
+    assert active[(t >= CASE1_IN_S) & (t <= CASE1_LEAVE_S)].any()
+    assert not active[t > CASE1_GONE_S + 0.5].any()
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("method", SAFE_METHODS)
+def test_case1_arm_gives_way_while_the_person_is_in_and_resumes_after(case1_dir, case1, method):
+    """The paper's case 1: the arm stops short of the person (held off its path) and resumes."""
+    steps = pd.read_parquet(case1_dir / "steps" / f"{method}.parquet")
+    t, active = steps["t"].to_numpy(), _obstacle_activity(steps)
+    ee = steps[["ee_x", "ee_y", "ee_z"]].to_numpy()
+    error = steps["ee_error_m"].to_numpy()
+    tolerance = case1["methods"][method]["waypoint_tolerance_m"]
+    # Distance of the EE from the straight p1–p2 path it follows when nobody is in the way.
+    axis = (CASE1_P2 - CASE1_P1) / np.linalg.norm(CASE1_P2 - CASE1_P1)
+    rel = ee - CASE1_P1
+    off_path = np.linalg.norm(rel - np.outer(rel @ axis, axis), axis=1)
+    cycling = (t >= t[np.argmax(error < tolerance)]) & (t < CASE1_APPROACH_S)  # p1 reached, nobody near
+    assert off_path[active].max() > max(2.0 * off_path[cycling].max(), 0.08)
+    # Once the person has left, a waypoint is reached within 4 s and the EE goes on cycling.
+    reached = np.flatnonzero((t > CASE1_LEAVE_S) & (error < tolerance))
+    assert reached.size and t[reached[0]] < CASE1_GONE_S + 4.0
+    waypoint = steps["waypoint"].to_numpy()
+    assert np.unique(waypoint[t > t[reached[0]]]).size == 2
 
 
 @pytest.mark.slow

@@ -16,6 +16,7 @@ from tests.qp_baseline.helpers import (
     ss_reference,
 )
 from tpik.hierarchy import Hierarchy, Level
+from tpik.solver import TpikSettings, TpikSolver
 from tpik.tasks import OrientationTask, PositionTask
 
 # The cascade regularises every level with ε‖q̇‖², ε = 1e-9: its answer differs from the
@@ -110,8 +111,7 @@ def test_zero_velocity_when_all_tasks_satisfied(jaco):
 
 
 def test_matches_tpik_siciliano_slotine_variant(jaco):
-    tpik_solver = pytest.importorskip("tpik.solver")
-    tpik = tpik_solver.TpikSolver(jaco, tpik_solver.TpikSettings(variant="ss"), name="tpik-ss")
+    tpik = TpikSolver(jaco, TpikSettings(variant="ss"), name="tpik-ss")
     hqp = HqpSolver(jaco, "daqp", {"unconstrained_first": False})
     for q, name, hierarchy, ref in _cases(jaco, 8, seed=11):
         kin = jaco.kinematics(q)

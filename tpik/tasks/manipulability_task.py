@@ -4,7 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from robots import Kinematics
+from robots import Kinematics, Robot
+from tpik.tasks.registry import TaskKey, TaskSpec, frame_task_keys
 from tpik.tasks.task import Task, TaskState
 
 
@@ -55,3 +56,17 @@ class ManipulabilityTask(Task):
                         djv[:, i] = np.cross(zi, np.cross(zk, rel[k]))
                 grad[k] = w * float(np.trace(gram_inv @ (jv @ djv.T)))
         return TaskState(np.array([w]), grad[None, :], np.array([self.target]), np.zeros(1))
+
+
+MANIPULABILITY_KEYS: tuple[TaskKey, ...] = frame_task_keys(
+    "manipulability",
+    TaskKey("target", "desired translational manipulability w (unitless, m³ scale)", 0.2),
+)
+"""Keys of a ``manipulability`` description."""
+
+
+def build_manipulability(spec: TaskSpec, robot: Robot) -> list[Task]:
+    """``manipulability``: one :class:`ManipulabilityTask` (gradient task)."""
+    frame = spec.frame("frame")
+    name = spec.optional_text("name") or f"manipulability_{frame}"
+    return [ManipulabilityTask(name, frame, spec.number("gain", positive=True), spec.number("target", minimum=0.0))]

@@ -6,9 +6,10 @@ import math
 
 import numpy as np
 
-from robots import Kinematics
+from robots import Kinematics, Robot
 from tpik.tasks._targets import as_finite_vector
-from tpik.tasks.task import SetTask, Thresholds
+from tpik.tasks.registry import GAIN_KEY, GROUP_KEY, TaskKey, TaskSpec
+from tpik.tasks.task import SetTask, Task, Thresholds
 
 
 class ObstacleDistanceTask(SetTask):
@@ -29,7 +30,10 @@ class ObstacleDistanceTask(SetTask):
         thresholds: Thresholds [m]; typically physical_lower > 0, safety_lower = 0.35, upper = inf.
         gain: K [1/s].
         joint: 1-based joint ``j`` of the control point; defaults to the joint moving ``frame``.
+        group: Metrics group (default ``obstacles``).
     """
+
+    default_group = "obstacles"
 
     def __init__(
         self,
@@ -38,8 +42,9 @@ class ObstacleDistanceTask(SetTask):
         thresholds: Thresholds,
         gain: float = 1.0,
         joint: int | None = None,
+        group: str | None = None,
     ) -> None:
-        super().__init__(name, thresholds, gain)
+        super().__init__(name, thresholds, gain, group)
         self.frame = frame
         self.joint = joint
         self._obstacle: np.ndarray | None = None
@@ -72,3 +77,36 @@ class ObstacleDistanceTask(SetTask):
             return 0.0, np.zeros((1, kin.nq))
         diff *= -1.0 / dist
         return dist, diff.dot(kin.partial_position_jacobian(self.frame, self.joint))[None, :]
+
+
+OBSTACLE_DISTANCE_KEYS: tuple[TaskKey, ...] = (
+    TaskKey("frame", "control point frame (or give `frames`)", None),
+    TaskKey("frames", "control point frames, one task each (or give `frame`)", None),
+    TaskKey("safety_distance", "σ_{s,l}: distance held from the closest obstacle point", 0.35, "m"),
+    TaskKey("physical_distance", "σ_m: distance below which the arm touches (< safety_distance)", 0.1, "m"),
+    TaskKey("activation_margin", "ε: activation threshold beyond the safety distance", 0.05, "m"),
+    GAIN_KEY,
+    TaskKey("name", "task name, only with a single `frame` (default `obstacle_<frame>`)", None),
+    GROUP_KEY,
+)
+"""Keys of an ``obstacle_distance`` description."""
+
+
+def build_obstacle_distances(spec: TaskSpec, robot: Robot) -> list[Task]:
+    """``obstacle_distance``: one :class:`ObstacleDistanceTask` per control point."""
+    key = spec.one_or_many("frame", "frames")
+    frames = spec.frames(key)
+    safety = spec.number("safety_distance", positive=True)
+    physical = spec.number("physical_distance")
+    eps = spec.number("activation_margin", positive=True)
+    gain = spec.number("gain", positive=True)
+    name = spec.name_for(len(frames), "frame")
+    group = spec.optional_text("group")
+    if not physical < safety:
+        raise spec.error("safety_distance", f"must be > physical_distance={physical:g} m, got {safety:g}")
+    th = Thresholds(physical, safety, math.inf, math.inf, eps)
+    tasks: list[Task] = []
+    for frame in frames:
+        with spec.about("physical_distance", "safety_distance", "activation_margin"):
+            tasks.append(ObstacleDistanceTask(name or f"obstacle_{frame}", frame, th, gain, group=group))
+    return tasks

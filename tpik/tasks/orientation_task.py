@@ -8,6 +8,7 @@ import pinocchio as pin
 from robots import Kinematics
 from tpik.exceptions import TargetNotSet
 from tpik.tasks._targets import as_rotation
+from tpik.tasks.registry import TaskKey, frame_task_builder, frame_task_keys
 from tpik.tasks.task import Task, TaskState
 
 
@@ -57,3 +58,14 @@ class OrientationTask(Task):
         value = pin.log3(rot)
         jac = kin.frame_jacobian(self.frame)[3:]
         return TaskState(value, jac, value + error, np.zeros(3), error)
+
+
+ORIENTATION_KEYS: tuple[TaskKey, ...] = frame_task_keys(
+    "orientation",
+    TaskKey("target", "target rotation matrix R_d (3×3, rows) in the base frame (default: none set)", None),
+)
+"""Keys of an ``orientation`` description."""
+
+
+build_orientation = frame_task_builder(OrientationTask, "orientation", (3, 3))
+"""Builder of a ``orientation`` description."""

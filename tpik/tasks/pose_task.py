@@ -7,6 +7,7 @@ import numpy as np
 from robots import Kinematics
 from tpik.tasks.orientation_task import OrientationTask
 from tpik.tasks.position_task import PositionTask
+from tpik.tasks.registry import TaskKey, frame_task_builder, frame_task_keys
 from tpik.tasks.task import Task, TaskState
 
 
@@ -50,3 +51,14 @@ class PoseTask(Task):
             np.concatenate([pos.feedforward, rot.feedforward]),
             np.concatenate([pos.error, rot.error]),
         )
+
+
+POSE_KEYS: tuple[TaskKey, ...] = frame_task_keys(
+    "pose",
+    TaskKey("target", "target 4×4 homogeneous transform (rows; translation in m) in the base frame", None),
+)
+"""Keys of a ``pose`` description."""
+
+
+build_pose = frame_task_builder(PoseTask, "pose", (4, 4))
+"""Builder of a ``pose`` description."""

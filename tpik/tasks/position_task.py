@@ -7,6 +7,7 @@ import numpy as np
 from robots import Kinematics
 from tpik.exceptions import TargetNotSet
 from tpik.tasks._targets import as_finite_vector
+from tpik.tasks.registry import TaskKey, frame_task_builder, frame_task_keys
 from tpik.tasks.task import Task, TaskState
 
 
@@ -59,3 +60,14 @@ class PositionTask(Task):
         return TaskState(
             kin.frame_position(self.frame), kin.position_jacobian(self.frame), self._target, self._velocity
         )
+
+
+POSITION_KEYS: tuple[TaskKey, ...] = frame_task_keys(
+    "position",
+    TaskKey("target", "fixed target position p_d, base frame (default: the scenario's waypoints set it)", None, "m"),
+)
+"""Keys of a ``position`` description."""
+
+
+build_position = frame_task_builder(PositionTask, "position", (3,))
+"""Builder of a ``position`` description."""

@@ -5,7 +5,9 @@ from __future__ import annotations
 import abc
 import enum
 import math
-from dataclasses import dataclass, field
+import re
+from dataclasses import dataclass
+from typing import ClassVar
 
 import numpy as np
 
@@ -13,19 +15,19 @@ from robots import Kinematics
 from tpik.exceptions import InvalidTaskState, TaskDefinitionError, ThresholdOrderError
 
 
-@dataclass(frozen=True, slots=True)
+@dataclass(frozen=True, slots=True, init=False)
 class TaskState:
     r"""A task evaluated at one configuration.
 
     The closed-loop inverse kinematics reference of the task (paper eq. 2) is
     :math:`\dot\sigma_d + K\tilde\sigma` with :math:`\tilde\sigma = \sigma_d - \sigma`.
 
-    Attributes:
+    Args:
         value: Task value σ. Shape (m,).
         jacobian: Task Jacobian J = ∂σ/∂q. Shape (m, n).
         desired: Desired value σ_d. Shape (m,).
         feedforward: Desired task velocity σ̇_d. Shape (m,).
-        error: Task error σ̃; defaults to ``desired - value``. Tasks on SO(3) pass their own
+        error: Task error σ̃; ``None`` = ``desired - value``. Tasks on SO(3) pass their own
             (log-map) error. Shape (m,).
     """
 
@@ -33,11 +35,21 @@ class TaskState:
     jacobian: np.ndarray
     desired: np.ndarray
     feedforward: np.ndarray
-    error: np.ndarray = field(default=None)  # type: ignore[assignment]
+    error: np.ndarray
 
-    def __post_init__(self) -> None:
-        if self.error is None:
-            object.__setattr__(self, "error", self.desired - self.value)
+    def __init__(
+        self,
+        value: np.ndarray,
+        jacobian: np.ndarray,
+        desired: np.ndarray,
+        feedforward: np.ndarray,
+        error: np.ndarray | None = None,
+    ) -> None:
+        object.__setattr__(self, "value", value)
+        object.__setattr__(self, "jacobian", jacobian)
+        object.__setattr__(self, "desired", desired)
+        object.__setattr__(self, "feedforward", feedforward)
+        object.__setattr__(self, "error", desired - value if error is None else error)
 
     @property
     def dim(self) -> int:
@@ -163,6 +175,9 @@ class Thresholds:
         return self.safety_upper - self.activation_margin
 
 
+_GROUP_NAME = re.compile(r"[a-z][a-z0-9_]*")
+
+
 class SetTask(Task):
     """A scalar set-based task: keep σ within [σ_{s,l}, σ_{s,u}] (paper eqs. 7–9).
 
@@ -171,14 +186,33 @@ class SetTask(Task):
     in range) the value is ``+inf`` or ``-inf`` *outside* any activation zone's reach and the
     Jacobian is zero: every solver treats the task as inactive.
 
+    Every set task belongs to a metrics ``group`` (``joint_limits``, ``walls``, ``obstacles``, or
+    a new one): ``summary.json`` reports the worst margins and the violations of each group under
+    its name (``compare.analysis.metrics``). A subclass names its group in :attr:`default_group`.
+
+    Args:
+        name: Task name.
+        thresholds: Thresholds, in σ's unit.
+        gain: K [1/s].
+        group: Metrics group; ``None`` = :attr:`default_group`. Lower-case letters, digits, ``_``.
+
     Attributes:
         thresholds: Validated :class:`Thresholds`.
+        group: The task's metrics group.
     """
 
-    def __init__(self, name: str, thresholds: Thresholds, gain: float) -> None:
+    default_group: ClassVar[str] = "other"
+    """Group of the subclass's tasks unless one is given."""
+
+    def __init__(self, name: str, thresholds: Thresholds, gain: float, group: str | None = None) -> None:
         super().__init__(name, 1, gain)
         thresholds.check(name)
         self.thresholds = thresholds
+        self.group = self.default_group if group is None else group
+        if not isinstance(self.group, str) or not _GROUP_NAME.fullmatch(self.group):
+            raise TaskDefinitionError(
+                f"task '{name}': group must be lower-case letters, digits and '_' (a JSON key), got {self.group!r}"
+            )
 
     @property
     def is_set_based(self) -> bool:

@@ -22,6 +22,7 @@ from compare.campaign.sweep import run_sweep
 from compare.cli import app
 from compare.config import load_config
 from compare.run import run_method
+from tests.compare.campaign.worst_seeds import CASES, REFREEZE, frozen_view, realized
 
 CONFIGS = Path(__file__).resolve().parents[3] / "configs"
 SAFETY_TOL = {"joint_limits": 2e-3, "walls": 2e-3}  # as tests/compare/test_run.py
@@ -161,35 +162,41 @@ def test_fifty_run_campaign_keeps_joint_limits_and_walls_for_tpik_and_hqp(tmp_pa
         assert (out / "plots" / f"{png}.png").is_file()
 
 
-@pytest.mark.parametrize(
-    ("seed", "method", "duration_s", "group", "drive"),
-    [
-        (379, "tpik", 13.0, "joint_limits", "servo"),
-        (215, "hqp-daqp", 20.0, "walls", "servo"),
-        (145, "tpik", 18.2, "joint_limits", "servo"),
-        (610, "hqp-daqp", 14.5, "walls", "decoupled"),
-        (132, "tpik", 7.3, "walls", "decoupled"),
-    ],
-)
-def test_campaign_worst_seeds_stay_inside_their_thresholds(seed, method, duration_s, group, drive):
-    """Issue 9's worst runs (seed 379 cut at 13 s, inside its former 12.4–16.2 s violation).
+@pytest.mark.parametrize("case", CASES, ids=[c.path.stem for c in CASES])
+def test_campaign_worst_seeds_stay_inside_their_thresholds(case):
+    """Issue 9's worst runs, each simulated from its frozen scenario (``worst_seeds/``).
 
-    With 5 ms physics steps a saturated velocity servo entered a ±force-limit cycle and stopped
-    following its command: joint 6 ended 15 mrad past its threshold at 13.0 s in seed 379 (tpik)
-    and the EE 57 mm past ``wall_x_min`` at 13.1 s in seed 215 (hqp-daqp), both commanded back
-    inside (tests/robots/test_servo_stability.py). Seed 145 (tpik): joint 2 held at its
-    threshold; at 17.92 s the largest-norm mode choice sent joints 1, 4, 6 from rest to
-    −0.60 / −0.54 / −0.84 rad/s in one step and the servos' coupling dipped joint 2 by 4.7 mrad.
-    With the default rule (``TpikSettings.selection``) the same moment commands ≤ 0.16 rad/s
-    and joint 2 stays within 0.4 mrad of its threshold.
+    Seed 379 is cut at 13 s, inside its former 12.4–16.2 s violation. With 5 ms physics steps a
+    saturated velocity servo entered a ±force-limit cycle and stopped following its command:
+    joint 6 ended 15 mrad past its threshold at 13.0 s in seed 379 (tpik) and the EE 57 mm past
+    ``wall_x_min`` at 13.1 s in seed 215 (hqp-daqp), both commanded back inside
+    (tests/robots/test_servo_stability.py). Seed 145 (tpik): joint 2 held at its threshold; at
+    17.92 s the largest-norm mode choice sent joints 1, 4, 6 from rest to −0.60 / −0.54 /
+    −0.84 rad/s in one step and the servos' coupling dipped joint 2 by 4.7 mrad. With the default
+    rule (``TpikSettings.selection``) the same moment commands ≤ 0.16 rad/s and joint 2 stays
+    within 0.4 mrad of its threshold.
 
     Seeds 610 (hqp-daqp) and 132 (tpik) are the servo drive's deepest wall overshoots left
     after that: the EE slides along a held wall at the velocity limits and the P servos' coupling
     drift pushes it 4.5 mm (14.34 s) and 1.5 mm (7.1 s) past the threshold. The decoupled drive
     (compare/loop/joint_drive.py, the default) tracks the command without that drift.
     """
-    overrides = {"scenario.seed": seed, "scenario.duration_s": duration_s, "scenario.drive": drive}
-    config, _ = load_config(CONFIGS / "random.toml", overrides)
+    config, _ = load_config(case.path)
+    assert config.scenario.kind == "scripted" and config.methods.names == [case.method]
     robot = robots.load("jaco2")
-    summary = run_method(realize(config, robot), method, robot)["summary"]
-    assert summary[group]["safety_margin_min"] > -1e-3, (seed, method, summary[group])
+    summary = run_method(realize(config, robot), case.method, robot)["summary"]
+    group = summary[case.group]
+    assert group["safety_margin_min"] > -1e-3, (case, group)
+    # The scenario still takes the arm to that threshold: the case is not an idle one.
+    assert group["safety_margin_min"] < 0.02, (case, group)
+
+
+@pytest.mark.parametrize("case", CASES, ids=[c.path.stem for c in CASES])
+def test_the_generator_still_draws_the_frozen_worst_seeds(case):
+    frozen, _ = load_config(case.path)
+    if frozen_view(realized(case)) != frozen_view(frozen):
+        pytest.fail(
+            f"compare/campaign/random_scenario.py no longer draws {case.path.name} for seed {case.seed}: the frozen "
+            "file still tests the old worst case. If the generator change is intended, re-freeze with "
+            f"`{REFREEZE}` and check that the new draws still reach their thresholds."
+        )
