@@ -399,6 +399,8 @@ class HardwareConfig(_Strict):
         state_timeout_periods: Watchdog: no joint state for this many expected periods → zero
             velocity and ``in/stop`` (5: 111 ms over USB, 50 ms over Ethernet at 0.01 s).
         depth_timeout_s: Watchdog: no depth frame for this long → zero velocity [s].
+        loop_timeout_s: Watchdog: no new command from the control loop for this long → zero
+            velocity [s] (the command stream re-sends the held command until then).
         max_velocity_scale: Fraction of the model's joint velocity limits allowed on hardware.
         max_acceleration_rad_s2: Clamp on the change of the commanded velocity [rad/s²].
         camera_translation_m: Optical-frame origin in the arm base frame [m] (calibrated).
@@ -436,6 +438,7 @@ class HardwareConfig(_Strict):
     min_state_rate_fraction: float = Field(0.7, ge=0.0, le=1.0)
     state_timeout_periods: float = Field(5.0, ge=1.0, le=100.0)
     depth_timeout_s: float = Field(0.2, gt=0.0, le=5.0)
+    loop_timeout_s: float = Field(0.1, ge=0.03, le=1.0)
     max_velocity_scale: float = Field(1.0, gt=0.0, le=1.0)
     max_acceleration_rad_s2: float = Field(4.0, gt=0.0, le=100.0)
     camera_translation_m: Vec3 | None = None

@@ -8,8 +8,9 @@ stops the control API, erases the FIFO and makes the driver ignore velocity comm
 * every halt path calls ``in/stop`` once: a latched halt (Ctrl-C, SIGTERM, an error), a
   watchdog trip (stale joint state, stale depth, stalled loop) and the end of the run;
 * after a watchdog trip, when the data is fresh again, ``in/start`` is called and commands
-  stay zero until it has returned (the driver blocks ~50 ms in it); a latched halt is never
-  followed by a start;
+  stay zero until it has returned and fresh data has come again: ``startAPI`` blocks the
+  driver's only thread ~50 ms, so the joint states pause, and that pause is not a new trip
+  (unless it lasts :data:`RESTART_GRACE_S`); a latched halt is never followed by a start;
 * before the first run ``in/start`` is called synchronously (a previous run left the driver
   stopped): :meth:`DriverControl.start_now`.
 
@@ -29,6 +30,10 @@ from dataclasses import dataclass
 from compare.hardware.exceptions import HardwareError
 
 log = logging.getLogger(__name__)
+
+
+RESTART_GRACE_S = 1.0
+"""After ``in/start`` returns, data must be fresh again within this time, else it is a new trip [s]."""
 
 
 class DriverServiceError(HardwareError):
@@ -74,6 +79,8 @@ class DriverControl:
         self._requests: queue.Queue[tuple[str, str] | None] = queue.Queue()
         self._lock = threading.Lock()
         self._state = "running"  # running | stopped (in/stop requested) | starting (in/start requested)
+        # | restarted (in/start returned, waiting for fresh data)
+        self._restarted_t = 0.0
         self._halted = False
         self._last_submitted: str | None = None
         self._pending = 0
@@ -101,12 +108,13 @@ class DriverControl:
         with self._lock:
             self._state, self._last_submitted = "running", "start"
 
-    def update(self, cause: str | None, halted: bool) -> str | None:
+    def update(self, cause: str | None, halted: bool, now_s: float = 0.0) -> str | None:
         """Called at every command tick with why the command must be zero (None: it need not be).
 
         Args:
             cause: The halt or watchdog reason, or None when the data is fresh.
             halted: The halt is latched (never restart).
+            now_s: Controller time [s] (for the grace after a restart).
 
         Returns:
             A reason to keep the command at zero because of the driver's state, or None.
@@ -115,7 +123,13 @@ class DriverControl:
             return None
         with self._lock:
             self._halted = self._halted or halted
-            if cause is not None and self._state in ("running", "starting"):
+            if self._state == "restarted":
+                if cause is None:
+                    self._state = "running"
+                elif halted or now_s - self._restarted_t > RESTART_GRACE_S:
+                    self._state = "stopped"
+                    self._submit("stop", cause)
+            elif cause is not None and self._state in ("running", "starting"):
                 self._state = "stopped"
                 self._submit("stop", cause)
             elif cause is None and self._state == "stopped" and not self._halted:
@@ -124,6 +138,8 @@ class DriverControl:
             state = self._state
         if state == "starting":
             return "driver stopped (in/stop); waiting for in/start"
+        if state == "restarted":
+            return "driver restarted (in/start); waiting for fresh data"
         return "driver stopped (in/stop)" if state == "stopped" else None
 
     def finish(self, cause: str, timeout_s: float) -> None:
@@ -170,7 +186,7 @@ class DriverControl:
             with self._lock:
                 if service == "start" and self._state == "starting":
                     if self.calls[-1].ok:
-                        self._state = "running"
+                        self._state, self._restarted_t = "restarted", self._clock()
                     else:  # a failed start leaves the driver stopped for good
                         self._state, self._halted = "stopped", True
                 self._pending -= 1
