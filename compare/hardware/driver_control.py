@@ -108,13 +108,12 @@ class DriverControl:
         with self._lock:
             self._state, self._last_submitted = "running", "start"
 
-    def update(self, cause: str | None, halted: bool, now_s: float = 0.0) -> str | None:
+    def update(self, cause: str | None, halted: bool) -> str | None:
         """Called at every command tick with why the command must be zero (None: it need not be).
 
         Args:
             cause: The halt or watchdog reason, or None when the data is fresh.
             halted: The halt is latched (never restart).
-            now_s: Controller time [s] (for the grace after a restart).
 
         Returns:
             A reason to keep the command at zero because of the driver's state, or None.
@@ -126,7 +125,7 @@ class DriverControl:
             if self._state == "restarted":
                 if cause is None:
                     self._state = "running"
-                elif halted or now_s - self._restarted_t > RESTART_GRACE_S:
+                elif halted or self._clock() - self._restarted_t > RESTART_GRACE_S:
                     self._state = "stopped"
                     self._submit("stop", cause)
             elif cause is not None and self._state in ("running", "starting"):

@@ -523,7 +523,7 @@ class RosRobotIO(RobotIO):
                 reason = self.watchdog.check(*self._times(now))
             if not self.watchdog.quiet:  # in/stop on a halt or a trip, in/start when fresh again
                 trip = None if reason is None or reason == NO_COMMAND_YET else reason
-                driver_reason = self.driver.update(trip, self._halt_reason is not None, now - self._epoch)
+                driver_reason = self.driver.update(trip, self._halt_reason is not None)
                 reason = reason or driver_reason
             if reason is not None:
                 out = np.zeros(self.nq)
