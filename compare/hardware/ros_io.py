@@ -661,6 +661,7 @@ class RosRobotIO(RobotIO):
             "dry_run": self.dry_run,
             "replay": [str(b) for b in self.replay.bags] if self.replay is not None else None,
             "connection_type": self.hw.connection_type,
+            "clock_start_monotonic_s": self._clock_start,
             "rates": {name: counter.stats(since) for name, counter in self.rates.items()},
             "watchdog_events": [{"t_s": e.t_s, "reason": e.reason, "message": e.message} for e in self.watchdog.events],
             "startup_watchdog_events": [e.message for e in self.startup_events],

@@ -395,6 +395,7 @@ class StandIn:
             ]
             data["services"] = [{"name": t.name, "requested_t": t.requested_t, "done_t": t.done_t} for t in m.services]
             data["state_sample_t"] = [s.sample_t for s in m.states]
+            data["state_model_t"] = [s.t for s in m.states]
             data["fifo_peak"] = m.fifo_peak
             data["cycles"] = m.cycles
         data["connection"] = self.timing.connection
