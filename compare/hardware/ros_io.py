@@ -181,6 +181,7 @@ class RosRobotIO(RobotIO):
         self._history: deque[tuple[float, np.ndarray]] = deque(maxlen=300)
         self._camera: CameraModel | None = None
         self._frame: tuple[np.ndarray, float, CameraModel] | None = None
+        self._capture_of: dict[float, float] = {}  # arrival → capture time of the last frames (monotonic)
         self._command = np.zeros(self.nq)
         self._command_t: float | None = None
         self._sent = np.zeros(self.nq)
@@ -462,6 +463,17 @@ class RosRobotIO(RobotIO):
                 break
         return None if best is None else best.copy()
 
+    def frame_q(self, stamp_s: float) -> np.ndarray | None:
+        """Joint positions [rad] when the depth frame that *arrived* at ``stamp_s`` was *taken*.
+
+        The capture time is the image's header stamp when it lies on this machine's clock (at most
+        0.5 s before the arrival: camera driver on the same machine, or clocks in sync), else the
+        arrival time; the self-filter then places the arm where it was in the image.
+        """
+        with self._lock:
+            capture = self._capture_of.get(stamp_s + self._epoch)
+        return self.q_at(stamp_s if capture is None else capture - self._epoch)
+
     def read_depth(self) -> DepthFrame | None:
         """Latest depth frame with the calibrated camera (its age is the caller's to check)."""
         with self._lock:
@@ -648,8 +660,17 @@ class RosRobotIO(RobotIO):
         except HardwareError as exc:
             self._bad("depth", str(exc))
             return
+        capture = now
+        stamp = getattr(getattr(msg, "header", None), "stamp", None)
+        if stamp is not None and stamp.to_sec() > 0.0:
+            on_our_clock = stamp.to_sec() - (time.time() - time.monotonic())
+            if now - 0.5 <= on_our_clock <= now + 0.005:
+                capture = min(on_our_clock, now)
         with self._lock:
             self._frame = (depth, now, cam)
+            self._capture_of[now] = capture
+            while len(self._capture_of) > 16:
+                self._capture_of.pop(next(iter(self._capture_of)))
         self.rates["depth"].add(now)
 
     # -- report --------------------------------------------------------------------------------

@@ -86,11 +86,11 @@ def make_obstacle_source(config: Config, robot: robots.Robot, io: RosRobotIO) ->
         depth = load_background(Path(hw.background_file), frame.camera)
     elif hw.background_capture_s > 0:
         log.info("capturing the static background for %.1f s: keep people out of view", hw.background_capture_s)
-        depth = capture_background(io.read_depth, io.q_at, robot, config, hw.background_capture_s)
+        depth = capture_background(io.read_depth, io.frame_q, robot, config, hw.background_capture_s)
     else:
         depth = None
     background = static_background(depth, config) if depth is not None else None
-    return HardwareDepthSensing(robot, frame.camera, io.read_depth, io.q_at, config, background)
+    return HardwareDepthSensing(robot, frame.camera, io.read_depth, io.frame_q, config, background)
 
 
 def capture_background_file(config: Config, path: Path, duration_s: float) -> float:
@@ -110,7 +110,7 @@ def capture_background_file(config: Config, path: Path, duration_s: float) -> fl
     try:
         io.connect()
         io.wait_ready()
-        depth = capture_background(io.read_depth, io.q_at, robot, config, duration_s)
+        depth = capture_background(io.read_depth, io.frame_q, robot, config, duration_s)
     finally:
         io.close()
     if depth is None:
@@ -134,7 +134,7 @@ def measure_alignment(io: RosRobotIO, frames: int = 1, timeout_s: float = 5.0) -
         frame = io.read_depth()
         if frame is not None and frame is not last:
             last = frame
-            q = io.q_at(frame.stamp_s)
+            q = io.frame_q(frame.stamp_s)
             if q is not None:
                 results.append(check_alignment(frame.camera, q, frame.depth_m))
         if time.monotonic() > deadline:

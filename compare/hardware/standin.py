@@ -322,7 +322,8 @@ class StandIn:
                 if self.world.render_depth is not None and now >= next_depth:
                     next_depth = max(next_depth + self.depth_period_s, now - self.depth_period_s)
                     if self.stop_depth_after_s is None or self.scene_t < self.stop_depth_after_s:
-                        self._publish_depth(self._render())
+                        taken = self.ros.rospy.Time.now()  # the header stamp: when the scene was captured
+                        self._publish_depth(self._render(), taken)
                         self.record["depth_t"].append(time.monotonic())
                 self._stop.wait(max(0.0, min(next_depth - time.monotonic(), 0.05)))
         finally:
@@ -361,9 +362,8 @@ class StandIn:
         self._pub_state.publish(msg)
         self._write_bag(self.hw.joint_state_topic, msg, msg.header.stamp)
 
-    def _publish_depth(self, frame: DepthFrame) -> None:
+    def _publish_depth(self, frame: DepthFrame, stamp: Any) -> None:
         cam = frame.camera
-        stamp = self.ros.rospy.Time.now()
         img = self.ros.Image()
         img.header.stamp = stamp
         img.header.frame_id = "kinect2_ir_optical_frame"
