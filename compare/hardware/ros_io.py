@@ -471,7 +471,7 @@ class RosRobotIO(RobotIO):
         arrival time; the self-filter then places the arm where it was in the image.
         """
         with self._lock:
-            capture = self._capture_of.get(stamp_s + self._epoch)
+            capture = self._capture_of.get(round(stamp_s + self._epoch, 6))
         return self.q_at(stamp_s if capture is None else capture - self._epoch)
 
     def read_depth(self) -> DepthFrame | None:
@@ -668,7 +668,7 @@ class RosRobotIO(RobotIO):
                 capture = min(on_our_clock, now)
         with self._lock:
             self._frame = (depth, now, cam)
-            self._capture_of[now] = capture
+            self._capture_of[round(now, 6)] = capture
             while len(self._capture_of) > 16:
                 self._capture_of.pop(next(iter(self._capture_of)))
         self.rates["depth"].add(now)
