@@ -49,7 +49,17 @@ def case1_config(ros_env: dict[str, str], tmp_path_factory: pytest.TempPathFacto
         d / "case1_hw.toml",
         scenario={"time_scale": TIME_SCALE},
         methods={"names": ["tpik"]},
-        hardware={"startup_timeout_s": 60.0, "background_file": str(background), **camera_calibration()},
+        hardware={
+            "startup_timeout_s": 60.0,
+            "background_file": str(background),
+            # The test machine is shared: its scheduling gaps (150 ms seen at a load of 9 on 2
+            # cores) would trip the real defaults (111 ms USB / 50 ms Ethernet) and refuse the
+            # start. The defaults themselves are checked against the driver model's own jitter
+            # (below and in test_driver_model.py) and by the start-check tests.
+            "state_timeout_periods": 20.0,
+            "loop_timeout_s": 0.3,
+            **camera_calibration(),
+        },
     )
 
 
@@ -227,9 +237,11 @@ def test_case1_through_the_driver_model_is_as_safe_as_in_simulation(
 
     # Watchdog: every trip logged with its cause; a joint-state trip only where the states really
     # stopped for the timeout (this machine's load), never on the driver model's own jitter.
+    from compare.config import HardwareConfig
+
     timeout = report["state_timeout_s"]
     model_gaps = np.diff(model_t)
-    assert model_gaps.max() < timeout
+    assert model_gaps.max() < HardwareConfig(connection_type=connection).state_timeout_s  # the real default
     published = np.array(rec["joint_state_t"])
     for event in report["watchdog_events"]:
         assert event["message"].startswith("watchdog: ")
