@@ -16,9 +16,9 @@ system-deps:
 	fi
 
 # ROS 1 from Debian 12 for the hardware bridge only (docs/hardware.md): rospy, roscore, the
-# sensor_msgs/std_msgs Python messages and genpy (generates kinova_msgs/JointVelocity at run time).
+# sensor_msgs/std_msgs Python messages, genpy (generates kinova_msgs/JointVelocity at run time), rosbag (replay).
 # The core project installs and tests without it; tests/hardware skips when it is missing.
-HW_DEBS = python3-rospy python3-rosmaster python3-roslaunch python3-rostopic python3-sensor-msgs \
+HW_DEBS = python3-rospy python3-rosmaster python3-roslaunch python3-rostopic python3-rosbag python3-sensor-msgs \
           python3-std-msgs python3-genpy python3-genmsg
 hw-deps:
 	@if dpkg -s $(HW_DEBS) >/dev/null 2>&1 && command -v roscore >/dev/null; then \

@@ -300,6 +300,14 @@ def hw(
             help="Only record the static background for --duration s (default 10) into this .npz; publishes nothing.",
         ),
     ] = None,
+    replay: Annotated[
+        Path | None,
+        typer.Option(
+            "--replay",
+            help="Run on a recorded bag (or a directory of bags) of joint states and depth instead of the arm; "
+            "publishes nothing.",
+        ),
+    ] = None,
 ) -> None:
     """Drive the real Jaco² and depth camera through the Kinova ROS 1 driver (docs/hardware.md)."""
     from compare.config import ConfigError, load_config
@@ -357,6 +365,7 @@ def hw(
                 duration_s=duration,
                 make_plots=plots,
                 progress=lambda t: bar.update(task_id, completed=t),
+                replay=replay,
             )
     except HardwareError as exc:
         _fail(str(exc))
@@ -375,6 +384,39 @@ def hw(
         typer.echo(event["message"])
     if summary["methods"][method].get("interrupted"):
         raise typer.Exit(130)
+
+
+@app.command("hw-check")
+def hw_check(
+    config: ConfigArg,
+    frames: Annotated[int, typer.Option("--frames", min=1, max=100, help="Depth frames to compare (median).")] = 5,
+    replay: Annotated[
+        Path | None, typer.Option("--replay", help="Check on a recorded bag (or directory of bags) instead.")
+    ] = None,
+) -> None:
+    """Check the camera calibration: render the arm model into the live depth from the configured pose."""
+    from compare.config import ConfigError, load_config
+    from compare.hardware.exceptions import HardwareError
+    from compare.hardware.run import calibration_problem, check_camera
+
+    try:
+        cfg, _ = load_config(config)
+    except ConfigError as exc:
+        _fail(str(exc))
+        return
+    logging.getLogger("compare.hardware").setLevel(logging.INFO)
+    try:
+        residual = check_camera(cfg, replay=replay, frames=frames)
+    except HardwareError as exc:
+        _fail(str(exc))
+        return
+    typer.echo(f"camera: {residual.describe()}")
+    limit = cfg.hardware.calibration_max_residual_m
+    problem = calibration_problem(residual, limit if limit > 0 else 0.02)
+    if problem is not None:
+        _fail(problem)
+        return
+    typer.echo(f"calibration OK (limit {100 * (limit if limit > 0 else 0.02):.1f} cm)")
 
 
 def main(argv: list[str] | None = None) -> None:

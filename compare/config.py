@@ -382,29 +382,51 @@ class MethodsConfig(_Strict):
 Vec4 = tuple[float, float, float, float]
 
 
+USB_STATE_RATE_HZ = 45.0
+"""Joint-state rate the kinova-ros driver reaches over USB with ``feedback_publish_rate`` ≤ 0.02 s:
+its status timer makes nine blocking API calls of ~2 ms each (kinova-ros issues #281: "barely
+40 Hz", #372: "40–60 Hz"; ``compare.hardware.driver_model``). Over Ethernet it is 1 / feedback_publish_rate."""
+
+
 class HardwareConfig(_Strict):
     """The real Jaco² and depth camera through ROS 1 (``tpik-compare hw``, docs/hardware.md).
 
-    Topics default to the kinova-ros driver of a j2s7s300 and a Kinect v2 bridge. Rates are
-    those the driver is launched with: ``state_rate_hz`` = 1 / ``feedback_publish_rate``.
+    Topics default to the kinova-ros driver of a j2s7s300 and a Kinect v2 bridge. The driver's
+    launch settings are stated here (``connection_type``, ``feedback_publish_rate_s``): they
+    set the joint-state rate to expect, and from it the start check and the watchdog.
 
     Attributes:
         node_name: ROS node name of the controller.
         joint_state_topic: ``sensor_msgs/JointState`` from the driver (positions in rad).
         velocity_topic: ``kinova_msgs/JointVelocity`` to the driver (deg/s, 100 Hz).
+        stop_service: ``kinova_msgs/Stop`` of the driver (stops the arm, erases its trajectory FIFO).
+        start_service: ``kinova_msgs/Start`` of the driver (re-enables commands after a stop).
+        service_timeout_s: Wait for a service to exist / answer [s].
         joint_names: Names of the 7 arm joints in the joint state, in model order.
         depth_topic: ``sensor_msgs/Image`` depth (16UC1 in mm or 32FC1 in m).
         camera_info_topic: ``sensor_msgs/CameraInfo`` of the depth image.
-        state_rate_hz: Joint state rate the driver was launched with [Hz]; sets the watchdog.
-        min_state_rate_fraction: Start refuses if the measured state rate is below this
-            fraction of ``state_rate_hz``.
-        state_timeout_periods: Watchdog: no joint state for this many state periods → zero velocity.
+        connection_type: ``usb`` or ``ethernet``: the driver's ``connection_type``
+            (``kinova_bringup/launch/config/robot_parameters.yaml``, default USB).
+        feedback_publish_rate_s: The driver's launch argument ``feedback_publish_rate``
+            (``status_interval_seconds``) [s].
+        state_rate_hz: Joint-state rate to expect [Hz]; default: 1 / ``feedback_publish_rate_s``,
+            at most :data:`USB_STATE_RATE_HZ` over USB.
+        min_state_rate_fraction: Start refuses if the measured median state rate is below this
+            fraction of the expected rate.
+        state_timeout_periods: Watchdog: no joint state for this many expected periods → zero
+            velocity and ``in/stop`` (5: 111 ms over USB, 50 ms over Ethernet at 0.01 s).
         depth_timeout_s: Watchdog: no depth frame for this long → zero velocity [s].
+        loop_timeout_s: Watchdog: no new command from the control loop for this long → zero
+            velocity [s] (the command stream re-sends the held command until then).
         max_velocity_scale: Fraction of the model's joint velocity limits allowed on hardware.
         max_acceleration_rad_s2: Clamp on the change of the commanded velocity [rad/s²].
         camera_translation_m: Optical-frame origin in the arm base frame [m] (calibrated).
         camera_quaternion_xyzw: Optical-frame orientation in the base frame, (x, y, z, w) as
             ``tf``/``static_transform_publisher`` print it. Both or neither; missing → no start.
+        calibration_max_residual_m: ``hw`` refuses to move when the alignment residual (75th
+            percentile of the depth error over the arm's pixels: the arm model rendered from the
+            configured camera pose vs the live depth,
+            ``tpik-compare hw-check``) exceeds this [m]; 0 = no check.
         depth_min_range_m: Closest valid depth [m].
         depth_max_range_m: Farthest valid depth [m].
         use_depth: Use the depth camera (required when the hierarchy has obstacle tasks).
@@ -419,19 +441,26 @@ class HardwareConfig(_Strict):
     node_name: str = "tpik_compare"
     joint_state_topic: str = "/j2s7s300_driver/out/joint_state"
     velocity_topic: str = "/j2s7s300_driver/in/joint_velocity"
+    stop_service: str = "/j2s7s300_driver/in/stop"
+    start_service: str = "/j2s7s300_driver/in/start"
+    service_timeout_s: float = Field(2.0, gt=0.0, le=30.0)
     joint_names: tuple[str, str, str, str, str, str, str] = tuple(  # type: ignore[assignment]
         f"j2s7s300_joint_{i}" for i in range(1, 8)
     )
     depth_topic: str = "/kinect2/sd/image_depth_rect"
     camera_info_topic: str = "/kinect2/sd/camera_info"
-    state_rate_hz: float = Field(100.0, gt=0.0, le=1000.0)
-    min_state_rate_fraction: float = Field(0.8, ge=0.0, le=1.0)
-    state_timeout_periods: float = Field(3.0, ge=1.0, le=100.0)
+    connection_type: Literal["usb", "ethernet"] = "usb"
+    feedback_publish_rate_s: float = Field(0.01, gt=0.0, le=1.0)
+    state_rate_hz: float | None = Field(None, gt=0.0, le=1000.0)
+    min_state_rate_fraction: float = Field(0.7, ge=0.0, le=1.0)
+    state_timeout_periods: float = Field(5.0, ge=1.0, le=100.0)
     depth_timeout_s: float = Field(0.2, gt=0.0, le=5.0)
+    loop_timeout_s: float = Field(0.1, ge=0.03, le=1.0)
     max_velocity_scale: float = Field(1.0, gt=0.0, le=1.0)
     max_acceleration_rad_s2: float = Field(4.0, gt=0.0, le=100.0)
     camera_translation_m: Vec3 | None = None
     camera_quaternion_xyzw: Vec4 | None = None
+    calibration_max_residual_m: float = Field(0.02, ge=0.0, le=1.0)
     depth_min_range_m: float = Field(0.5, ge=0.0)
     depth_max_range_m: float = Field(4.5, gt=0.0)
     use_depth: bool = True
@@ -465,9 +494,17 @@ class HardwareConfig(_Strict):
         return self
 
     @property
+    def expected_state_rate_hz(self) -> float:
+        """Joint-state rate to expect [Hz] (``state_rate_hz``, or from the connection and feedback rate)."""
+        if self.state_rate_hz is not None:
+            return self.state_rate_hz
+        rate = 1.0 / self.feedback_publish_rate_s
+        return min(rate, USB_STATE_RATE_HZ) if self.connection_type == "usb" else rate
+
+    @property
     def state_timeout_s(self) -> float:
-        """Joint-state watchdog timeout [s]: ``state_timeout_periods`` state periods."""
-        return self.state_timeout_periods / self.state_rate_hz
+        """Joint-state watchdog timeout [s]: ``state_timeout_periods`` expected state periods."""
+        return self.state_timeout_periods / self.expected_state_rate_hz
 
     @property
     def has_camera_transform(self) -> bool:

@@ -18,7 +18,10 @@ since rospy is pure Python and the ABI matches. If the interpreter's minor versi
 ``genpy.dynamic`` from our own copy of its definition (``compare/hardware/msg/JointVelocity.msg``,
 same seven ``float32`` fields in the same order), so its type name and MD5 sum equal those of
 the driver's message and roscpp accepts the connection. The MD5 sum is checked against the
-value the definition must hash to.
+value the definition must hash to. The driver's ``kinova_msgs/Stop`` and ``kinova_msgs/Start``
+services (``in/stop``, ``in/start``) are built the same way from ``compare/hardware/srv/``:
+request and response classes with ``genpy.dynamic``, the service MD5 with ``genmsg`` (roscpp's
+service server compares it).
 """
 
 from __future__ import annotations
@@ -40,6 +43,9 @@ MSG_DIR = Path(__file__).resolve().parent / "msg"
 JOINT_VELOCITY_TYPE = "kinova_msgs/JointVelocity"
 JOINT_VELOCITY_MD5 = "bf16c4e5154848a0767d1aaab0a4796b"
 """MD5 sum of ``kinova_msgs/JointVelocity`` (seven float32 ``joint1..joint7``), as roscpp checks it."""
+SRV_DIR = Path(__file__).resolve().parent / "srv"
+SERVICE_TYPES = {"Stop": "kinova_msgs/Stop", "Start": "kinova_msgs/Start"}
+"""The driver's services we call (``kinova_msgs/srv/Stop.srv``, ``Start.srv``: empty request, one string back)."""
 
 INSTALL_HINT = "install ROS 1 from Debian with `make hw-deps` (Debian 12; needs root)"
 
@@ -55,6 +61,8 @@ class RosApi:
         Image: ``sensor_msgs/Image``.
         CameraInfo: ``sensor_msgs/CameraInfo``.
         JointVelocity: ``kinova_msgs/JointVelocity`` generated from our ``.msg``.
+        Stop: ``kinova_msgs/Stop`` service class (``in/stop``).
+        Start: ``kinova_msgs/Start`` service class (``in/start``).
     """
 
     rospy: ModuleType
@@ -63,6 +71,8 @@ class RosApi:
     Image: Any
     CameraInfo: Any
     JointVelocity: Any
+    Stop: Any = None
+    Start: Any = None
 
 
 _API: RosApi | None = None
@@ -103,6 +113,36 @@ def joint_velocity_definition() -> str:
     return (MSG_DIR / "JointVelocity.msg").read_text(encoding="utf-8")
 
 
+def service_definition(name: str) -> str:
+    """Text of our copy of the driver's ``kinova_msgs/<name>.srv``."""
+    return (SRV_DIR / f"{name}.srv").read_text(encoding="utf-8")
+
+
+def service_class(name: str) -> Any:
+    """A rospy service class for ``kinova_msgs/<name>`` (``Stop`` or ``Start``) from our ``.srv`` copy.
+
+    Raises:
+        RosUnavailable: genpy/genmsg missing or the definition does not parse.
+    """
+    import genmsg
+    import genmsg.gentools
+    import genmsg.msg_loader
+    import genpy.dynamic
+
+    full = SERVICE_TYPES[name]
+    text = service_definition(name)
+    request_text, _, response_text = text.partition("---")
+    try:
+        request = genpy.dynamic.generate_dynamic(full + "Request", request_text)[full + "Request"]
+        response = genpy.dynamic.generate_dynamic(full + "Response", response_text)[full + "Response"]
+        context = genmsg.MsgContext.create_default()
+        md5 = genmsg.gentools.compute_md5(context, genmsg.msg_loader.load_srv_from_string(context, text, full))
+    except (genmsg.InvalidMsgSpec, ValueError) as exc:
+        raise RosUnavailable(f"cannot build {full} from {SRV_DIR / (name + '.srv')}: {exc}") from exc
+    attrs = {"_type": full, "_md5sum": md5, "_request_class": request, "_response_class": response}
+    return type(name, (), attrs)
+
+
 def load_ros() -> RosApi:
     """Import rospy and the message classes (once per process).
 
@@ -133,5 +173,7 @@ def load_ros() -> RosApi:
             f"generated {JOINT_VELOCITY_TYPE} has MD5 {joint_velocity._md5sum}, the driver's is {JOINT_VELOCITY_MD5}: "
             f"{MSG_DIR / 'JointVelocity.msg'} was changed"
         )
-    _API = RosApi(rospy, rosgraph, JointState, Image, CameraInfo, joint_velocity)
+    _API = RosApi(
+        rospy, rosgraph, JointState, Image, CameraInfo, joint_velocity, service_class("Stop"), service_class("Start")
+    )
     return _API

@@ -10,11 +10,19 @@ Data flow (one process; rospy's receive threads fill the latest values, the cont
   publishes it on ``hardware.velocity_topic`` (``kinova_msgs/JointVelocity``, **deg/s**) on a
   fixed 100 Hz schedule, through the clamps and the :class:`~compare.hardware.safety.Watchdog`.
 
-The stream thread is the loop's clock (:meth:`RosRobotIO.wait` returns at its ticks), so the
-driver gets exactly one message per 10 ms (faster fills its buffer and the arm keeps moving
-after the stream stops; slower starves it), the held command is re-sent if the loop misses a
-tick, zero goes out when the loop stalls for 3 periods, and zero goes out *at once* (not at the
-next tick) when joint state or depth goes stale while the arm moves.
+The stream thread is the loop's clock (:meth:`RosRobotIO.wait` returns at its ticks), so one
+message leaves every 10 ms (faster would fill the arm's trajectory FIFO and the arm would keep
+moving after the stream stops; slower starves it), the held command is re-sent if the loop misses
+a tick, zero goes out when the loop stalls for 3 periods, and zero goes out *at once* (not at the
+next tick) when joint state or depth goes stale while the arm moves. One message per 10 ms
+*sent* is not one per 10 ms *executed*: the driver's single spin thread is busy with its status
+timer and its subscription queue holds one message, so over USB about half of the commands are
+dropped (docs/hardware.md, "What reaches the arm"; ``compare.hardware.driver_model``).
+
+Every halt path (Ctrl-C, errors, a watchdog trip, the end of the run) also calls the driver's
+``in/stop``, which erases the points still queued in the arm; ``in/start`` is called before the
+run and after a watchdog trip once the data is fresh again
+(:class:`~compare.hardware.driver_control.DriverControl`).
 
 Times are on this process's monotonic clock, in seconds since :meth:`RosRobotIO.start_clock`
 (arrival times, not the senders' header stamps: machines' clocks may differ).
@@ -41,9 +49,11 @@ from compare.hardware.conversions import (
     rad_s_to_deg_s,
     transform_from_translation_quaternion,
 )
+from compare.hardware.driver_control import DriverControl, DriverServiceError
 from compare.hardware.exceptions import HardwareError, MasterUnreachable, StartRefused
+from compare.hardware.replay import Recording, ReplayFeeder
 from compare.hardware.ros_env import RosApi, load_ros
-from compare.hardware.safety import CommandLimiter, Watchdog, WatchdogEvent
+from compare.hardware.safety import NO_COMMAND_YET, CommandLimiter, Watchdog, WatchdogEvent
 from compare.loop.robot_io import CameraModel, DepthFrame, JointReading, RobotIO
 
 log = logging.getLogger(__name__)
@@ -118,8 +128,11 @@ class RosRobotIO(RobotIO):
         v_max: Model joint velocity limits [rad/s]; scaled by ``hw.max_velocity_scale``. Shape (n,).
         dt: Control period [s] (0.01: the driver needs 100 Hz).
         use_depth: Subscribe to the depth camera and watch its age.
-        dry_run: Run everything but never advertise or publish the velocity topic.
+        dry_run: Run everything but never advertise or publish the velocity topic (nor call the
+            driver's services).
         ros: Loaded ROS API (default: :func:`~compare.hardware.ros_env.load_ros`).
+        replay: Play this recording into the callbacks instead of subscribing (no ROS master;
+            implies ``dry_run``; :mod:`compare.hardware.replay`).
 
     Raises:
         StartRefused: ``use_depth`` without a calibrated camera transform.
@@ -133,11 +146,15 @@ class RosRobotIO(RobotIO):
         use_depth: bool = True,
         dry_run: bool = False,
         ros: RosApi | None = None,
+        replay: Recording | None = None,
     ) -> None:
         self.hw = hw
         self.nq = len(hw.joint_names)
         self.dt = float(dt)
         self.use_depth = use_depth
+        self.replay = replay
+        self._feeder: ReplayFeeder | None = None
+        dry_run = dry_run or replay is not None
         self.dry_run = dry_run
         if use_depth and not hw.has_camera_transform:
             raise StartRefused(
@@ -152,7 +169,9 @@ class RosRobotIO(RobotIO):
         self._ros = ros
         v_limit = np.asarray(v_max, dtype=float) * hw.max_velocity_scale
         self._limiter = CommandLimiter(v_limit, hw.max_acceleration_rad_s2, self.dt)
-        self.watchdog = Watchdog(hw.state_timeout_s, hw.depth_timeout_s if use_depth else None, 3.0 * self.dt)
+        self.watchdog = Watchdog(
+            hw.state_timeout_s, hw.depth_timeout_s if use_depth else None, max(3.0 * self.dt, hw.loop_timeout_s)
+        )
         self.watchdog.quiet = True  # until start_clock: zero is expected before the loop runs
         self._lock = threading.RLock()
         self._epoch = time.monotonic()
@@ -162,6 +181,7 @@ class RosRobotIO(RobotIO):
         self._history: deque[tuple[float, np.ndarray]] = deque(maxlen=300)
         self._camera: CameraModel | None = None
         self._frame: tuple[np.ndarray, float, CameraModel] | None = None
+        self._capture_of: dict[float, float] = {}  # arrival → capture time of the last frames (monotonic)
         self._command = np.zeros(self.nq)
         self._command_t: float | None = None
         self._sent = np.zeros(self.nq)
@@ -183,6 +203,9 @@ class RosRobotIO(RobotIO):
         self.bad_messages: dict[str, int] = {}
         self._clock_start = 0.0
         self.startup_events: list[WatchdogEvent] = []
+        self.start_check: dict[str, Any] = {}
+        self._services: dict[str, Any] = {}
+        self.driver = DriverControl(self._call_service, self.now, enabled=not dry_run)
 
     # -- lifecycle ---------------------------------------------------------------------------
 
@@ -191,7 +214,11 @@ class RosRobotIO(RobotIO):
 
         Raises:
             MasterUnreachable: no master at ``ROS_MASTER_URI``.
+            ReplayError: (replay) a topic is not in the recording.
         """
+        if self.replay is not None:
+            self._connect_replay(self.replay)
+            return
         ros = self._ros = self._ros or load_ros()
         uri = master_uri or ros.rosgraph.get_master_uri()
         if not master_online(uri, timeout_s=2.0):
@@ -217,8 +244,28 @@ class RosRobotIO(RobotIO):
             )
         if not self.dry_run:
             self._pub = rospy.Publisher(self.hw.velocity_topic, ros.JointVelocity, queue_size=1, tcp_nodelay=True)
+            self._services = {
+                "stop": (self.hw.stop_service, ros.Stop),
+                "start": (self.hw.start_service, ros.Start),
+            }
         self._pump = threading.Thread(target=self._pump_loop, name="tpik-hw-pump", daemon=True)
         self._pump.start()
+
+    def _connect_replay(self, recording: Recording) -> None:
+        hw = self.hw
+        callbacks: dict[str, Any] = {hw.joint_state_topic: self._on_joint_state}
+        if self.use_depth:
+            callbacks[hw.camera_info_topic] = self._on_camera_info
+            callbacks[hw.depth_topic] = self._on_depth
+        recording.require(*callbacks)
+        self._feeder = ReplayFeeder(recording, callbacks)
+        self._feeder.start()
+        self._pump = threading.Thread(target=self._pump_loop, name="tpik-hw-pump", daemon=True)
+        self._pump.start()
+
+    def replay_remaining_s(self) -> float | None:
+        """Recorded time still to play [s] (None when not replaying)."""
+        return None if self._feeder is None else self._feeder.remaining_s()
 
     def wait_ready(self, timeout_s: float | None = None) -> None:
         """Wait for joint states (and camera info + depth), then check the joint state rate.
@@ -241,26 +288,98 @@ class RosRobotIO(RobotIO):
                     bad = f" ({self.bad_messages})" if self.bad_messages else ""
                     raise StartRefused(f"no {what} on {topic} within {timeout_s:.1f} s{bad}: is the publisher running?")
                 time.sleep(0.005)
-        # Measure the state rate over ~30 periods: a driver launched with the default
-        # feedback_publish_rate (0.1 s) would leave the 100 Hz loop on 10 Hz data. The median
-        # interval is used, so that a scheduling hiccup of a loaded machine does not count.
-        t0 = time.monotonic()
-        window = max(0.5, 30.0 / self.hw.state_rate_hz)
-        while time.monotonic() - t0 < window:
-            time.sleep(0.01)
-        arrivals = np.array([t for t in self.rates["joint_state"].times if t >= t0])
-        intervals = np.diff(arrivals)
-        rate = 1.0 / float(np.median(intervals)) if intervals.size >= 2 and np.median(intervals) > 0 else 0.0
-        want = self.hw.state_rate_hz * self.hw.min_state_rate_fraction
-        if rate < want:
-            raise StartRefused(
-                f"joint states arrive at {rate:.1f} Hz, expected {self.hw.state_rate_hz:.0f} Hz: launch the driver "
-                f"with feedback_publish_rate:={1.0 / self.hw.state_rate_hz:g} (or set hardware.state_rate_hz)"
-            )
+        self._check_state_stream()
         if self.use_depth:
             age = time.monotonic() - self._frame[1]  # type: ignore[index]
             if age > self.hw.depth_timeout_s:
                 raise StartRefused(f"depth frames are stale ({1e3 * age:.0f} ms old) at start")
+
+    def _check_state_stream(self) -> None:
+        """Measure the joint-state stream over ~30 expected periods; refuse a slow or gappy one.
+
+        Two checks (docs/hardware.md, "Joint-state rate"): the median interval must give at least
+        ``min_state_rate_fraction`` of the expected rate (a driver launched with the default
+        ``feedback_publish_rate`` of 0.1 s leaves the 100 Hz loop on 10 Hz data), and the 95th
+        percentile of the intervals must stay below 80 % of the watchdog timeout: a watchdog
+        tighter than the driver's own jitter would stop and go all run long (over USB, 3 periods
+        of 100 Hz = 30 ms is such a watchdog). A single scheduling hiccup does not count.
+        """
+        hw = self.hw
+        expected = hw.expected_state_rate_hz
+        t0 = time.monotonic()
+        window = max(0.5, 30.0 / expected)
+        while time.monotonic() - t0 < window:
+            time.sleep(0.01)
+        arrivals = np.array([t for t in self.rates["joint_state"].times if t >= t0])
+        intervals = np.diff(arrivals)
+        median = float(np.median(intervals)) if intervals.size >= 2 else math.inf
+        rate = 1.0 / median if median > 0 else 0.0
+        gap = float(intervals.max()) if intervals.size else math.inf
+        gap_p95 = float(np.percentile(intervals, 95)) if intervals.size else math.inf
+        self.start_check = {
+            "connection_type": hw.connection_type,
+            "expected_state_rate_hz": expected,
+            "state_rate_median_hz": rate,
+            "state_gap_p95_ms": 1e3 * gap_p95,
+            "state_gap_max_ms": 1e3 * gap,
+            "state_timeout_ms": 1e3 * hw.state_timeout_s,
+        }
+        want = expected * hw.min_state_rate_fraction
+        launch = f"connection_type {hw.connection_type}, feedback_publish_rate {hw.feedback_publish_rate_s:g} s"
+        if rate < want:
+            hint = (
+                f"launch the driver with feedback_publish_rate:={hw.feedback_publish_rate_s:g}"
+                if rate < 0.9 / hw.feedback_publish_rate_s
+                else "set hardware.connection_type / feedback_publish_rate_s to what the driver runs with"
+            )
+            raise StartRefused(
+                f"joint states arrive at {rate:.1f} Hz (median), expected {expected:.0f} Hz ({launch}): {hint}"
+            )
+        if gap_p95 >= 0.8 * hw.state_timeout_s:
+            raise StartRefused(
+                f"joint states have gaps of {1e3 * gap_p95:.0f} ms (95th percentile; max {1e3 * gap:.0f} ms), "
+                f"too close to the watchdog's {1e3 * hw.state_timeout_s:.0f} ms ({launch}): the run would stop and go; "
+                "set hardware.connection_type / state_timeout_periods to match the driver"
+            )
+
+    def start_driver(self) -> None:
+        """Call the driver's ``in/start`` (a previous run may have left it stopped), then wait for a fresh state.
+
+        ``startAPI`` blocks the driver's only thread ~50 ms after a stop: joint states pause meanwhile.
+
+        Raises:
+            StartRefused: the service is missing or fails, or no joint state follows.
+        """
+        if self.dry_run:
+            return
+        try:
+            self.driver.start_now()
+        except DriverServiceError as exc:
+            raise StartRefused(f"{exc} (hardware.start_service = {self.hw.start_service})") from None
+        after = time.monotonic()
+        deadline = after + max(1.0, 3.0 * self.hw.state_timeout_s)
+        while True:
+            with self._lock:
+                fresh = self._joint is not None and self._joint[2] > after
+            if fresh:
+                return
+            if time.monotonic() > deadline:
+                raise StartRefused("no joint state after in/start: is the driver alive?")
+            time.sleep(0.002)
+
+    def _call_service(self, name: str) -> None:
+        """Call ``in/stop`` or ``in/start`` (on the driver-control worker thread)."""
+        ros = self._ros
+        if ros is None or name not in self._services:
+            raise DriverServiceError(f"no {name} service (not connected)")
+        service, cls = self._services[name]
+        try:
+            ros.rospy.wait_for_service(service, timeout=self.hw.service_timeout_s)
+            ros.rospy.ServiceProxy(service, cls)()
+        except ros.rospy.ROSException as exc:  # timeout waiting for the service
+            raise DriverServiceError(f"{service}: {exc}") from None
+        except ros.rospy.ServiceException as exc:
+            raise DriverServiceError(f"{service}: {exc}") from None
 
     def start_clock(self) -> None:
         """Make :meth:`now` read 0 here (call right before the control loop)."""
@@ -274,17 +393,21 @@ class RosRobotIO(RobotIO):
             self.zero_commands = self.clamp_count = self.overruns = self.pump_overruns = 0
 
     def halt(self, reason: str, level: int = logging.WARNING) -> None:
-        """Latch zero velocity from now on (Ctrl-C, errors); safe to call from a signal handler."""
+        """Latch zero velocity from now on (Ctrl-C, errors) and call ``in/stop``; safe in a signal handler.
+
+        Zero is published at once; ``in/stop`` runs on the driver-control thread meanwhile.
+        """
         if self._halt_reason is None:
             self._halt_reason = reason
             log.log(level, "halt: %s: zero velocity", reason)
         self._publish(time.monotonic())
 
     def close(self) -> None:
-        """Stream zero velocity for 0.1 s, stop the pump and shut the node down (idempotent)."""
+        """``in/stop``, stream zero velocity for 0.1 s, stop the pump and shut the node down (idempotent)."""
         if self._closed:
             return
-        self.halt(self._halt_reason or "closing", level=logging.INFO)
+        self.halt(self._halt_reason or "end of run", level=logging.INFO)
+        self.driver.finish(self._halt_reason or "end of run", timeout_s=self.hw.service_timeout_s + 0.5)
         end = time.monotonic() + _STOP_REPEAT_S
         pump_alive = self._pump is not None and self._pump.is_alive()
         while time.monotonic() < end:  # the stream keeps sending the latched zero
@@ -292,9 +415,12 @@ class RosRobotIO(RobotIO):
                 self._publish(time.monotonic())
             time.sleep(self.dt)
         self._closed = True
+        self.driver.close()
         self._pump_stop.set()
         if self._pump is not None:
             self._pump.join(timeout=1.0)
+        if self._feeder is not None:
+            self._feeder.stop()
         for sub in self._subs:
             sub.unregister()
         self._subs.clear()
@@ -336,6 +462,17 @@ class RosRobotIO(RobotIO):
             else:
                 break
         return None if best is None else best.copy()
+
+    def frame_q(self, stamp_s: float) -> np.ndarray | None:
+        """Joint positions [rad] when the depth frame that *arrived* at ``stamp_s`` was *taken*.
+
+        The capture time is the image's header stamp when it lies on this machine's clock (at most
+        0.5 s before the arrival: camera driver on the same machine, or clocks in sync), else the
+        arrival time; the self-filter then places the arm where it was in the image.
+        """
+        with self._lock:
+            capture = self._capture_of.get(round(stamp_s + self._epoch, 6))
+        return self.q_at(stamp_s if capture is None else capture - self._epoch)
 
     def read_depth(self) -> DepthFrame | None:
         """Latest depth frame with the calibrated camera (its age is the caller's to check)."""
@@ -396,6 +533,10 @@ class RosRobotIO(RobotIO):
                 reason: str | None = self._halt_reason
             else:
                 reason = self.watchdog.check(*self._times(now))
+            if not self.watchdog.quiet:  # in/stop on a halt or a trip, in/start when fresh again
+                trip = None if reason is None or reason == NO_COMMAND_YET else reason
+                driver_reason = self.driver.update(trip, self._halt_reason is not None)
+                reason = reason or driver_reason
             if reason is not None:
                 out = np.zeros(self.nq)
             else:
@@ -519,8 +660,17 @@ class RosRobotIO(RobotIO):
         except HardwareError as exc:
             self._bad("depth", str(exc))
             return
+        capture = now
+        stamp = getattr(getattr(msg, "header", None), "stamp", None)
+        if stamp is not None and stamp.to_sec() > 0.0:
+            on_our_clock = stamp.to_sec() - (time.time() - time.monotonic())
+            if now - 0.5 <= on_our_clock <= now + 0.005:
+                capture = min(on_our_clock, now)
         with self._lock:
             self._frame = (depth, now, cam)
+            self._capture_of[round(now, 6)] = capture
+            while len(self._capture_of) > 16:
+                self._capture_of.pop(next(iter(self._capture_of)))
         self.rates["depth"].add(now)
 
     # -- report --------------------------------------------------------------------------------
@@ -530,6 +680,9 @@ class RosRobotIO(RobotIO):
         since = self._clock_start
         return {
             "dry_run": self.dry_run,
+            "replay": [str(b) for b in self.replay.bags] if self.replay is not None else None,
+            "connection_type": self.hw.connection_type,
+            "clock_start_monotonic_s": self._clock_start,
             "rates": {name: counter.stats(since) for name, counter in self.rates.items()},
             "watchdog_events": [{"t_s": e.t_s, "reason": e.reason, "message": e.message} for e in self.watchdog.events],
             "startup_watchdog_events": [e.message for e in self.startup_events],
@@ -540,5 +693,17 @@ class RosRobotIO(RobotIO):
             "command_sockets_nodelay": len(self._nodelay_done),
             "ignored_messages": dict(self.bad_messages),
             "state_timeout_s": self.hw.state_timeout_s,
+            "start_check": dict(self.start_check),
+            "driver_services": [
+                {
+                    "service": c.service,
+                    "cause": c.cause,
+                    "t_s": c.t_s,
+                    "duration_ms": c.duration_ms,
+                    "ok": c.ok,
+                    "error": c.error,
+                }
+                for c in self.driver.calls
+            ],  # fmt: skip
             "depth_timeout_s": self.hw.depth_timeout_s if self.use_depth else None,
         }

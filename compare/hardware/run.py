@@ -22,6 +22,7 @@ from __future__ import annotations
 import logging
 import signal
 import threading
+import time
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
@@ -31,7 +32,9 @@ import numpy as np
 
 import robots
 from compare.config import Config
+from compare.hardware.calibration import AlignmentResidual, check_alignment
 from compare.hardware.exceptions import StartRefused
+from compare.hardware.replay import open_recording
 from compare.hardware.ros_io import RosRobotIO
 from compare.hardware.safety import start_problems
 from compare.loop.closed_loop import CONTROL_POINTS, ObstacleSource, run_loop
@@ -83,11 +86,11 @@ def make_obstacle_source(config: Config, robot: robots.Robot, io: RosRobotIO) ->
         depth = load_background(Path(hw.background_file), frame.camera)
     elif hw.background_capture_s > 0:
         log.info("capturing the static background for %.1f s: keep people out of view", hw.background_capture_s)
-        depth = capture_background(io.read_depth, io.q_at, robot, config, hw.background_capture_s)
+        depth = capture_background(io.read_depth, io.frame_q, robot, config, hw.background_capture_s)
     else:
         depth = None
     background = static_background(depth, config) if depth is not None else None
-    return HardwareDepthSensing(robot, frame.camera, io.read_depth, io.q_at, config, background)
+    return HardwareDepthSensing(robot, frame.camera, io.read_depth, io.frame_q, config, background)
 
 
 def capture_background_file(config: Config, path: Path, duration_s: float) -> float:
@@ -107,13 +110,91 @@ def capture_background_file(config: Config, path: Path, duration_s: float) -> fl
     try:
         io.connect()
         io.wait_ready()
-        depth = capture_background(io.read_depth, io.q_at, robot, config, duration_s)
+        depth = capture_background(io.read_depth, io.frame_q, robot, config, duration_s)
     finally:
         io.close()
     if depth is None:
         raise StartRefused("no depth frame during the capture")
     save_background(path, depth)
     return float(np.mean(depth > 0))
+
+
+def measure_alignment(io: RosRobotIO, frames: int = 1, timeout_s: float = 5.0) -> AlignmentResidual:
+    """Alignment residual of the arm model on the next ``frames`` depth frames (the median one).
+
+    Each frame is compared with the arm rendered at the joint positions measured when it arrived.
+
+    Raises:
+        StartRefused: no new frame or joint positions within ``timeout_s``.
+    """
+    results: list[AlignmentResidual] = []
+    last = None
+    deadline = time.monotonic() + timeout_s
+    while len(results) < frames:
+        frame = io.read_depth()
+        if frame is not None and frame is not last:
+            last = frame
+            q = io.frame_q(frame.stamp_s)
+            if q is not None:
+                results.append(check_alignment(frame.camera, q, frame.depth_m))
+        if time.monotonic() > deadline:
+            raise StartRefused("calibration check: no depth frame with joint positions")
+        time.sleep(0.01)
+    return sorted(results, key=lambda r: r.residual_m)[len(results) // 2]
+
+
+def calibration_problem(residual: AlignmentResidual, limit_m: float) -> str | None:
+    """Why motion must be refused after the calibration check, or None (``limit_m`` 0: never)."""
+    if limit_m <= 0.0:
+        return None
+    if not residual.conclusive:
+        return (
+            f"calibration check inconclusive: {residual.valid_pixels} arm pixels with a depth return "
+            "(arm out of view or hidden?); set hardware.calibration_max_residual_m = 0 to skip it"
+        )
+    if residual.residual_m > limit_m:
+        return (
+            f"camera calibration off: {residual.describe()}, limit {100 * limit_m:.1f} cm: check "
+            "hardware.camera_translation_m/camera_quaternion_xyzw (the depth = IR optical frame) with "
+            "`tpik-compare hw-check`"
+        )
+    return None
+
+
+def check_camera(config: Config, replay: Path | None = None, frames: int = 5) -> AlignmentResidual:
+    """``tpik-compare hw-check``: connect without publishing, render the arm into live frames, return the residual.
+
+    Raises:
+        StartRefused: camera transform missing, no data.
+        MasterUnreachable: no ROS master (live).
+        ReplayError: bad recording.
+    """
+    robot = robots.load("jaco2")
+    recording = open_recording(replay) if replay is not None else None
+    io = RosRobotIO(config.hardware, robot.v_max, config.scenario.dt, use_depth=True, dry_run=True, replay=recording)
+    try:
+        io.connect()
+        io.wait_ready()
+        return measure_alignment(io, frames)
+    finally:
+        io.close()
+
+
+def executed_motion_ratio(steps: Any) -> float | None:
+    r"""Measured joint path length over commanded path length (1: the arm moved as commanded).
+
+    :math:`\sum_k \|q_{k+1} - q_k\|_1 / \sum_k \|\dot q_k\|_1 (t_{k+1} - t_k)` over the run. Over USB about
+    half of the driver's velocity messages are dropped and the ratio falls to ~0.5
+    (docs/hardware.md, "What reaches the arm"). None without motion.
+    """
+    q = steps[[c for c in steps.columns if c.startswith("q_")]].to_numpy(dtype=float)
+    qdot = steps[[c for c in steps.columns if c.startswith("qdot_")]].to_numpy(dtype=float)
+    t = steps["t"].to_numpy(dtype=float)
+    if len(t) < 3:
+        return None
+    moved = float(np.nansum(np.abs(np.diff(q, axis=0))))
+    commanded = float(np.nansum(np.abs(qdot[:-1]) * np.diff(t)[:, None]))
+    return moved / commanded if commanded > 1e-6 else None
 
 
 def _apply_sensing(hierarchy: Hierarchy, result: Any) -> None:
@@ -133,6 +214,7 @@ def run_hardware(
     make_plots: bool = True,
     progress: Callable[[float], None] | None = None,
     obstacle_source: Callable[[Config, robots.Robot, RosRobotIO], ObstacleSource] | None = None,
+    replay: Path | None = None,
 ) -> dict[str, Any]:
     """Drive the arm through ROS with one method; write results like a simulated run.
 
@@ -146,6 +228,8 @@ def run_hardware(
         make_plots: Draw the plots after the run.
         progress: Called with the elapsed time [s] about every 0.5 s.
         obstacle_source: Builds the obstacle source (default :func:`make_obstacle_source`).
+        replay: A bag (or a directory of bags) to play instead of the live topics
+            (:mod:`compare.hardware.replay`); implies ``dry_run``; the run ends with the recording.
 
     Returns:
         The content of ``summary.json``; ``["methods"][method]["hardware"]`` holds the measured
@@ -174,12 +258,20 @@ def run_hardware(
     if abs(sc.control_rate_hz - 100.0) > 1e-9:
         log.warning("control rate %.0f Hz: the Kinova driver expects commands at 100 Hz", sc.control_rate_hz)
 
-    io = RosRobotIO(hw, robot.v_max, sc.dt, use_depth=use_depth, dry_run=dry_run)  # refuses without camera pose
+    recording = open_recording(replay) if replay is not None else None
+    io = RosRobotIO(hw, robot.v_max, sc.dt, use_depth=use_depth, dry_run=dry_run, replay=recording)  # needs camera pose
+    alignment: AlignmentResidual | None = None
     state = Interrupted()
     with _signals(io, state):
         try:
             io.connect()
             io.wait_ready()
+            if use_depth:
+                alignment = measure_alignment(io)
+                log.info("camera: %s", alignment.describe())
+                problem = calibration_problem(alignment, hw.calibration_max_residual_m)
+                if problem is not None:
+                    raise StartRefused(problem)
             obstacles = (obstacle_source or make_obstacle_source)(config, robot, io) if use_depth else None
             reading = io.read_joints()
             if reading is None:
@@ -193,8 +285,15 @@ def run_hardware(
             problems = start_problems(hierarchy, kin)
             if problems:
                 raise StartRefused("arm outside its safety thresholds at start: " + "; ".join(problems))
+            remaining = io.replay_remaining_s()
+            if remaining is not None:  # replay: stop before the recording ends (its end would trip the watchdog)
+                duration = min(duration, max(0.0, remaining - 0.2))
+                if duration < 10 * sc.dt:
+                    raise StartRefused(f"the recording ends {remaining:.1f} s after the start checks: nothing to run")
+            io.start_driver()
             schedule, settings = loop_setup(config, kin.frame_position("end_effector"), duration)
-            log.info("hardware run: %s, %.1f s%s", method, duration, " (dry run: nothing published)" if dry_run else "")
+            mode = " (replay: nothing published)" if recording else " (dry run: nothing published)" if dry_run else ""
+            log.info("hardware run: %s, %.1f s%s", method, duration, mode)
             io.start_clock()
             out = run_loop(
                 io,
@@ -217,6 +316,16 @@ def run_hardware(
     summary["min_obstacle_distance_m"] = [_finite_min(d) for d in measured]
     summary["obstacle_distance_source"] = "measured (depth camera; no ground truth on hardware)"
     summary["hardware"] = io.report()
+    summary["hardware"]["calibration"] = alignment.as_dict() if alignment is not None else None
+    ratio = executed_motion_ratio(out.steps) if not io.dry_run else None
+    summary["hardware"]["executed_motion_ratio"] = ratio
+    if ratio is not None and ratio < 0.8:
+        log.warning(
+            "the arm moved %.0f %% of the commanded joint path: the driver drops velocity messages "
+            "(connection_type %s; docs/hardware.md, 'What reaches the arm')",
+            100 * ratio,
+            hw.connection_type,
+        )
     summary["events"] = out.events[:50]
     summary["interrupted"] = state.signal_name
     writer = ResultsWriter(Path(out_dir), sc.name, sc.seed, duration, config_text)

@@ -27,6 +27,9 @@ from tpik.hierarchy import Hierarchy
 
 log = logging.getLogger(__name__)
 
+NO_COMMAND_YET = "no command from the control loop yet"
+"""Watchdog reason before the loop's first command: zero is expected, not a trip."""
+
 
 class CommandLimiter:
     """Velocity and acceleration clamp of joint velocity commands.
@@ -153,7 +156,7 @@ class Watchdog:
                 f"(limit {1e3 * self.depth_timeout_s:.0f} ms)"
             )
         elif command_t is None:
-            reason = "no command from the control loop yet"
+            reason = NO_COMMAND_YET
         elif now - command_t > self.command_timeout_s:
             reason = (
                 f"control loop stalled: last command {1e3 * (now - command_t):.0f} ms ago "

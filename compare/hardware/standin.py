@@ -1,29 +1,38 @@
 """Driver stand-in: the kinova-ros driver and a Kinect v2 bridge, played by the MuJoCo simulation.
 
-It speaks the real topics with the real types and units, so ``tpik-compare hw`` can be run and
-tested end to end without hardware::
+It speaks the real topics and services with the real types and units, and reproduces the
+driver's timing with :class:`~compare.hardware.driver_model.KinovaDriverModel`, so
+``tpik-compare hw`` can be run and tested end to end without hardware::
 
-    python -m compare.hardware.standin configs/case1.toml --duration 10
+    python -m compare.hardware.standin configs/case1.toml --duration 10 --connection usb
 
-* subscribes to ``hardware.velocity_topic`` (``kinova_msgs/JointVelocity``, **deg/s**); a command
-  is held for ``--hold-s`` (the real arm stops when the stream stops);
-* steps the simulation (:class:`~compare.loop.sim_io.SimRobotIO`, the scenario's scene with the scripted
-  person) in real time and publishes ``hardware.joint_state_topic`` (``sensor_msgs/JointState``,
-  rad, the driver's 13 names: 7 arm joints, 3 fingers, 3 finger tips) at ``hardware.state_rate_hz``;
+* subscribes to ``hardware.velocity_topic`` (``kinova_msgs/JointVelocity``, **deg/s**) and
+  serves ``hardware.stop_service`` / ``start_service`` (``kinova_msgs/Stop``, ``Start``); every
+  message and call goes through the driver model in real time: one spin thread shared with the
+  status timer (nine blocking API calls per status), a subscription queue of one message, the
+  arm's 10 ms cycle taking one point per cycle from its trajectory FIFO, ``in/stop`` erasing it;
+* each controller cycle steps the simulation (:class:`~compare.loop.sim_io.SimRobotIO`, the
+  scenario's scene with the scripted person) by 10 ms with the executed point (zero when the
+  FIFO is empty); joint states (``sensor_msgs/JointState``, rad, the driver's 13 names) are
+  published when the model's status callback publishes them, with the angles read mid-callback;
 * renders the depth camera (robot included, as a real sensor sees it) and publishes
   ``hardware.depth_topic`` (16UC1 mm or 32FC1 m) and ``hardware.camera_info_topic`` at the
-  scenario's sensing rate (30 Hz);
-* ``--stop-joint-states-after`` / ``--stop-depth-after`` stop either stream (watchdog tests);
-* by default the scene clock (the person's script) starts with the first non-zero command, so
-  the scenario's events happen at the same loop times as in the pure simulation;
-* ``--record FILE`` writes what it published and received (times on the shared monotonic clock)
-  and the ground-truth distances, for the tests;
+  scenario's sensing rate (30 Hz) from its own thread (a snapshot of the simulation);
+* ``--connection usb|ethernet`` and ``--feedback-publish-rate`` set the driver's timing (default:
+  the config's ``[hardware]``); ``--stop-joint-states-after`` / ``--stop-depth-after`` stop a stream;
+* by default the scene clock (the person's script) starts with the first non-zero point the arm
+  executes, so the scenario's events happen at the same loop times as in the pure simulation;
+* ``--record FILE`` writes what it published, received and executed (times on the shared
+  monotonic clock), the service calls and the ground-truth distances, for the tests;
+  ``--record-bag FILE`` writes the published joint states, depth and camera info as a ROS bag
+  (what ``rosbag record`` gives on the real setup), for ``tpik-compare hw --replay``;
 * ``--print-calibration`` prints the ``[hardware]`` camera pose of the simulated camera and exits.
 """
 
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import logging
 import math
@@ -41,6 +50,8 @@ import numpy as np
 
 os.environ.setdefault("MUJOCO_GL", "egl")
 
+import mujoco  # noqa: E402
+
 import robots  # noqa: E402
 from compare.campaign.random_scenario import realize  # noqa: E402
 from compare.config import Config, ConfigError, load_config  # noqa: E402
@@ -49,6 +60,7 @@ from compare.hardware.conversions import (  # noqa: E402
     encode_depth,
     translation_quaternion_from_transform,
 )
+from compare.hardware.driver_model import CONNECTIONS, DriverTiming, KinovaDriverModel, StatePublished  # noqa: E402
 from compare.hardware.ros_env import RosApi, load_ros  # noqa: E402
 from compare.hardware.ros_io import init_node, master_online  # noqa: E402
 from compare.loop.robot_io import CameraModel, DepthFrame  # noqa: E402
@@ -65,15 +77,15 @@ class World:
     """The simulated arm, its scene and camera, as the stand-in drives them.
 
     Attributes:
-        io: Simulated arm (stepped one period per :meth:`SimRobotIO.wait`).
-        render_depth: Depth frame of the current state (robot included); None = no camera.
+        io: Simulated arm (stepped one controller cycle per :meth:`SimRobotIO.wait`).
+        render_depth: Depth frame of a simulation state (robot included); None = no camera.
         truth: Ground-truth obstacle distance per control point [m]; None = unknown.
         camera: The camera's intrinsics and pose (base frame).
         close: Releases the renderer.
     """
 
     io: SimRobotIO
-    render_depth: Callable[[], DepthFrame] | None
+    render_depth: Callable[[mujoco.MjData], DepthFrame] | None
     truth: Callable[[robots.Kinematics], Mapping[str, float]] | None
     camera: CameraModel | None
     close: Callable[[], None]
@@ -98,15 +110,12 @@ def build_world(config: Config, robot: robots.Robot) -> World:
         renderer = DepthCamera(io.model, settings.camera, noise=settings.noise, seed=sc.seed)
         own = True
 
-    def render() -> DepthFrame:
-        return renderer.render(io.data)
-
     def close() -> None:
         if own:
             renderer.close()
         sim.close()
 
-    return World(io=io, render_depth=render, truth=sim.truth, camera=renderer.camera, close=close)
+    return World(io=io, render_depth=renderer.render, truth=sim.truth, camera=renderer.camera, close=close)
 
 
 def camera_calibration() -> dict[str, list[float]]:
@@ -134,17 +143,19 @@ def write_background(path: Path) -> None:
 
 
 class StandIn:
-    """The stand-in node.
+    """The stand-in node: the driver model in real time, the simulation as the arm, the camera.
 
     Args:
-        config: Scenario and ``[hardware]`` topics/rates.
+        config: Scenario and ``[hardware]`` topics/services.
         world: The simulation to drive.
         ros: Loaded ROS API.
+        timing: The driver's timing (connection, ``feedback_publish_rate``, API call durations).
         encoding: Depth encoding published (``16UC1`` or ``32FC1``).
-        hold_s: How long a velocity command is applied without a newer one [s].
-        wait_for_motion: Start the scene clock at the first non-zero command.
+        wait_for_motion: Start the scene clock at the first non-zero point executed.
         stop_joint_states_after_s: Scene time after which joint states stop [s] (None: never).
         stop_depth_after_s: Scene time after which depth and camera info stop [s] (None: never).
+        seed: Seed of the driver model's call durations.
+        bag: Write the published streams to this ROS bag.
     """
 
     def __init__(
@@ -152,31 +163,37 @@ class StandIn:
         config: Config,
         world: World,
         ros: RosApi,
+        timing: DriverTiming,
         encoding: str = "16UC1",
-        hold_s: float = 0.03,
         wait_for_motion: bool = True,
         stop_joint_states_after_s: float | None = None,
         stop_depth_after_s: float | None = None,
+        seed: int = 0,
+        bag: Path | None = None,
     ) -> None:
         self.config = config
         self.hw = config.hardware
         self.world = world
         self.ros = ros
+        self.timing = timing
         self.encoding = encoding
-        self.hold_s = hold_s
         self.wait_for_motion = wait_for_motion
         self.stop_joint_states_after_s = stop_joint_states_after_s
         self.stop_depth_after_s = stop_depth_after_s
         self.nq = len(self.hw.joint_names)
-        self.period_s = 1.0 / self.hw.state_rate_hz
         self.depth_period_s = 1.0 / config.scenario.sensing_rate_hz
         prefix = self.hw.joint_names[0].rsplit("joint_", 1)[0]
         self.names = list(self.hw.joint_names) + [prefix + n for n in FINGER_NAMES + FINGER_TIP_NAMES]
-        self._lock = threading.Lock()
-        self._command = np.zeros(self.nq)
-        self._command_t = -math.inf
+        self._robot = robots.load("jaco2")
+        self._sim_lock = threading.Lock()  # the simulation (stepped by the controller cycle, copied by the camera)
+        self._model_lock = threading.Lock()  # the driver model (fed by rospy threads, run by the driver thread)
+        self._wake = threading.Event()
         self._stop = threading.Event()
+        self.scene_t = 0.0
         self.started_t: float | None = None
+        self.model = KinovaDriverModel(
+            timing, self._apply_point, self._read_q, t0=time.monotonic(), seed=seed, on_state=self._on_state
+        )
         self.record: dict[str, list[Any]] = {
             "command_t": [],
             "command_deg_s": [],
@@ -187,6 +204,10 @@ class StandIn:
             "overruns": [],
         }
         self.truth_min: dict[str, float] = {}
+        self._snapshot = mujoco.MjData(world.io.model) if world.render_depth is not None else None
+        self._bag: Any = None
+        self._bag_lock = threading.Lock()
+        self._bag_path = bag
         self._pub_state: Any = None
         self._pub_depth: Any = None
         self._pub_info: Any = None
@@ -194,90 +215,155 @@ class StandIn:
     def stop(self) -> None:
         """Ask the main loop to end (signal-safe)."""
         self._stop.set()
+        self._wake.set()
+
+    # -- driver model <-> simulation (called under the model lock) ------------------------
+
+    def _apply_point(self, t: float, deg_s: np.ndarray | None) -> None:
+        """One 10 ms controller cycle with the executed point (None: FIFO empty or arm stopped)."""
+        if self.started_t is None:
+            if not self.wait_for_motion or (deg_s is not None and np.any(deg_s)):
+                self.started_t = t
+            else:
+                return  # the scene waits for the first motion (the person's script with it)
+        command = deg_s_to_rad_s(deg_s) if deg_s is not None else np.zeros(self.nq)
+        io = self.world.io
+        with self._sim_lock:
+            io.send_velocity(command)
+            io.wait()
+            self.scene_t += io.dt
+            q = io.read_joints().q
+        if self.world.truth is not None:
+            for cp, d in self.world.truth(self._robot.kinematics(q)).items():
+                self.truth_min[cp] = min(self.truth_min.get(cp, math.inf), float(d))
+        self.record["scene_t"].append(self.scene_t)
+        self.record["q"].append(q.tolist())
+
+    def _read_q(self) -> np.ndarray:
+        with self._sim_lock:
+            return self.world.io.read_joints().q
+
+    def _on_state(self, state: StatePublished) -> None:
+        if self.stop_joint_states_after_s is not None and self.scene_t >= self.stop_joint_states_after_s:
+            return
+        self._publish_state(state.q)
+        self.record["joint_state_t"].append(time.monotonic())
+
+    # -- ROS callbacks (rospy threads) -----------------------------------------------------
 
     def _on_command(self, msg: Any) -> None:
         now = time.monotonic()
-        deg_s = np.array([msg.joint1, msg.joint2, msg.joint3, msg.joint4, msg.joint5, msg.joint6, msg.joint7])
-        with self._lock:
-            self._command = deg_s_to_rad_s(deg_s)
-            self._command_t = now
+        deg_s = [msg.joint1, msg.joint2, msg.joint3, msg.joint4, msg.joint5, msg.joint6, msg.joint7]
+        with self._model_lock:
+            self.model.receive_velocity(now, deg_s)
             self.record["command_t"].append(now)
-            self.record["command_deg_s"].append(deg_s.tolist())
-            if self.started_t is None and np.any(deg_s):
-                self.started_t = now
+            self.record["command_deg_s"].append(list(deg_s))
+        self._wake.set()
+
+    def _serve(self, name: str) -> Any:
+        with self._model_lock:
+            ticket = self.model.request_service(time.monotonic(), name)
+        self._wake.set()
+        if not ticket.done.wait(10.0):
+            raise self.ros.rospy.ServiceException(f"in/{name}: the driver model did not answer")
+        log.info("in/%s served in %.1f ms", name, 1e3 * (ticket.done_t - ticket.requested_t))  # type: ignore[operator]
+        return ticket
+
+    def _on_stop(self, _request: Any) -> Any:
+        self._serve("stop")
+        return self.ros.Stop._response_class(stop_result="Arm stopped")
+
+    def _on_start(self, _request: Any) -> Any:
+        self._serve("start")
+        return self.ros.Start._response_class(start_result="Arm started")
+
+    # -- threads ---------------------------------------------------------------------------
+
+    def _driver_loop(self) -> None:
+        """The driver model in real time: run its events as the wall clock reaches them."""
+        while not self._stop.is_set():
+            now = time.monotonic()
+            with self._model_lock:
+                late = now - self.model.next_event_t()
+                self.model.advance(now)
+                nxt = self.model.next_event_t()
+            if late > 0.02:
+                self.record["overruns"].append(now)
+            self._wake.clear()
+            self._wake.wait(min(max(0.0, nxt - time.monotonic()), 0.005))
 
     def run(self, duration_s: float) -> None:
-        """Publish and simulate until ``duration_s`` of scene time or :meth:`stop`."""
+        """Serve the driver and the camera until ``duration_s`` of scene time or :meth:`stop`."""
         rospy, ros = self.ros.rospy, self.ros
         self._pub_state = rospy.Publisher(self.hw.joint_state_topic, ros.JointState, queue_size=10)
         if self.world.render_depth is not None:
             self._pub_depth = rospy.Publisher(self.hw.depth_topic, ros.Image, queue_size=2)
             self._pub_info = rospy.Publisher(self.hw.camera_info_topic, ros.CameraInfo, queue_size=2)
-        # Like the driver (roscpp, default hints): no TCP_NODELAY requested.
-        sub = rospy.Subscriber(self.hw.velocity_topic, ros.JointVelocity, self._on_command, queue_size=10)
-        io = self.world.io
-        robot = robots.load("jaco2")
-        tick = time.monotonic()
-        next_depth_scene_t = 0.0
-        last_depth_wall = -math.inf
-        scene_t = 0.0
-        log.info("stand-in running: %s", self.hw.joint_state_topic)
-        try:
-            while not self._stop.is_set() and scene_t < duration_s:
-                now = time.monotonic()
-                running = self.started_t is not None or not self.wait_for_motion
-                with self._lock:
-                    fresh = now - self._command_t <= self.hold_s
-                    command = self._command.copy() if fresh else np.zeros(self.nq)
-                if running:
-                    io.send_velocity(command)
-                    io.wait()
-                    scene_t += io.dt
-                    if self.world.truth is not None:
-                        kin = robot.kinematics(io.read_joints().q)
-                        for cp, d in self.world.truth(kin).items():
-                            self.truth_min[cp] = min(self.truth_min.get(cp, math.inf), float(d))
-                reading = io.read_joints()
-                if self.stop_joint_states_after_s is None or scene_t < self.stop_joint_states_after_s:
-                    self._publish_state(reading.q, reading.qdot)
-                    self.record["joint_state_t"].append(time.monotonic())
-                self.record["scene_t"].append(scene_t)
-                self.record["q"].append(reading.q.tolist())
-                if self.world.render_depth is not None:
-                    if running:
-                        due = scene_t + 1e-9 >= next_depth_scene_t
-                        if due:
-                            next_depth_scene_t = max(next_depth_scene_t + self.depth_period_s, scene_t)
-                    else:  # before the start: 30 Hz on the wall clock
-                        due = now - last_depth_wall >= self.depth_period_s
-                    if due:
-                        last_depth_wall = now
-                        if self.stop_depth_after_s is None or scene_t < self.stop_depth_after_s:
-                            self._publish_depth(self.world.render_depth())
-                            self.record["depth_t"].append(time.monotonic())
-                tick += self.period_s
-                delay = tick - time.monotonic()
-                if delay > 0:
-                    time.sleep(delay)
-                elif -delay > self.period_s:
-                    self.record["overruns"].append(time.monotonic())
-                    tick = time.monotonic()
-        finally:
-            sub.unregister()
+        if self._bag_path is not None:
+            import rosbag
 
-    def _publish_state(self, q: np.ndarray, qdot: np.ndarray) -> None:
+            self._bag = rosbag.Bag(str(self._bag_path), "w")
+        # Like the driver (roscpp, default hints): no TCP_NODELAY requested. The model is the
+        # subscription queue (size 1): rospy's own queue just hands every message over.
+        sub = rospy.Subscriber(self.hw.velocity_topic, ros.JointVelocity, self._on_command, queue_size=100)
+        services = [
+            rospy.Service(self.hw.stop_service, ros.Stop, self._on_stop),
+            rospy.Service(self.hw.start_service, ros.Start, self._on_start),
+        ]
+        driver = threading.Thread(target=self._driver_loop, name="driver-model", daemon=True)
+        with self._model_lock:
+            self.model.advance(time.monotonic())
+        driver.start()
+        log.info("stand-in running: %s (%s)", self.hw.joint_state_topic, self.timing.connection)
+        next_depth = time.monotonic()
+        try:
+            while not self._stop.is_set() and self.scene_t < duration_s:
+                now = time.monotonic()
+                if self.world.render_depth is not None and now >= next_depth:
+                    next_depth = max(next_depth + self.depth_period_s, now - self.depth_period_s)
+                    if self.stop_depth_after_s is None or self.scene_t < self.stop_depth_after_s:
+                        taken = self.ros.rospy.Time.now()  # the header stamp: when the scene was captured
+                        self._publish_depth(self._render(), taken)
+                        self.record["depth_t"].append(time.monotonic())
+                self._stop.wait(max(0.0, min(next_depth - time.monotonic(), 0.05)))
+        finally:
+            self._stop.set()
+            self._wake.set()
+            driver.join(timeout=5.0)
+            sub.unregister()
+            for srv in services:
+                srv.shutdown()
+            if self._bag is not None:
+                with self._bag_lock:
+                    self._bag.close()
+                    self._bag = None
+
+    def _render(self) -> DepthFrame:
+        assert self.world.render_depth is not None and self._snapshot is not None
+        with self._sim_lock:
+            mujoco.mj_copyData(self._snapshot, self.world.io.model, self.world.io.data)
+        return self.world.render_depth(self._snapshot)
+
+    def _write_bag(self, topic: str, msg: Any, stamp: Any) -> None:
+        if self._bag is None:
+            return
+        with self._bag_lock:
+            if self._bag is not None:
+                self._bag.write(topic, msg, stamp)
+
+    def _publish_state(self, q: np.ndarray) -> None:
         msg = self.ros.JointState()
         msg.header.stamp = self.ros.rospy.Time.now()
         msg.name = self.names
         extra = len(self.names) - self.nq
         msg.position = [float(v) for v in q] + [0.0] * extra
-        msg.velocity = [float(v) for v in qdot] + [0.0] * extra
+        msg.velocity = [0.0] * len(self.names)
         msg.effort = [0.0] * len(self.names)
         self._pub_state.publish(msg)
+        self._write_bag(self.hw.joint_state_topic, msg, msg.header.stamp)
 
-    def _publish_depth(self, frame: DepthFrame) -> None:
+    def _publish_depth(self, frame: DepthFrame, stamp: Any) -> None:
         cam = frame.camera
-        stamp = self.ros.rospy.Time.now()
         img = self.ros.Image()
         img.header.stamp = stamp
         img.header.frame_id = "kinect2_ir_optical_frame"
@@ -295,12 +381,26 @@ class StandIn:
         info.P = [cam.fx, 0.0, cam.cx, 0.0, 0.0, cam.fy, cam.cy, 0.0, 0.0, 0.0, 1.0, 0.0]
         self._pub_info.publish(info)
         self._pub_depth.publish(img)
+        self._write_bag(self.hw.camera_info_topic, info, stamp)
+        self._write_bag(self.hw.depth_topic, img, stamp)
 
     def write_record(self, path: Path) -> None:
-        """Write the record as JSON."""
-        data = dict(self.record)
+        """Write the record as JSON (times on the monotonic clock shared with ``tpik-compare hw``)."""
+        with self._model_lock:
+            m = self.model
+            data: dict[str, Any] = dict(self.record)
+            data["commands"] = [
+                {"arrival_t": c.arrival_t, "outcome": c.outcome, "executed_t": c.executed_t, "deg_s": c.deg_s.tolist()}
+                for c in m.commands
+            ]
+            data["services"] = [{"name": t.name, "requested_t": t.requested_t, "done_t": t.done_t} for t in m.services]
+            data["state_sample_t"] = [s.sample_t for s in m.states]
+            data["state_model_t"] = [s.t for s in m.states]
+            data["fifo_peak"] = m.fifo_peak
+            data["cycles"] = m.cycles
+        data["connection"] = self.timing.connection
+        data["status_interval_s"] = self.timing.status_interval_s
         data["started_t"] = self.started_t
-        data["period_s"] = self.period_s
         data["depth_period_s"] = self.depth_period_s
         data["truth_min_m"] = self.truth_min
         data["stop_joint_states_after_s"] = self.stop_joint_states_after_s
@@ -314,13 +414,31 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("config", type=Path, help="Scenario TOML (scene, person, [hardware] topics and rates).")
     parser.add_argument("--duration", type=float, default=None, help="Scene time to run [s] (default: the scenario's).")
     parser.add_argument("--time-scale", type=float, default=None, help="Override scenario.time_scale.")
+    parser.add_argument(
+        "--connection", choices=CONNECTIONS, default=None, help="Driver connection (default hardware.connection_type)."
+    )
+    parser.add_argument(
+        "--feedback-publish-rate",
+        type=float,
+        default=None,
+        help="The driver's status interval [s] (default hardware.feedback_publish_rate_s).",
+    )
+    parser.add_argument(
+        "--api-call-ms",
+        type=float,
+        nargs=2,
+        metavar=("BASE", "SPREAD"),
+        default=None,
+        help="Duration of one blocking API call: BASE + Exp(SPREAD) [ms] (default: the connection's).",
+    )
+    parser.add_argument("--seed", type=int, default=0, help="Seed of the API call durations.")
     parser.add_argument("--stop-joint-states-after", type=float, default=None, help="Scene time [s].")
     parser.add_argument("--stop-depth-after", type=float, default=None, help="Scene time [s].")
     parser.add_argument("--encoding", choices=("16UC1", "32FC1"), default="16UC1")
-    parser.add_argument("--hold-s", type=float, default=0.03, help="Command hold time [s].")
     parser.add_argument("--no-wait-for-motion", action="store_true", help="Start the scene clock at once.")
     parser.add_argument("--no-depth", action="store_true", help="Publish no camera.")
     parser.add_argument("--record", type=Path, default=None, help="Write a JSON record here at the end.")
+    parser.add_argument("--record-bag", type=Path, default=None, help="Write the published streams to this bag.")
     parser.add_argument("--print-calibration", action="store_true", help="Print the [hardware] camera pose; exit.")
     parser.add_argument(
         "--write-background", type=Path, default=None, help="Save the static scene's depth (background file); exit."
@@ -343,6 +461,14 @@ def main(argv: list[str] | None = None) -> int:
     if args.write_background is not None:
         write_background(args.write_background)
         return 0
+    hw = config.hardware
+    timing = DriverTiming.for_connection(
+        args.connection or hw.connection_type,
+        args.feedback_publish_rate if args.feedback_publish_rate is not None else hw.feedback_publish_rate_s,
+    )
+    if args.api_call_ms is not None:
+        base_ms, spread_ms = args.api_call_ms
+        timing = dataclasses.replace(timing, call_base_s=base_ms * 1e-3, call_spread_s=spread_ms * 1e-3)
     ros = load_ros()
     uri = ros.rosgraph.get_master_uri()
     if not master_online(uri, 2.0):
@@ -356,11 +482,13 @@ def main(argv: list[str] | None = None) -> int:
         config,
         world,
         ros,
+        timing,
         encoding=args.encoding,
-        hold_s=args.hold_s,
         wait_for_motion=not args.no_wait_for_motion,
         stop_joint_states_after_s=args.stop_joint_states_after,
         stop_depth_after_s=args.stop_depth_after,
+        seed=args.seed,
+        bag=args.record_bag,
     )
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, lambda *_: node.stop())

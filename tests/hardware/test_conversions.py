@@ -107,4 +107,10 @@ def test_hardware_config_needs_both_camera_fields_and_a_unit_quaternion():
         HardwareConfig(camera_translation_m=(1.0, 0.0, 1.0), camera_quaternion_xyzw=(0.0, 0.0, 0.0, 2.0))
     hw = HardwareConfig(camera_translation_m=(1.0, 0.0, 1.0), camera_quaternion_xyzw=(0.0, 0.0, 0.0, 1.0))
     assert hw.has_camera_transform
-    assert hw.state_timeout_s == pytest.approx(0.03)  # 3 periods of the 100 Hz state stream
+    # The watchdog follows the connection: 5 periods of the rate the driver reaches.
+    assert hw.connection_type == "usb" and hw.expected_state_rate_hz == pytest.approx(45.0)
+    assert hw.state_timeout_s == pytest.approx(5 / 45.0)
+    eth = HardwareConfig(connection_type="ethernet")
+    assert eth.expected_state_rate_hz == pytest.approx(100.0) and eth.state_timeout_s == pytest.approx(0.05)
+    slow = HardwareConfig(connection_type="ethernet", feedback_publish_rate_s=0.04)
+    assert slow.expected_state_rate_hz == pytest.approx(25.0) and slow.state_timeout_s == pytest.approx(0.2)
