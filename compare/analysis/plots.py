@@ -23,6 +23,7 @@ from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 from matplotlib.ticker import FuncFormatter, LogLocator, NullFormatter
 
+from compare.analysis.atomic_files import atomic_write
 from compare.analysis.metrics import GROUPS, VIOLATION_TOLERANCE, SetTaskInfo, set_tasks_from_summary
 from compare.analysis.results import RUNS_DIR, collect_sweep, load_steps, load_summary, safe_name, summarize_sweep_rows
 
@@ -46,7 +47,7 @@ def _figure(nrows: int = 1, ncols: int = 1, height_in: float = 3.2, width_in: fl
 
 def _save(fig: Figure, path: Path) -> Path:
     path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=DPI)
+    atomic_write(path, lambda tmp: fig.savefig(tmp, dpi=DPI, format=path.suffix.lstrip(".") or "png"))
     return path
 
 
