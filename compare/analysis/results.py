@@ -291,10 +291,11 @@ class ResultsWriter:
                 self._check_compatible(previous, fresh, list(methods))
                 self._summary = previous
             else:
-                remove_stale_temporaries(self.out_dir)
                 if config_text is not None:
                     write_text_atomic(self.out_dir / CONFIG_FILE, config_text)
                 self._summary = fresh
+            remove_stale_temporaries(self.out_dir)  # a killed writer's; we hold the lock
+            remove_stale_temporaries(self.out_dir / STEPS_DIR)
             self._method_settings = {k: dict(v) for k, v in (method_settings or {}).items()}
             self._write()
         except BaseException:

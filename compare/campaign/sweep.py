@@ -34,11 +34,12 @@ from typing import Any
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
 
 import robots
-from compare.analysis.atomic_files import write_text_atomic
+from compare.analysis.atomic_files import remove_stale_temporaries, write_text_atomic
 from compare.analysis.exceptions import ResultsConflict
 from compare.analysis.preflight import check_output_dir
 from compare.analysis.results import (
     CONFIG_FILE,
+    STEPS_DIR,
     SUMMARY_FILE,
     SWEEP_SUMMARY_FILE,
     DirectoryLock,
@@ -89,6 +90,8 @@ def sweep_jobs(
     skipped = 0
     for i in range(n):
         run_dir = sweep_run_dir(out_dir, i)
+        remove_stale_temporaries(run_dir)  # a killed writer's (no worker runs yet; the sweep is locked)
+        remove_stale_temporaries(run_dir / STEPS_DIR)
         seed = config.scenario.seed + i
         todo, overwrite = list(names), False
         if (run_dir / SUMMARY_FILE).exists():
@@ -122,6 +125,7 @@ def prepare_sweep_dir(config: Config, out_dir: Path, n: int, names: list[str], o
         raise ResultsConflict(f"{out_dir} holds a single run, not a sweep; give the sweep its own --out")
     if overwrite:
         clear_sweep(out_dir)
+    remove_stale_temporaries(out_dir)
     old = load_manifest(out_dir)
     new = make_manifest(config, n, names)
     if old is not None:
