@@ -130,12 +130,17 @@ def run_packed(config: Config, config_text: str) -> tuple[dict[str, bytes], str 
     """Ray worker body: run into a temporary directory and return its files (relative path → bytes)."""
     with tempfile.TemporaryDirectory(prefix="tpik-run-") as tmp:
         error = run_job(config, config_text, Path(tmp))
-        files = {
-            p.relative_to(tmp).as_posix(): p.read_bytes()
-            for p in sorted(Path(tmp).rglob("*"))
-            if p.is_file() and p.name != LOCK_FILE
-        }
+        files = pack(Path(tmp))
     return files, error
+
+
+def pack(run_dir: Path) -> dict[str, bytes]:
+    """The result files of a run directory (relative path → bytes), without its lock file."""
+    return {
+        p.relative_to(run_dir).as_posix(): p.read_bytes()
+        for p in sorted(run_dir.rglob("*"))
+        if p.is_file() and p.name != LOCK_FILE
+    }
 
 
 def unpack(files: dict[str, bytes], run_dir: Path, overwrite: bool = False) -> None:
