@@ -38,9 +38,10 @@ $(STAMP): pyproject.toml
 install: system-deps $(STAMP)
 
 # The paper's two case studies with TPIK, HQP (DAQP) and mink, depth sensing, plots (~3 min).
+# --overwrite: the demo regenerates its results on purpose (without it a second run is refused).
 demo: install
-	$(VENV)/bin/tpik-compare run configs/case1.toml --out results/case1
-	$(VENV)/bin/tpik-compare run configs/case2.toml --out results/case2
+	$(VENV)/bin/tpik-compare run configs/case1.toml --out results/case1 --overwrite
+	$(VENV)/bin/tpik-compare run configs/case2.toml --out results/case2 --overwrite
 
 # mypy checks the packages listed in pyproject.toml ([tool.mypy] files): robots, tpik, qp_baseline.
 lint: install

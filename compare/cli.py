@@ -114,6 +114,14 @@ SimulationOpt = Annotated[
         help="Override scenario.simulation: dynamic (MuJoCo physics) | kinematic (q += q̇ dt, perfect tracking).",
     ),
 ]
+OverwriteRunOpt = Annotated[
+    bool,
+    typer.Option(
+        "--overwrite",
+        help="Discard the results already in --out (every method) and write these instead. Without it, "
+        "results of the same scenario and config are kept and these methods added; anything else is refused.",
+    ),
+]
 DriveOpt = Annotated[
     str | None,
     typer.Option(
@@ -135,8 +143,15 @@ def run(
     drive: DriveOpt = None,
     plots: Annotated[bool, typer.Option(help="Write the plots after the run.")] = True,
     quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress bar.")] = False,
+    overwrite: OverwriteRunOpt = False,
 ) -> None:
-    """Run one scenario with every selected method; write summary.json, per-step tables, plots."""
+    """Run one scenario with every selected method; write summary.json, per-step tables, plots.
+
+    An --out that already holds results of the same scenario and config gets these methods added
+    (the others' results are kept); a different config, or a method it already has finished
+    results of, is refused (exit 2) unless --overwrite.
+    """
+    from compare.analysis.exceptions import ResultsError
     from compare.config import ConfigError, load_config
     from compare.run import run_scenario
 
@@ -155,7 +170,13 @@ def run(
         _fail(str(exc))
         return
     out_dir = out or Path("results") / cfg.scenario.name
-    summary = run_scenario(cfg, out_dir, config_text=text, progress=not quiet, make_plots=plots)
+    try:
+        summary = run_scenario(
+            cfg, out_dir, config_text=text, progress=not quiet, make_plots=plots, overwrite=overwrite
+        )
+    except ResultsError as exc:
+        _fail(str(exc))
+        return
     _print_summary(summary, out_dir)
     if summary.get("errors"):
         raise typer.Exit(1)
@@ -194,8 +215,23 @@ def sweep(
         str | None,
         typer.Option("--address", help="Ray cluster to join (auto, ray://host:10001); default: a local Ray instance."),
     ] = None,
+    overwrite: Annotated[
+        bool,
+        typer.Option(
+            "--overwrite",
+            help="Discard the sweep already in --out and start again. Without it, a re-run resumes: finished "
+            "(run, method) pairs are kept, missing ones run; another config, plant, seed or version is refused.",
+        ),
+    ] = False,
 ) -> None:
-    """Run a randomized batch in parallel; finished runs are skipped when re-run (resumable)."""
+    """Run a randomized batch in parallel; re-running the same command resumes it.
+
+    The sweep directory records its config, plant, seeds, methods and project version
+    (sweep_manifest.json). A re-run keeps every finished (run, method) pair and runs the missing
+    ones: more --n or other -m methods extend the sweep. A different config, plant, first seed,
+    method settings or project version is refused (exit 2) unless --overwrite.
+    """
+    from compare.analysis.exceptions import ResultsError
     from compare.campaign.sweep import run_sweep
     from compare.config import ConfigError, load_config
 
@@ -215,8 +251,9 @@ def sweep(
             methods=list(methods) if methods else None,
             executor=executor,
             address=address,
+            overwrite=overwrite,
         )
-    except ConfigError as exc:
+    except (ConfigError, ResultsError) as exc:
         _fail(str(exc))
         return
     typer.echo(f"sweep summary: {out_dir}/sweep_summary.json ({summary.get('runs', n)} runs)")
@@ -308,8 +345,10 @@ def hw(
             "publishes nothing.",
         ),
     ] = None,
+    overwrite: OverwriteRunOpt = False,
 ) -> None:
     """Drive the real Jaco² and depth camera through the Kinova ROS 1 driver (docs/hardware.md)."""
+    from compare.analysis.exceptions import ResultsError
     from compare.config import ConfigError, load_config
     from compare.hardware.exceptions import HardwareError
 
@@ -366,8 +405,9 @@ def hw(
                 make_plots=plots,
                 progress=lambda t: bar.update(task_id, completed=t),
                 replay=replay,
+                overwrite=overwrite,
             )
-    except HardwareError as exc:
+    except (HardwareError, ResultsError) as exc:
         _fail(str(exc))
         return
     except KeyboardInterrupt:

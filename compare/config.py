@@ -348,6 +348,38 @@ class Iso15066Config(_Strict):
     human_speed_max_mps: float = Field(3.0, gt=0.0, le=20.0)
 
 
+class SolverLimitConfig(_Strict):
+    """Per-call time limit of every method's solve (``[solver_limit]``, ``compare.loop.deadline``).
+
+    A solve that takes longer than the limit is treated as not having arrived: the step uses the
+    loop's fallback, is FAILED and counts as a deadline miss (per-step ``deadline_miss``,
+    ``deadline_misses`` in summary.json). QP backends with a time limit of their own (OSQP,
+    Clarabel, DAQP) also get the remaining budget on every call, on the wall clock.
+
+    Attributes:
+        enabled: Enforce the limit (off: no limit; a miss is then a solve longer than the period).
+        time_limit_s: The limit [s]; default ``period_fraction`` × the control period.
+        period_fraction: Share of the control period given to the solve when ``time_limit_s`` is
+            unset (the rest is for sensing, kinematics and I/O).
+        simulation_clock: What the limit is measured on in simulation: ``cpu`` (the solver
+            thread's CPU time: the verdict does not depend on how loaded the machine is; backend
+            time limits are then not set, as they count wall time) or ``wall`` (elapsed time, as on
+            hardware). Hardware always uses the wall clock, in a watchdog thread, so the loop
+            never waits for a late answer.
+    """
+
+    enabled: bool = True
+    time_limit_s: float | None = Field(None, gt=0.0, le=10.0)
+    period_fraction: float = Field(0.5, gt=0.0, le=1.0)
+    simulation_clock: Literal["cpu", "wall"] = "cpu"
+
+    def limit_s(self, dt: float) -> float | None:
+        """The limit [s] for control period ``dt`` [s], or None when disabled."""
+        if not self.enabled:
+            return None
+        return float(self.time_limit_s) if self.time_limit_s is not None else self.period_fraction * float(dt)
+
+
 class LevelConfig(_Strict):
     """One priority level, highest first; task tables are checked by :meth:`tpik.Hierarchy.from_description`.
 
@@ -540,6 +572,7 @@ class Config(_Strict):
     faults: FaultsConfig = Field(default_factory=FaultsConfig)
     iso15066: Iso15066Config = Field(default_factory=Iso15066Config)
     extensions: ExtensionsConfig = Field(default_factory=ExtensionsConfig)
+    solver_limit: SolverLimitConfig = Field(default_factory=SolverLimitConfig)
 
     def hierarchy_description(self) -> list[dict[str, Any]]:
         """The levels as the plain description :meth:`Hierarchy.from_description` takes."""

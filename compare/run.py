@@ -12,17 +12,20 @@ import pandas as pd
 from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 
 import robots
-from compare.analysis import iso15066
+from compare.analysis import iso15066, preflight
 from compare.analysis.metrics import RunMeta, SetTaskInfo, compute_summary
 from compare.analysis.results import ResultsWriter
 from compare.campaign.random_scenario import realize
 from compare.config import Config
+from compare.config_hash import config_fingerprint, config_hash, method_settings
 from compare.loop.closed_loop import LoopOutput, LoopSettings, ObstacleSource, run_loop
+from compare.loop.deadline import guard_solver
 from compare.loop.faults import FaultInjector, unsafe_commands
 from compare.loop.simulation import build_simulation
 from compare.loop.waypoints import WaypointSchedule
 from compare.methods import make_method
 from tpik.hierarchy import Hierarchy
+from tpik.tasks import ObstacleDistanceTask
 
 log = logging.getLogger(__name__)
 
@@ -119,7 +122,7 @@ def run_method(config: Config, method: str, robot: robots.Robot, progress: Progr
         obstacles = sim.pipeline.source(io.read_depth)  # depth mode: the pipeline reads the faulty frames
     elif sim.pipeline is None:
         obstacles = injector.wrap_obstacles(obstacles)  # geometric mode: frame faults emulated
-    solver = injector.wrap_solver(solver)
+    solver = guard_solver(injector.wrap_solver(solver), config.solver_limit, sc.dt)
     stale_after_s = (
         None if settings.stale_frame_periods is None else settings.stale_frame_periods * settings.sensing_period_s
     )
@@ -139,8 +142,65 @@ def run_method(config: Config, method: str, robot: robots.Robot, progress: Progr
     if monitor is not None:
         summary["iso15066"] = iso15066.summarize(steps, sc.dt, config.iso15066)
     summary["sensing"] = sc.sensing
+    summary["solver_limit"] = solver_limit_entry(config, realtime=False)
     summary["events"] = out.events[:50]
     return {"summary": summary, "steps": steps}
+
+
+def solver_limit_entry(config: Config, realtime: bool) -> dict[str, Any]:
+    """The time limit a run's solves had, for ``summary.json`` (``time_limit_s`` None = none)."""
+    limit = config.solver_limit.limit_s(config.scenario.dt)
+    clock = "wall" if realtime else config.solver_limit.simulation_clock
+    return {"time_limit_s": limit, "clock": clock if limit is not None else None}
+
+
+def expected_run_bytes(config: Config, robot: robots.Robot, methods: int, plots: bool) -> int:
+    """Expected size of a run directory of ``config`` with ``methods`` methods [bytes] (up-front check)."""
+    hierarchy = config.build_hierarchy(robot)
+    set_tasks = hierarchy.set_tasks
+    obstacles = sum(isinstance(t, ObstacleDistanceTask) for t in set_tasks)
+    steps = max(1, round(config.scenario.sim_time_s / config.scenario.dt))
+    return preflight.run_bytes(steps, preflight.step_columns(robot.nq, len(set_tasks), obstacles), methods, plots)
+
+
+def open_results(
+    config: Config,
+    out_dir: Path,
+    config_text: str | None,
+    robot: robots.Robot,
+    overwrite: bool = False,
+    plots: bool = True,
+    duration_s: float | None = None,
+    methods: list[str] | None = None,
+) -> ResultsWriter:
+    """The :class:`ResultsWriter` of a run of ``config``'s methods into ``out_dir``, checked up front.
+
+    ``methods`` (default: the config's) are the ones about to be written; ``duration_s`` replaces
+    the scenario's simulated time (hardware runs).
+
+    Raises:
+        compare.analysis.exceptions.ResultsError: The directory holds conflicting results, is
+            busy, cannot be written or has no room (one line each).
+    """
+    sc = config.scenario
+    names = list(methods or config.methods.names)
+    steps_config = config
+    if duration_s is not None:
+        scenario = config.scenario.model_copy(update={"duration_s": duration_s, "time_scale": 1.0})
+        steps_config = config.model_copy(update={"scenario": scenario})
+    return ResultsWriter(
+        Path(out_dir),
+        sc.name,
+        sc.seed,
+        sc.sim_time_s if duration_s is None else duration_s,
+        config_text,
+        config_hash=config_hash(config),
+        config_fingerprint=config_fingerprint(config),
+        methods=names,
+        method_settings={m: method_settings(config, m) for m in names if config.methods.settings.get(m)},
+        overwrite=overwrite,
+        expected_bytes=expected_run_bytes(steps_config, robot, len(names), plots),
+    )
 
 
 def run_scenario(
@@ -149,37 +209,44 @@ def run_scenario(
     config_text: str | None = None,
     progress: bool = True,
     make_plots: bool = True,
+    overwrite: bool = False,
 ) -> dict[str, Any]:
     """Run every method of ``config`` on the same scenario; results survive a crash of one method.
 
+    ``out_dir`` is checked before the first step (:func:`open_results`): results already there
+    of the same scenario and configuration get these methods added; anything else is refused
+    unless ``overwrite``.
+
     Returns:
         The content of ``out_dir/summary.json``.
+
+    Raises:
+        compare.analysis.exceptions.ResultsError: See :func:`open_results`.
     """
     robot = robots.load("jaco2")
-    config = realize(config, robot)
-    sc = config.scenario
-    writer = ResultsWriter(Path(out_dir), sc.name, sc.seed, sc.sim_time_s, config_text)
-    columns = (
-        TextColumn("[bold]{task.description:<12}"),
-        BarColumn(),
-        TextColumn("{task.completed:5.1f}/{task.total:.0f} s"),
-        TimeElapsedColumn(),
-    )
-    bar = Progress(*columns, disable=not progress)
-    with bar:
-        for method in config.methods.names:
-            t0 = time.perf_counter()
-            try:
-                result = run_method(config, method, robot, bar if progress else None)
-            except Exception as exc:  # record and go on: the other methods' results are kept
-                log.exception("method %s failed", method)
-                writer.add_error(method, f"{type(exc).__name__}: {exc}")
-                continue
-            writer.add_method(method, result["summary"], result["steps"])
-            log.info("%s done in %.1f s", method, time.perf_counter() - t0)
-    if make_plots:
-        write_plots(Path(out_dir))
-    return writer.summary
+    with open_results(config, Path(out_dir), config_text, robot, overwrite, make_plots) as writer:
+        config = realize(config, robot)
+        columns = (
+            TextColumn("[bold]{task.description:<12}"),
+            BarColumn(),
+            TextColumn("{task.completed:5.1f}/{task.total:.0f} s"),
+            TimeElapsedColumn(),
+        )
+        bar = Progress(*columns, disable=not progress)
+        with bar:
+            for method in config.methods.names:
+                t0 = time.perf_counter()
+                try:
+                    result = run_method(config, method, robot, bar if progress else None)
+                except Exception as exc:  # record and go on: the other methods' results are kept
+                    log.exception("method %s failed", method)
+                    writer.add_error(method, f"{type(exc).__name__}: {exc}")
+                    continue
+                writer.add_method(method, result["summary"], result["steps"])
+                log.info("%s done in %.1f s", method, time.perf_counter() - t0)
+        if make_plots:
+            write_plots(Path(out_dir))
+        return writer.summary
 
 
 def view_scenario(config: Config, method: str) -> None:
@@ -192,7 +259,7 @@ def view_scenario(config: Config, method: str) -> None:
     q0 = np.array(sc.start_q) if sc.start_q is not None else robot.home.copy()
     sim = build_simulation(config, robot, q0)
     hierarchy = config.build_hierarchy(robot)
-    solver = make_method(method, robot, config.methods.settings.get(method))
+    solver = guard_solver(make_method(method, robot, config.methods.settings.get(method)), config.solver_limit, sc.dt)
     schedule, settings = loop_setup(config, robot.frame_position(q0, "end_effector"))
     with mujoco.viewer.launch_passive(sim.io.model, sim.io.data) as viewer:
         clock = {"tick": time.perf_counter()}

@@ -74,6 +74,7 @@ import qpsolvers
 import scipy.sparse as spa
 
 from qp_baseline.exceptions import InvalidSettings, NoSolutionFound, UnknownSolver
+from qp_baseline.time_limits import TimeLimited
 from robots import Kinematics, Robot
 from tpik.hierarchy import Hierarchy
 from tpik.step_result import SolveStatus, StepResult, failed
@@ -306,7 +307,7 @@ class _Level:
     r: np.ndarray  # (m_eq,), preallocated
 
 
-class HqpSolver:
+class HqpSolver(TimeLimited):
     """Hierarchical QP over a tpik :class:`~tpik.hierarchy.Hierarchy`, any supported backend.
 
     Args:
@@ -477,6 +478,8 @@ class HqpSolver:
         if not (math.isfinite(dt) and dt > 0.0):
             return failed(n, f"dt must be finite and > 0, got {dt}")
         t_start = time.perf_counter()
+        if self.budget is not None:
+            self.budget.start()
         self._backend_time = 0.0
         self._prepare(hierarchy)
         lb, ub = self._box(kin.q, dt)
@@ -818,7 +821,8 @@ class HqpSolver:
         initvals: np.ndarray | None,
         kwargs: Mapping[str, Any],
     ) -> qpsolvers.Solution:
-        """One backend call, timed into ``_backend_time``."""
+        """One backend call, timed into ``_backend_time``, limited to the call's budget (if any)."""
+        kwargs = self._budget_kwargs(self.solver, kwargs)
         has_rows = h.size > 0
         if self._sparse:
             P_arg: Any = spa.csc_matrix(P)

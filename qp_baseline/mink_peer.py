@@ -56,6 +56,7 @@ import qpsolvers
 
 from qp_baseline.exceptions import InvalidSettings, UnknownSolver
 from qp_baseline.hqp import available_qp_solvers, backend_iterations, backend_kwargs, probe_settings
+from qp_baseline.time_limits import TimeLimited
 from robots import Kinematics, Robot
 from tpik.hierarchy import Hierarchy
 from tpik.step_result import SolveStatus, StepResult, failed
@@ -176,7 +177,7 @@ def _so3_exp(omega: np.ndarray) -> np.ndarray:
     return np.eye(3) + math.sin(angle) * K + (1.0 - math.cos(angle)) * (K @ K)
 
 
-class MinkSolver:
+class MinkSolver(TimeLimited):
     """The mink peer behind the shared ``solve(hierarchy, kin, dt)`` interface.
 
     Args:
@@ -292,6 +293,8 @@ class MinkSolver:
         if not (math.isfinite(dt) and dt > 0.0):
             return failed(n, f"dt must be finite and > 0, got {dt}")
         t0 = time.perf_counter()
+        if self.budget is not None:
+            self.budget.start()
         try:
             self._prepare(hierarchy)
             self.configuration.update(kin.q)
@@ -320,7 +323,8 @@ class MinkSolver:
         try:
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore")
-                solution = qpsolvers.solve_problem(problem, solver=self.settings.solver, **self._qp_kwargs)
+                kwargs = self._budget_kwargs(self.settings.solver, self._qp_kwargs)
+                solution = qpsolvers.solve_problem(problem, solver=self.settings.solver, **kwargs)
         except Exception as exc:  # noqa: BLE001 - any backend error becomes a FAILED step
             res = failed(n, f"mink ({self.settings.solver}) raised {type(exc).__name__}: {exc}")
             res.build_time_s, res.solve_time_s = t1 - t0, time.perf_counter() - t1

@@ -519,4 +519,7 @@ def warm_up() -> None:
     """
     if not search_modes.signatures:  # nothing loaded in this process yet
         one, level = np.ones(1), np.zeros(1, dtype=np.int64)
-        search_modes(np.ones((1, 1)), one, level, np.zeros(1), one, False, True, True, 1.0, 1e-6, 1e-9, 6)
+        rows = np.ones((1, 1))
+        search_modes(rows, one, level, np.zeros(1), one, False, True, True, 1.0, 1e-6, 1e-9, 6)
+        rows.flags.writeable = False  # the solver passes its Jacobian rows read-only: a second signature
+        search_modes(rows, one, level, np.zeros(1), one, False, True, True, 1.0, 1e-6, 1e-9, 6)

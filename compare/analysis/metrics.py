@@ -24,6 +24,10 @@ column                     unit     meaning
 ``status``                 str      ``ok`` | ``degraded`` | ``failed``
 ``fallback``               bool     the loop replaced the solver output by the safe fallback
 ``blind``                  bool     sensing reported a blind or stale frame
+``deadline_miss``          bool     the solve missed its deadline: no answer within the solver
+                                    time limit (``compare.loop.deadline``; the step is FAILED and
+                                    the fallback acts), or without a limit a solve longer than
+                                    the control period
 ``reason``                 str      why the command was replaced: ``sensing: <why>`` (safe stop)
                                     and/or ``fallback: <why>``; empty otherwise
 ``fault:K``                bool     injected fault of kind ``K`` altered this step's data
@@ -369,7 +373,7 @@ def compute_summary(steps: pd.DataFrame, meta: RunMeta, waypoint_tolerance_m: fl
     Returns:
         JSON-ready dict. The DESIGN §7 keys (``solve_time_us``, ``realtime_factor``,
         ``joint_limits``, ``walls``, ``obstacles``, ``min_obstacle_distance_m``, ``ee_error_m``,
-        ``failures``, ``fallbacks``, ``activation_toggles_per_s``) plus extras: ``steps``,
+        ``failures``, ``fallbacks``, ``deadline_misses``, ``activation_toggles_per_s``) plus extras: ``steps``,
         ``dt``, ``sim_time_s``, ``wall_time_s``, ``sensing``, ``blind_steps``,
         ``activation_toggles``, ``waypoints_reached``, ``time_to_waypoint_s``,
         ``waypoint_sequence``, ``waypoint_tolerance_m``, ``peak_joint_acceleration_rad_s2``,
@@ -439,6 +443,7 @@ def compute_summary(steps: pd.DataFrame, meta: RunMeta, waypoint_tolerance_m: fl
         },
         "failures": int((status == "failed").sum()),
         "fallbacks": int(np.count_nonzero(fallback)),
+        "deadline_misses": int(np.count_nonzero(_bool_column(steps, "deadline_miss"))),
         "activation_toggles_per_s": toggles / sim_time_s if sim_time_s > 0 else None,
         # Extras.
         "steps": len(steps),

@@ -23,6 +23,7 @@ from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 from matplotlib.ticker import FuncFormatter, LogLocator, NullFormatter
 
+from compare.analysis.atomic_files import atomic_write
 from compare.analysis.metrics import (
     GROUPS,
     VIOLATION_TOLERANCE,
@@ -53,7 +54,7 @@ def _figure(nrows: int = 1, ncols: int = 1, height_in: float = 3.2, width_in: fl
 
 def _save(fig: Figure, path: Path) -> Path:
     path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=DPI)
+    atomic_write(path, lambda tmp: fig.savefig(tmp, dpi=DPI, format=path.suffix.lstrip(".") or "png"))
     return path
 
 

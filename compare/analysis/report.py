@@ -14,10 +14,10 @@ from typing import Any
 from rich.table import Table
 from rich.text import Text
 
+from compare.analysis.atomic_files import write_text_atomic
 from compare.analysis.metrics import GROUPS, group_summary, summary_groups
-from compare.analysis.results import load_summary
+from compare.analysis.results import REPORT_FILE, SWEEP_REPORT_FILE, load_summary
 
-REPORT_FILE = "report.md"
 PLOTS_DIR = "plots"  # as compare.analysis.plots.PLOTS_DIR; not imported to keep matplotlib out of the CLI table
 
 _GROUP_HEADERS = {"joint_limits": "joint margin [rad]", "walls": "wall margin [m]", "obstacles": "obstacle margin [m]"}
@@ -177,8 +177,6 @@ def render_report(results_dir: Path, command: str | None = None) -> Path:
 
 # --------------------------------------------------------------------------------------- sweeps
 
-SWEEP_REPORT_FILE = "sweep_report.md"
-
 
 def _pct(x: Any) -> str:
     return "–" if x is None else f"{100.0 * float(x):.1f} %"
@@ -334,5 +332,5 @@ def _figures(directory: Path, pattern: str, title: str) -> list[str]:
 
 
 def _write_markdown(path: Path, lines: list[str]) -> Path:
-    path.write_text("\n".join(lines).rstrip() + "\n", encoding="utf-8")
+    write_text_atomic(path, "\n".join(lines).rstrip() + "\n")
     return path

@@ -3,49 +3,81 @@
 A run directory holds::
 
     config.toml              copy of the configuration (when given)
-    summary.json             {"scenario", "seed", "sim_time_s", "versions", "methods": {...},
+    summary.json             {"scenario", "seed", "sim_time_s", "versions", "config_hash",
+                              "config_fingerprint", "methods": {...},
                               "errors": {...} (only if a method failed)}
     steps/<method>.parquet   per-step table (``steps/<method>.csv`` if Parquet is unavailable)
     plots/*.png              written by :mod:`compare.analysis.plots`
     report.md                written by :mod:`compare.analysis.report`
 
-``summary.json`` is rewritten atomically after every method, so a crash leaves the methods
-finished so far intact. Each method entry is the output of
-:func:`compare.analysis.metrics.compute_summary`; its ``set_tasks`` list holds the thresholds of every
-set task (infinite bounds as ``null``), which the plots read.
+Every file is written atomically (:mod:`compare.analysis.atomic_files`): a killed process leaves
+the old file or the new one. A method's per-step table is written before the ``summary.json``
+that names it, so a method listed in the summary has its complete table.
 
-A sweep directory holds ``runs/<index:05d>/`` run directories, ``sweep_runs.csv`` (one row per
-run and method), ``sweep_summary.json`` (per-method aggregates), ``plots/`` and
-``sweep_report.md`` (:func:`compare.analysis.report.render_sweep_report`).
+**A directory that already holds results** (:class:`ResultsWriter`) either takes the new methods
+next to the others — same scenario and configuration (``config_hash``, see
+:mod:`compare.config_hash`: everything but ``[methods]``) and same project version:
+``summary.json`` is merged per method, the other methods' files are not touched — or is refused
+with one line (:class:`ResultsConflict`) naming the conflict: another configuration, a method it
+already holds finished results of, a sweep directory, a summary it cannot read. ``overwrite=True``
+(``--overwrite``) discards the previous results first. A method whose files are incomplete or
+unreadable is not a finished result: it is run again without ``--overwrite``. While a writer is
+open the directory is locked (``.tpik-compare.lock``), so two processes never write one directory.
+
+Each method entry is the output of :func:`compare.analysis.metrics.compute_summary`; its
+``set_tasks`` list holds the thresholds of every set task (infinite bounds as ``null``), which the
+plots read.
+
+A sweep directory holds ``sweep_manifest.json`` (what the sweep is: :mod:`compare.campaign.manifest`),
+``runs/<index:05d>/`` run directories, ``sweep_runs.csv`` (one row per run and method),
+``sweep_summary.json`` (per-method aggregates), ``plots/`` and ``sweep_report.md``
+(:func:`compare.analysis.report.render_sweep_report`).
 """
 
 from __future__ import annotations
 
+import contextlib
 import copy
+import fcntl
 import functools
 import json
 import logging
 import math
 import os
+import shutil
 import subprocess
-import tempfile
-from collections.abc import Iterable
+from collections.abc import Iterable, Mapping
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 import pandas as pd
 
+from compare.analysis.atomic_files import (
+    atomic_write,
+    is_temporary,
+    remove_stale_temporaries,
+    write_json_atomic,
+    write_text_atomic,
+)
+from compare.analysis.exceptions import DirectoryBusy, ResultsConflict
 from compare.analysis.metrics import GROUPS, group_summary, summary_groups, to_jsonable
+from compare.analysis.preflight import check_output_dir
 from compare.versions import versions
 
 log = logging.getLogger(__name__)
 
 SUMMARY_FILE = "summary.json"
 STEPS_DIR = "steps"
+PLOTS_DIR = "plots"
 RUNS_DIR = "runs"
+CONFIG_FILE = "config.toml"
+REPORT_FILE = "report.md"
 SWEEP_SUMMARY_FILE = "sweep_summary.json"
 SWEEP_RUNS_FILE = "sweep_runs.csv"
+SWEEP_REPORT_FILE = "sweep_report.md"
+MANIFEST_FILE = "sweep_manifest.json"
+LOCK_FILE = ".tpik-compare.lock"
 
 
 @functools.cache
@@ -75,25 +107,9 @@ def run_versions() -> dict[str, str]:
     return out
 
 
-def write_json_atomic(path: Path, data: Any) -> None:
-    """Write ``data`` as JSON to ``path`` through a temporary file and :func:`os.replace`.
-
-    Readers never see a half-written file. NaN/inf are refused (encode them as ``None`` first,
-    see :func:`compare.analysis.metrics.to_jsonable`).
-    """
-    path = Path(path)
-    text = json.dumps(data, indent=2, allow_nan=False)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    try:
-        with os.fdopen(fd, "w", encoding="utf-8") as fh:
-            fh.write(text)
-            fh.write("\n")
-            fh.flush()
-            os.fsync(fh.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
+def project_version() -> str:
+    """Version of this project (``versions()["project"]``)."""
+    return str(versions().get("project"))
 
 
 def safe_name(method: str) -> str:
@@ -101,30 +117,233 @@ def safe_name(method: str) -> str:
     return "".join(c if c.isalnum() or c in "-_.+" else "_" for c in method)
 
 
+class DirectoryLock:
+    """An exclusive advisory lock (``flock``) on ``directory/.tpik-compare.lock``.
+
+    Raises:
+        DirectoryBusy: Another process holds it.
+    """
+
+    def __init__(self, directory: Path) -> None:
+        self.path = Path(directory) / LOCK_FILE
+        self._fd: int | None = os.open(self.path, os.O_RDWR | os.O_CREAT, 0o644)
+        try:
+            fcntl.flock(self._fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            os.close(self._fd)
+            self._fd = None
+            raise DirectoryBusy(f"{directory} is being written by another tpik-compare process") from None
+        except OSError:  # a file system without locks: go on unlocked
+            log.debug("no file locks on %s", directory)
+
+    def release(self) -> None:
+        """Release the lock (idempotent)."""
+        if self._fd is not None:
+            with contextlib.suppress(OSError):
+                fcntl.flock(self._fd, fcntl.LOCK_UN)
+            os.close(self._fd)
+            self._fd = None
+
+    def __del__(self) -> None:
+        self.release()
+
+
+def steps_complete(run_dir: Path, entry: Mapping[str, Any]) -> bool:
+    """Whether the per-step table a method entry names is there, complete and readable.
+
+    A Parquet file must have a readable footer (a truncated file has none) and, when the entry
+    records it, the number of rows written (``steps_rows``).
+    """
+    rel = entry.get("steps_file")
+    if not isinstance(rel, str):
+        return False
+    path = Path(run_dir) / rel
+    if not path.is_file():
+        return False
+    rows: int | None
+    try:
+        if path.suffix == ".parquet":
+            import pyarrow.parquet as pq
+
+            rows = int(pq.read_metadata(path).num_rows)
+        else:
+            rows = len(pd.read_csv(path))
+    except Exception:  # noqa: BLE001 - whatever the reader raises, the table is not usable
+        return False
+    expected = entry.get("steps_rows")
+    return expected is None or rows == int(expected)
+
+
+def finished_methods(run_dir: Path, summary: Mapping[str, Any] | None = None) -> set[str]:
+    """Methods of ``run_dir`` whose results are complete: in ``summary.json`` and their table readable.
+
+    A method recorded as an error, or whose table is missing or unreadable, is not finished.
+    """
+    if summary is None:
+        try:
+            summary = load_summary(run_dir)
+        except (OSError, ValueError):
+            return set()
+    methods = summary.get("methods") or {}
+    return {m for m, entry in methods.items() if isinstance(entry, dict) and steps_complete(run_dir, entry)}
+
+
+def read_previous(out_dir: Path) -> dict[str, Any] | None:
+    """The ``summary.json`` already in ``out_dir``, or None when there is none.
+
+    Raises:
+        ResultsConflict: The file is there but cannot be read as a summary.
+    """
+    path = Path(out_dir) / SUMMARY_FILE
+    if not path.exists():
+        return None
+    try:
+        summary = load_summary(out_dir)
+    except (OSError, ValueError) as exc:
+        raise ResultsConflict(
+            f"{path} is unreadable ({type(exc).__name__}); use --overwrite to replace the directory's results"
+        ) from None
+    if not isinstance(summary, dict) or not isinstance(summary.get("methods"), dict):
+        raise ResultsConflict(f"{path} is not a results summary; use --overwrite to replace it")
+    return summary
+
+
+def clear_run_results(out_dir: Path) -> None:
+    """Remove the results of a run directory (``--overwrite``): summary, tables, plots, report, config."""
+    out_dir = Path(out_dir)
+    for name in (SUMMARY_FILE, CONFIG_FILE, REPORT_FILE):
+        (out_dir / name).unlink(missing_ok=True)
+    for name in (STEPS_DIR, PLOTS_DIR):
+        shutil.rmtree(out_dir / name, ignore_errors=True)
+    remove_stale_temporaries(out_dir)
+
+
+def is_sweep_dir(out_dir: Path) -> bool:
+    """Whether ``out_dir`` holds a sweep (a manifest, a sweep summary or ``runs/``)."""
+    out_dir = Path(out_dir)
+    return any((out_dir / name).exists() for name in (MANIFEST_FILE, SWEEP_SUMMARY_FILE, RUNS_DIR))
+
+
 class ResultsWriter:
-    """Write one run's results method by method.
+    """Write one run's results method by method, into a new directory or next to earlier results.
+
+    The checks happen here, before anything is simulated: the directory is created and must be
+    writable with room for ``expected_bytes`` (:func:`compare.analysis.preflight.check_output_dir`);
+    it is locked against other writers; results already in it are kept and merged, or the
+    writer refuses (module docstring).
 
     Args:
         out_dir: Run directory (created with its parents).
         scenario: Scenario name.
         seed: Scenario seed.
         sim_time_s: Simulated duration of the scenario [s].
-        config_text: TOML text of the configuration, copied to ``config.toml`` (skipped if None).
+        config_text: TOML text of the configuration, copied to ``config.toml`` (skipped if None;
+            kept as it is when merging).
+        config_hash: :func:`compare.config_hash.config_hash` of the configuration; None = unknown
+            (such a writer never merges: a directory with results is refused).
+        config_fingerprint: :func:`compare.config_hash.config_fingerprint` (names the keys of a
+            config conflict).
+        methods: The methods about to be added (a finished one already there is a conflict).
+        method_settings: ``{method: settings}`` recorded with each method's entry.
+        overwrite: Discard the directory's previous results first.
+        expected_bytes: Size of the results to come (up-front disk space check).
+
+    Raises:
+        ResultsConflict: The directory holds results these would replace or mix with.
+        DirectoryBusy: Another process is writing it.
+        OutputUnusable: It cannot be created or written, or the disk is too full.
     """
 
-    def __init__(self, out_dir: Path, scenario: str, seed: int, sim_time_s: float, config_text: str | None) -> None:
+    def __init__(
+        self,
+        out_dir: Path,
+        scenario: str,
+        seed: int,
+        sim_time_s: float,
+        config_text: str | None,
+        *,
+        config_hash: str | None = None,
+        config_fingerprint: Mapping[str, Any] | None = None,
+        methods: Iterable[str] = (),
+        method_settings: Mapping[str, Mapping[str, Any]] | None = None,
+        overwrite: bool = False,
+        expected_bytes: int = 0,
+    ) -> None:
         self.out_dir = Path(out_dir)
-        self.out_dir.mkdir(parents=True, exist_ok=True)
-        if config_text is not None:
-            (self.out_dir / "config.toml").write_text(config_text, encoding="utf-8")
-        self._summary: dict[str, Any] = {
-            "scenario": scenario,
-            "seed": int(seed),
-            "sim_time_s": float(sim_time_s),
-            "versions": run_versions(),
-            "methods": {},
-        }
-        self._write()
+        check_output_dir(self.out_dir, expected_bytes)
+        self._lock: DirectoryLock | None = DirectoryLock(self.out_dir)
+        try:
+            if is_sweep_dir(self.out_dir):  # even with overwrite: a typo must not cost a campaign
+                raise ResultsConflict(f"{self.out_dir} is a sweep directory; give a run its own --out")
+            if overwrite:
+                clear_run_results(self.out_dir)
+            previous = None if overwrite else read_previous(self.out_dir)
+            fresh: dict[str, Any] = {
+                "scenario": scenario,
+                "seed": int(seed),
+                "sim_time_s": float(sim_time_s),
+                "versions": run_versions(),
+                "config_hash": config_hash,
+                "config_fingerprint": dict(config_fingerprint) if config_fingerprint is not None else None,
+                "methods": {},
+            }
+            if previous is not None:
+                self._check_compatible(previous, fresh, list(methods))
+                self._summary = previous
+            else:
+                if config_text is not None:
+                    write_text_atomic(self.out_dir / CONFIG_FILE, config_text)
+                self._summary = fresh
+            remove_stale_temporaries(self.out_dir)  # a killed writer's; we hold the lock
+            remove_stale_temporaries(self.out_dir / STEPS_DIR)
+            self._method_settings = {k: dict(v) for k, v in (method_settings or {}).items()}
+            self._write()
+        except BaseException:
+            self.close()
+            raise
+
+    def _check_compatible(self, previous: dict[str, Any], fresh: dict[str, Any], methods: list[str]) -> None:
+        """Raise :class:`ResultsConflict` unless ``fresh`` may be merged into ``previous``."""
+        where = self.out_dir
+        hint = "use --overwrite to replace them, or another --out"
+        old_hash = previous.get("config_hash")
+        if old_hash is None or fresh["config_hash"] is None:
+            raise ResultsConflict(
+                f"{where} holds results whose configuration cannot be compared (no config hash); {hint}"
+            )
+        if old_hash != fresh["config_hash"]:
+            from compare.config_hash import describe_differences
+
+            old_fp, new_fp = previous.get("config_fingerprint"), fresh["config_fingerprint"]
+            what = (
+                describe_differences(old_fp, new_fp)
+                if isinstance(old_fp, dict) and isinstance(new_fp, dict)
+                else f"config {str(old_hash)[:12]} → {str(fresh['config_hash'])[:12]}"
+            )
+            raise ResultsConflict(f"{where} holds results of another configuration ({what}); {hint}")
+        old_version = (previous.get("versions") or {}).get("project")
+        new_version = fresh["versions"].get("project")
+        if old_version != new_version:
+            raise ResultsConflict(f"{where} holds results of tpik-compare {old_version}, this is {new_version}; {hint}")
+        done = finished_methods(where, previous)
+        again = [m for m in methods if m in done]
+        if again:
+            raise ResultsConflict(f"{where} already holds finished results of {', '.join(again)}; {hint}")
+        redo = [m for m in methods if m in (previous.get("methods") or {})]
+        if redo:
+            log.warning("%s: results of %s are incomplete and are run again", where, ", ".join(redo))
+
+    def close(self) -> None:
+        """Release the directory lock (the results are all written already)."""
+        if self._lock is not None:
+            self._lock.release()
+            self._lock = None
+
+    def __enter__(self) -> ResultsWriter:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
 
     @property
     def summary(self) -> dict[str, Any]:
@@ -150,6 +369,9 @@ class ResultsWriter:
         steps_path = self._write_steps(name, steps)
         entry = to_jsonable(summary)
         entry["steps_file"] = steps_path.relative_to(self.out_dir).as_posix()
+        entry["steps_rows"] = len(steps)
+        if name in self._method_settings:
+            entry["method_settings"] = to_jsonable(self._method_settings[name])
         self._summary["methods"][name] = entry
         errors = self._summary.get("errors")
         if errors and name in errors:  # a re-run succeeded
@@ -170,18 +392,44 @@ class ResultsWriter:
         stem = safe_name(name)
         parquet = steps_dir / f"{stem}.parquet"
         try:
-            steps.to_parquet(parquet, index=False)
+            atomic_write(parquet, lambda tmp: steps.to_parquet(tmp, index=False))
             (steps_dir / f"{stem}.csv").unlink(missing_ok=True)
             return parquet
         except Exception as exc:  # no pyarrow, or a column it cannot encode: CSV always works
             log.warning("Parquet failed for %s (%s); writing CSV", name, exc)
             parquet.unlink(missing_ok=True)
             csv = steps_dir / f"{stem}.csv"
-            steps.to_csv(csv, index=False)
+            atomic_write(csv, lambda tmp: steps.to_csv(tmp, index=False))
             return csv
 
     def _write(self) -> None:
         write_json_atomic(self.summary_path, to_jsonable(self._summary))
+
+
+def merge_run_summary(run_dir: Path, incoming: dict[str, Any]) -> dict[str, Any]:
+    """Merge a run's ``summary.json`` written elsewhere (a Ray worker) into ``run_dir``'s, atomically.
+
+    The incoming methods and errors replace those of the same name; the others are kept. Without
+    a readable summary in ``run_dir`` the incoming one is written as it is.
+
+    Returns:
+        The summary written.
+    """
+    try:
+        merged = read_previous(run_dir)
+    except ResultsConflict:
+        merged = None
+    if merged is None:
+        merged = incoming
+    else:
+        merged["methods"].update(incoming.get("methods") or {})
+        errors = {k: v for k, v in (merged.get("errors") or {}).items() if k not in incoming.get("methods", {})}
+        errors.update(incoming.get("errors") or {})
+        merged.pop("errors", None)
+        if errors:
+            merged["errors"] = errors
+    write_json_atomic(Path(run_dir) / SUMMARY_FILE, merged)
+    return merged
 
 
 def load_summary(results_dir: Path) -> dict[str, Any]:
@@ -208,7 +456,7 @@ def load_steps(results_dir: Path, method: str) -> pd.DataFrame:
     csv = steps_dir / f"{stem}.csv"
     if csv.is_file():
         return pd.read_csv(csv)
-    available = sorted(p.stem for p in steps_dir.glob("*")) if steps_dir.is_dir() else []
+    available = sorted(p.stem for p in steps_dir.glob("*") if not is_temporary(p)) if steps_dir.is_dir() else []
     raise FileNotFoundError(
         f"no per-step table for method '{method}' in {steps_dir} (available: {', '.join(available) or 'none'})"
     )
@@ -223,23 +471,24 @@ def sweep_run_dir(out_dir: Path, index: int) -> Path:
 
 
 def is_finished(run_dir: Path, methods: Iterable[str] | None = None) -> bool:
-    """Whether ``run_dir`` holds a readable ``summary.json`` with results for every method.
+    """Whether ``run_dir`` holds complete results (:func:`finished_methods`) of every method.
 
     Args:
         run_dir: Run directory.
-        methods: Methods that must be present; None = at least one method and no recorded error.
+        methods: Methods that must be finished; None = at least one method and no recorded error.
 
     Returns:
-        False if the summary is missing, unreadable, lacks a requested method, or (with
-        ``methods=None``) records an error — such runs are re-run by a resumed sweep.
+        False if the summary is missing or unreadable, a requested method is missing or has an
+        incomplete table, or (with ``methods=None``) an error is recorded — such runs are re-run
+        by a resumed sweep.
     """
     try:
         summary = load_summary(run_dir)
     except (OSError, ValueError):
         return False
-    done = summary.get("methods") or {}
+    done = finished_methods(run_dir, summary)
     if methods is None:
-        return bool(done) and not summary.get("errors")
+        return bool(done) and not summary.get("errors") and done == set(summary.get("methods") or {})
     return all(m in done for m in methods)
 
 
@@ -282,6 +531,7 @@ def flatten_method(summary: dict[str, Any]) -> dict[str, Any]:
             "ee_error_mean_m": ee.get("mean"),
             "failures": summary.get("failures"),
             "fallbacks": summary.get("fallbacks"),
+            "deadline_misses": summary.get("deadline_misses"),
             "activation_toggles_per_s": summary.get("activation_toggles_per_s"),
             "blind_steps": summary.get("blind_steps"),
             "waypoints_reached": summary.get("waypoints_reached"),
@@ -410,6 +660,7 @@ def _method_aggregate(rows: pd.DataFrame) -> dict[str, Any]:
         },
         "failures": int(_stat(values("failures"), "sum") or 0),
         "fallbacks": int(_stat(values("fallbacks"), "sum") or 0),
+        "deadline_misses": int(_stat(values("deadline_misses"), "sum") or 0),
         "activation_toggles_per_s_median": _stat(values("activation_toggles_per_s"), "median"),
         # Reliability campaigns (issue 9).
         "share_runs_joint_limit_violation": share(violated("joint_limits")),
@@ -481,7 +732,7 @@ def write_sweep_summary(out_dir: Path, runs: pd.DataFrame | None = None) -> dict
     out_dir.mkdir(parents=True, exist_ok=True)
     if runs is None:
         runs = collect_sweep(out_dir)
-    runs.to_csv(out_dir / SWEEP_RUNS_FILE, index=False)
+    atomic_write(out_dir / SWEEP_RUNS_FILE, lambda tmp: runs.to_csv(tmp, index=False))
     summary: dict[str, Any] = {
         "runs": int(runs["run"].nunique()) if not runs.empty else 0,
         "scenario": None,

@@ -8,7 +8,8 @@ Both executors run the same function on the same (config, seed) jobs, so a run's
   its run directory directly.
 * :class:`RayExecutor`: one Ray task per run (``num_cpus=1``). The worker simulates into a
   temporary directory on its own node and returns the files; the driver writes them into the
-  sweep directory (``summary.json`` last), so the cluster needs no shared file system. The
+  sweep directory (each atomically, ``summary.json`` last and merged with the methods the run
+  already had), so the cluster needs no shared file system. The
   nodes must have this project installed (``pip install -e '.[cluster]'``, same version), and
   ``MUJOCO_GL=egl`` is set for the workers.
 
@@ -19,6 +20,7 @@ Both executors run the same function on the same (config, seed) jobs, so a run's
 from __future__ import annotations
 
 import abc
+import json
 import logging
 import os
 import tempfile
@@ -28,6 +30,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from compare.analysis.atomic_files import write_bytes_atomic
+from compare.analysis.results import CONFIG_FILE, LOCK_FILE, SUMMARY_FILE, clear_run_results, merge_run_summary
 from compare.config import Config, ConfigError
 
 log = logging.getLogger(__name__)
@@ -44,11 +48,14 @@ class Job:
         config: The seeded configuration (``scenario.seed`` set).
         config_text: The sweep's TOML text, copied into the run directory.
         run_dir: Where the run's results go (``<sweep>/runs/00042``).
+        overwrite: Discard what ``run_dir`` holds first (its summary was unreadable); otherwise
+            the run's methods (``config.methods.names``: the missing ones) are added to it.
     """
 
     config: Config
     config_text: str
     run_dir: Path
+    overwrite: bool = False
 
 
 Done = Callable[[Path, str | None], None]
@@ -73,21 +80,23 @@ class SweepExecutor(abc.ABC):
         return {"executor": self.name}
 
 
-def run_job(config: Config, config_text: str, run_dir: Path) -> str | None:
+def run_job(config: Config, config_text: str, run_dir: Path, overwrite: bool = False) -> str | None:
     """Worker body: one seed, no plots, no progress bar; returns an error message or None."""
     os.environ.setdefault("MUJOCO_GL", "egl")
     from compare.run import run_scenario
 
     try:
-        summary = run_scenario(config, run_dir, config_text=config_text, progress=False, make_plots=False)
+        summary = run_scenario(
+            config, run_dir, config_text=config_text, progress=False, make_plots=False, overwrite=overwrite
+        )
     except Exception as exc:  # keep the sweep going; the run is retried on the next invocation
         return f"{type(exc).__name__}: {exc}"
     errors = summary.get("errors") or {}
     return "; ".join(f"{k}: {v}" for k, v in errors.items()) or None
 
 
-def _run_local(config: Config, config_text: str, run_dir: Path) -> tuple[Path, str | None]:
-    return run_dir, run_job(config, config_text, run_dir)
+def _run_local(config: Config, config_text: str, run_dir: Path, overwrite: bool) -> tuple[Path, str | None]:
+    return run_dir, run_job(config, config_text, run_dir, overwrite)
 
 
 class LocalExecutor(SweepExecutor):
@@ -107,7 +116,7 @@ class LocalExecutor(SweepExecutor):
         if not jobs:
             return
         with ProcessPoolExecutor(max_workers=self.workers) as pool:
-            futures = [pool.submit(_run_local, j.config, j.config_text, j.run_dir) for j in jobs]
+            futures = [pool.submit(_run_local, j.config, j.config_text, j.run_dir, j.overwrite) for j in jobs]
             for fut in as_completed(futures):
                 run_dir, error = fut.result()
                 done(run_dir, error)
@@ -121,20 +130,36 @@ def run_packed(config: Config, config_text: str) -> tuple[dict[str, bytes], str 
     """Ray worker body: run into a temporary directory and return its files (relative path → bytes)."""
     with tempfile.TemporaryDirectory(prefix="tpik-run-") as tmp:
         error = run_job(config, config_text, Path(tmp))
-        files = {p.relative_to(tmp).as_posix(): p.read_bytes() for p in sorted(Path(tmp).rglob("*")) if p.is_file()}
+        files = pack(Path(tmp))
     return files, error
 
 
-def unpack(files: dict[str, bytes], run_dir: Path) -> None:
-    """Write a run's files into ``run_dir``: everything else first, ``summary.json`` last, atomically."""
+def pack(run_dir: Path) -> dict[str, bytes]:
+    """The result files of a run directory (relative path → bytes), without its lock file."""
+    return {
+        p.relative_to(run_dir).as_posix(): p.read_bytes()
+        for p in sorted(run_dir.rglob("*"))
+        if p.is_file() and p.name != LOCK_FILE
+    }
+
+
+def unpack(files: dict[str, bytes], run_dir: Path, overwrite: bool = False) -> None:
+    """Write a run's files into ``run_dir``, each atomically; ``summary.json`` last, merged.
+
+    The incoming methods join those ``run_dir`` already holds (``overwrite``: the old results are
+    removed first); ``config.toml`` is kept when there is one.
+    """
     run_dir.mkdir(parents=True, exist_ok=True)
-    order = sorted(files, key=lambda rel: rel == "summary.json")
-    for rel in order:
+    if overwrite:
+        clear_run_results(run_dir)
+    for rel in sorted(files):
         target = run_dir / rel
+        if rel == SUMMARY_FILE or (rel == CONFIG_FILE and target.exists()):
+            continue
         target.parent.mkdir(parents=True, exist_ok=True)
-        tmp = target.with_name(f".{target.name}.tmp")
-        tmp.write_bytes(files[rel])
-        os.replace(tmp, target)
+        write_bytes_atomic(target, files[rel])
+    if SUMMARY_FILE in files:
+        merge_run_summary(run_dir, json.loads(files[SUMMARY_FILE].decode("utf-8")))
 
 
 class RayExecutor(SweepExecutor):
@@ -182,22 +207,22 @@ class RayExecutor(SweepExecutor):
         try:
             self._cluster_cpus = float(ray.cluster_resources().get("CPU", 0.0))
             task = ray.remote(num_cpus=1, max_retries=1)(run_packed)
-            pending: dict[Any, Path] = {}
+            pending: dict[Any, Job] = {}
             queue = list(jobs)
             while queue or pending:
                 while queue and len(pending) < self.max_in_flight:
                     job = queue.pop(0)
-                    pending[task.remote(job.config, job.config_text)] = job.run_dir
+                    pending[task.remote(job.config, job.config_text)] = job
                 ready, _ = ray.wait(list(pending), num_returns=1)
                 for ref in ready:
-                    run_dir = pending.pop(ref)
+                    job = pending.pop(ref)
                     try:
                         files, error = ray.get(ref)
                     except Exception as exc:  # a lost worker or node: report, the run is redone next time
-                        done(run_dir, f"ray: {type(exc).__name__}: {exc}")
+                        done(job.run_dir, f"ray: {type(exc).__name__}: {exc}")
                         continue
-                    unpack(files, run_dir)
-                    done(run_dir, error)
+                    unpack(files, job.run_dir, job.overwrite)
+                    done(job.run_dir, error)
         finally:
             if started_here:
                 ray.shutdown()

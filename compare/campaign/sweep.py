@@ -1,13 +1,25 @@
 """Randomized batches: many seeds of one scenario family, resumable, on local processes or Ray.
 
-``run_sweep`` runs seeds ``seed .. seed + n − 1``; a run whose ``summary.json`` already holds
-every method is skipped, so an interrupted campaign is resumed by running the same command
-again. The executor (:mod:`compare.campaign.executors`) only decides *where* a run executes: the same
+``run_sweep`` runs seeds ``seed .. seed + n − 1``. The sweep directory records what it is
+(``sweep_manifest.json``, :mod:`compare.campaign.manifest`: config hash, plant, seeds, methods,
+project version) before its first run, and a re-run of the same command resumes it:
+
+* a (run, method) pair whose results are complete and readable
+  (:func:`compare.analysis.results.finished_methods`) is kept; a missing or incomplete one is run
+  (a run whose ``summary.json`` cannot be read is run again whole);
+* adding methods (``-m``) or runs (``--n``) runs only the missing pairs;
+* a different configuration, plant, first seed, method settings or project version is refused
+  with one line, before anything runs (``--overwrite`` discards the directory's sweep, another
+  ``--out`` starts a new one);
+* the directory must be writable with room for the pairs still to run (an up-front check).
+
+The executor (:mod:`compare.campaign.executors`) only decides *where* a run executes: the same
 seed gives the same results on either.
 
 Afterwards the sweep directory holds ``runs/<index>/`` (one run each), ``sweep_runs.csv`` (one
-row per run and method), ``sweep_summary.json`` (per-method aggregates plus a ``campaign``
-entry: executor, workers, wall time), ``plots/`` and ``sweep_report.md``.
+row per run and method), ``sweep_summary.json`` (per-method aggregates over every finished pair
+in the directory, plus a ``campaign`` entry: executor, workers, wall time), ``plots/`` and
+``sweep_report.md``.
 """
 
 from __future__ import annotations
@@ -21,15 +33,33 @@ from typing import Any
 
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
 
+import robots
+from compare.analysis.atomic_files import remove_stale_temporaries, write_text_atomic
+from compare.analysis.exceptions import ResultsConflict
+from compare.analysis.preflight import check_output_dir
 from compare.analysis.results import (
+    CONFIG_FILE,
+    STEPS_DIR,
+    SUMMARY_FILE,
     SWEEP_SUMMARY_FILE,
-    collect_sweep,
-    is_finished,
+    DirectoryLock,
+    finished_methods,
+    is_sweep_dir,
+    load_summary,
     sweep_run_dir,
     write_json_atomic,
     write_sweep_summary,
 )
 from compare.campaign.executors import Job, SweepExecutor, make_executor
+from compare.campaign.manifest import (
+    check_resume,
+    clear_sweep,
+    load_manifest,
+    make_manifest,
+    merge_manifests,
+    run_config_hash,
+    write_manifest,
+)
 from compare.config import Config, parse_config
 
 log = logging.getLogger(__name__)
@@ -49,17 +79,58 @@ def _seeded(config: Config, seed: int, methods: list[str] | None) -> Config:
 def sweep_jobs(
     config: Config, config_text: str, out_dir: Path, n: int, methods: list[str] | None = None
 ) -> tuple[list[Job], int]:
-    """The runs of a sweep still to do, and how many are already finished."""
+    """The runs of a sweep still to do (each with its missing methods), and how many are finished.
+
+    Raises:
+        ResultsConflict: A run directory holds a run of another configuration.
+    """
     names = methods or list(config.methods.names)
+    manifest = make_manifest(config, n, names)
     jobs: list[Job] = []
     skipped = 0
     for i in range(n):
         run_dir = sweep_run_dir(out_dir, i)
-        if is_finished(run_dir, names):
+        remove_stale_temporaries(run_dir)  # a killed writer's (no worker runs yet; the sweep is locked)
+        remove_stale_temporaries(run_dir / STEPS_DIR)
+        seed = config.scenario.seed + i
+        todo, overwrite = list(names), False
+        if (run_dir / SUMMARY_FILE).exists():
+            try:
+                summary = load_summary(run_dir)
+            except (OSError, ValueError):
+                log.warning("run %s: summary.json unreadable, running it again", run_dir.name)
+                overwrite = True
+            else:
+                if summary.get("config_hash") != run_config_hash(manifest, i):
+                    raise ResultsConflict(
+                        f"{run_dir} holds a run of another configuration than this sweep's; "
+                        "use --overwrite to discard the sweep, or another --out"
+                    )
+                done = finished_methods(run_dir, summary)
+                todo = [m for m in names if m not in done]
+        if not todo:
             skipped += 1
             continue
-        jobs.append(Job(_seeded(config, config.scenario.seed + i, methods), config_text, run_dir))
+        jobs.append(Job(_seeded(config, seed, todo), config_text, run_dir, overwrite))
     return jobs, skipped
+
+
+def prepare_sweep_dir(config: Config, out_dir: Path, n: int, names: list[str], overwrite: bool) -> dict[str, Any]:
+    """Check ``out_dir`` for this sweep (module docstring) and write its manifest; returns it.
+
+    Raises:
+        ResultsConflict: Not this sweep's directory (one line saying what differs).
+    """
+    if (out_dir / SUMMARY_FILE).exists() and not is_sweep_dir(out_dir):
+        raise ResultsConflict(f"{out_dir} holds a single run, not a sweep; give the sweep its own --out")
+    if overwrite:
+        clear_sweep(out_dir)
+    remove_stale_temporaries(out_dir)
+    old = load_manifest(out_dir)
+    new = make_manifest(config, n, names)
+    if old is not None:
+        check_resume(old, new, out_dir)
+    return merge_manifests(old, new)
 
 
 def run_sweep(
@@ -74,8 +145,9 @@ def run_sweep(
     progress: bool = True,
     report: bool = True,
     command: str | None = None,
+    overwrite: bool = False,
 ) -> dict[str, Any]:
-    """Run seeds ``seed .. seed + n − 1`` of ``config``; skip runs already finished.
+    """Run seeds ``seed .. seed + n − 1`` of ``config``; keep the (run, method) pairs already finished.
 
     Args:
         config: The scenario family (``kind = "random"`` for a randomized sweep).
@@ -89,17 +161,51 @@ def run_sweep(
         progress: Show a progress bar.
         report: Write the plots and ``sweep_report.md`` at the end.
         command: Command line recorded in the summary and the report (default: ``sys.argv``).
+        overwrite: Discard the sweep already in ``out_dir`` first.
 
     Returns:
         The sweep summary written to ``out_dir/sweep_summary.json``.
 
     Raises:
         compare.campaign.executors.ExecutorUnavailable: The executor cannot run here.
+        compare.analysis.exceptions.ResultsError: ``out_dir`` holds another sweep or a run, is
+            being written by another process, cannot be written or has no room for the runs to do.
     """
-    out_dir.mkdir(parents=True, exist_ok=True)
-    (out_dir / "config.toml").write_text(config_text, encoding="utf-8")
-    runner = executor if isinstance(executor, SweepExecutor) else make_executor(executor, workers, address)
-    jobs, skipped = sweep_jobs(config, config_text, out_dir, n, methods)
+    out_dir = Path(out_dir)
+    names = methods or list(config.methods.names)
+    check_output_dir(out_dir)
+    lock = DirectoryLock(out_dir)
+    try:
+        manifest = prepare_sweep_dir(config, out_dir, n, names, overwrite)
+        runner = executor if isinstance(executor, SweepExecutor) else make_executor(executor, workers, address)
+        jobs, skipped = sweep_jobs(config, config_text, out_dir, n, methods)
+        pairs = sum(len(j.config.methods.names) for j in jobs)
+        if pairs:
+            from compare.run import expected_run_bytes
+
+            per_pair = expected_run_bytes(config, robots.load("jaco2"), 1, plots=False)
+            check_output_dir(out_dir, pairs * per_pair, f"{pairs} (run, method) pairs")
+        write_manifest(out_dir, manifest)
+        if not (out_dir / CONFIG_FILE).exists():
+            write_text_atomic(out_dir / CONFIG_FILE, config_text)
+        return _execute(config, out_dir, n, runner, jobs, skipped, pairs, progress, report, command)
+    finally:
+        lock.release()
+
+
+def _execute(
+    config: Config,
+    out_dir: Path,
+    n: int,
+    runner: SweepExecutor,
+    jobs: list[Job],
+    skipped: int,
+    pairs: int,
+    progress: bool,
+    report: bool,
+    command: str | None,
+) -> dict[str, Any]:
+    """Run the jobs, then write the sweep summary, plots and report."""
     failures: list[str] = []
     columns = (TextColumn("[bold]sweep"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(), TimeRemainingColumn())
     start = time.perf_counter()
@@ -116,13 +222,13 @@ def run_sweep(
     wall = time.perf_counter() - start
     if skipped:
         log.info("skipped %d finished runs", skipped)
-    collect_sweep(out_dir)
     summary = write_sweep_summary(out_dir)
     summary["skipped_finished_runs"] = skipped
     summary["campaign"] = {
         **runner.describe(),
         "runs_requested": n,
         "runs_executed": len(jobs),
+        "pairs_executed": pairs,
         "wall_time_s": wall,
         "wall_time_per_run_s": wall / len(jobs) if jobs else None,
         "command": command or " ".join(shlex.quote(a) for a in sys.argv),

@@ -215,6 +215,7 @@ def run_hardware(
     progress: Callable[[float], None] | None = None,
     obstacle_source: Callable[[Config, robots.Robot, RosRobotIO], ObstacleSource] | None = None,
     replay: Path | None = None,
+    overwrite: bool = False,
 ) -> dict[str, Any]:
     """Drive the arm through ROS with one method; write results like a simulated run.
 
@@ -230,6 +231,8 @@ def run_hardware(
         obstacle_source: Builds the obstacle source (default :func:`make_obstacle_source`).
         replay: A bag (or a directory of bags) to play instead of the live topics
             (:mod:`compare.hardware.replay`); implies ``dry_run``; the run ends with the recording.
+        overwrite: Replace the results already in ``out_dir`` (else they are kept and this
+            method added, or the run is refused before the arm moves).
 
     Returns:
         The content of ``summary.json``; ``["methods"][method]["hardware"]`` holds the measured
@@ -240,10 +243,12 @@ def run_hardware(
         StartRefused: a start-up check failed (nothing was commanded but zero).
         MasterUnreachable: no ROS master.
         RosUnavailable: ROS 1 not installed.
+        compare.analysis.exceptions.ResultsError: ``out_dir`` cannot take the results (checked
+            before anything is sent to the arm).
     """
     from compare.analysis.metrics import compute_summary
-    from compare.analysis.results import ResultsWriter
-    from compare.run import loop_setup, run_meta, write_plots
+    from compare.loop.deadline import guard_solver
+    from compare.run import loop_setup, open_results, run_meta, solver_limit_entry, write_plots
 
     robot = robots.load("jaco2")
     sc = config.scenario
@@ -253,13 +258,16 @@ def run_hardware(
     if obstacle_tasks and not hw.use_depth:
         raise StartRefused("the hierarchy has obstacle tasks but hardware.use_depth is false")
     use_depth = hw.use_depth and bool(obstacle_tasks)
-    solver = make_method(method, robot, config.methods.settings.get(method))
     duration = float(duration_s) if duration_s is not None else sc.sim_time_s
+    solver = make_method(method, robot, config.methods.settings.get(method))
     if abs(sc.control_rate_hz - 100.0) > 1e-9:
         log.warning("control rate %.0f Hz: the Kinova driver expects commands at 100 Hz", sc.control_rate_hz)
 
     recording = open_recording(replay) if replay is not None else None
     io = RosRobotIO(hw, robot.v_max, sc.dt, use_depth=use_depth, dry_run=dry_run, replay=recording)  # needs camera pose
+    # The results directory is checked (and locked) before anything is sent to the arm.
+    writer = open_results(config, Path(out_dir), config_text, robot, overwrite, make_plots, duration, [method])
+    solver = guard_solver(solver, config.solver_limit, sc.dt, realtime=True)  # the loop never waits past it
     alignment: AlignmentResidual | None = None
     state = Interrupted()
     with _signals(io, state):
@@ -307,8 +315,12 @@ def run_hardware(
                 progress,
                 on_step=lambda: state.signal_name is None,
             )
+        except BaseException:
+            writer.close()
+            raise
         finally:
             io.close()
+            getattr(solver, "close", lambda: None)()
 
     steps = out.steps.drop(columns=[c for c in out.steps.columns if c.startswith(("truth:", "dist_true:"))])
     summary = compute_summary(steps, run_meta(config, method, hierarchy, out, "depth" if use_depth else "none"))
@@ -328,11 +340,12 @@ def run_hardware(
         )
     summary["events"] = out.events[:50]
     summary["interrupted"] = state.signal_name
-    writer = ResultsWriter(Path(out_dir), sc.name, sc.seed, duration, config_text)
-    writer.add_method(method, summary, steps)
-    if make_plots:
-        write_plots(Path(out_dir))
-    return writer.summary
+    summary["solver_limit"] = solver_limit_entry(config, realtime=True)
+    with writer:
+        writer.add_method(method, summary, steps)
+        if make_plots:
+            write_plots(Path(out_dir))
+        return writer.summary
 
 
 def _finite_min(x: np.ndarray) -> float | None:

@@ -137,7 +137,7 @@ class _Recorder:
         self.cols["waypoint"] = np.zeros(n_steps, dtype=np.int32)
         self.cols["status"] = np.empty(n_steps, dtype=object)
         self.cols["reason"] = np.full(n_steps, "", dtype=object)
-        for name in ("fallback", "blind"):
+        for name in ("fallback", "blind", "deadline_miss"):
             self.cols[name] = np.zeros(n_steps, dtype=bool)
 
     def _float(self, name: str, n: int) -> None:
@@ -241,6 +241,10 @@ def run_loop(
     )
     events: list[str] = []
     v_max = robot.v_max
+    # A deadline miss: flagged by the solver's time-limit guard (compare.loop.deadline) when it
+    # has one, else a solve longer than the control period.
+    guarded = getattr(solver, "deadline_s", None) is not None
+    c_miss = cols["deadline_miss"]
     last_safe = np.zeros(robot.nq)
     last_safe_t = -math.inf
     next_sense_t = -math.inf
@@ -316,9 +320,12 @@ def run_loop(
                 result_step.active_set,
                 result_step.message,
             )
+            missed = bool(result_step.extras.get("deadline_miss", False))
         except Exception as exc:  # a solver bug must not kill the run: log it, use the fallback
             qdot, status, active, message = np.zeros(robot.nq), SolveStatus.FAILED, (), f"{type(exc).__name__}: {exc}"
+            missed = False
         solve_us = (time.perf_counter_ns() - wall0) * 1e-3
+        c_miss[i] = missed or (not guarded and solve_us > dt * 1e6)
         if not kin.is_current:  # a solver computed kinematics of its own: take a fresh snapshot
             kin = robot.kinematics(reading.q)
 

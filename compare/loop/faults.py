@@ -538,4 +538,4 @@ class FaultySolver:
             return result
         # The message names the configured numbers only: events stay reproducible run to run.
         message = f"solver timeout: solve + {1e3 * hit.spec.delay_s:.1f} ms > deadline {1e3 * deadline:.1f} ms"
-        return failed(kin.nq, message, injected=True, took_s=took)
+        return failed(kin.nq, message, injected=True, took_s=took, deadline_miss=True)

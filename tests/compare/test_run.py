@@ -143,3 +143,58 @@ def test_case1_short_with_depth_sensing(tmp_path):
     assert m["joint_limits"]["safety_margin_min"] > -SAFETY_TOL["joint_limits"]
     assert m["obstacles"]["physical_margin_min"] > 0.0
     assert m["failures"] == 0
+
+
+# ------------------------------------------------------------------ one results directory, several runs
+
+PAIR = ["--duration", "0.3", "--sensing", "geometric", "--no-plots", "-q"]
+
+
+def _invoke(config: str, out: Path, *extra: str):
+    return CliRunner().invoke(app, ["run", str(CONFIGS / config), "--out", str(out), *PAIR, *extra])
+
+
+def test_one_method_then_another_into_one_directory_keeps_both(tmp_path):
+    """The first command pair of issue 22: the second run adds its method, the first stays as it was."""
+    out = tmp_path / "R"
+    first = _invoke("case1.toml", out, "-m", "tpik")
+    assert first.exit_code == 0, first.output
+    tpik_table = out / "steps" / "tpik.parquet"
+    before = (tpik_table.read_bytes(), json.loads((out / "summary.json").read_text())["methods"]["tpik"])
+    second = _invoke("case1.toml", out, "-m", "hqp-daqp")
+    assert second.exit_code == 0, second.output
+    summary = json.loads((out / "summary.json").read_text())
+    assert set(summary["methods"]) == {"tpik", "hqp-daqp"}
+    assert (tpik_table.read_bytes(), summary["methods"]["tpik"]) == before
+    assert summary["methods"]["hqp-daqp"]["steps_file"] == "steps/hqp-daqp.parquet"
+    assert (out / "steps" / "hqp-daqp.parquet").is_file()
+
+
+def test_a_run_that_would_replace_or_mix_results_is_one_line_and_exit_2(tmp_path):
+    out = tmp_path / "R"
+    assert _invoke("case1.toml", out, "-m", "tpik").exit_code == 0
+    kept = (out / "summary.json").read_bytes()
+    again = _invoke("case1.toml", out, "-m", "tpik")
+    assert again.exit_code == 2
+    assert (
+        again.output
+        == f"error: {out} already holds finished results of tpik; use --overwrite to replace them, or another --out\n"
+    )
+    other = _invoke("case2.toml", out, "-m", "mink")
+    assert other.exit_code == 2 and other.output.count("\n") == 1
+    assert 'another configuration (scenario.kind "case1" → "case2"' in other.output
+    longer = _invoke("case1.toml", out, "-m", "mink", "--duration", "0.4")
+    assert longer.exit_code == 2 and "(scenario.duration_s 0.3 → 0.4)" in longer.output
+    assert (out / "summary.json").read_bytes() == kept  # refused before anything was written
+    replaced = _invoke("case1.toml", out, "-m", "mink", "--duration", "0.4", "--overwrite")
+    assert replaced.exit_code == 0, replaced.output
+    summary = json.loads((out / "summary.json").read_text())
+    assert set(summary["methods"]) == {"mink"} and summary["sim_time_s"] == pytest.approx(0.4)
+    assert not (out / "steps" / "tpik.parquet").exists()
+
+
+def test_run_help_says_what_happens_to_a_directory_with_results():
+    result = CliRunner().invoke(app, ["run", "--help"], terminal_width=200)
+    assert result.exit_code == 0
+    text = " ".join(result.output.split())
+    assert "gets these methods added" in text and "--overwrite" in text and "refused (exit 2)" in text

@@ -413,17 +413,23 @@ def test_only_inactive_set_tasks_give_zero_velocity(jaco):
     assert report.status is SolveStatus.OK
 
 
-def test_building_a_solver_loads_the_compiled_search():
+def test_building_a_solver_loads_the_compiled_search_the_first_step_uses():
     """The compiled search is loaded when the solver is built, not at the first control step.
 
     Loading it from numba's cache takes ~0.5 s: on the hardware path that first step used to
-    arrive half a second late, and the whole run lagged the person's motion. Checked in a fresh
-    process (in this one, earlier tests have loaded it already).
+    arrive half a second late, and the whole run lagged the person's motion. The solver passes
+    its Jacobian rows read-only, a signature of its own (~40 ms to load): the first step then
+    missed the solver time limit. Checked in a fresh process (in this one, earlier tests have
+    loaded both already): the first solve loads nothing more.
     """
     code = (
-        "import robots, tpik.cascade as c; from tpik.solver import TpikSolver; "
-        "assert not c.search_modes.signatures; TpikSolver(robots.load('jaco2')); "
-        "print(len(c.search_modes.signatures))"
+        "import numpy as np, robots, tpik.cascade as c; from tpik.solver import TpikSolver; "
+        "from tpik.hierarchy import Hierarchy, Level; from tpik.tasks import PositionTask; "
+        "assert not c.search_modes.signatures; jaco = robots.load('jaco2'); solver = TpikSolver(jaco); "
+        "built = len(c.search_modes.signatures); kin = jaco.kinematics(jaco.home); "
+        "task = PositionTask('ee', target=kin.frame_position('end_effector') + np.array([0.05, 0.0, 0.0])); "
+        "assert solver.solve(Hierarchy([Level('operational', [task])]), kin, 0.01).ok; "
+        "print(built, len(c.search_modes.signatures))"
     )
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300, check=True)
-    assert out.stdout.strip() == "1"
+    assert out.stdout.split() == ["2", "2"]

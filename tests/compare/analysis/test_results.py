@@ -10,13 +10,16 @@ import numpy as np
 import pandas as pd
 import pytest
 
+from compare.analysis.exceptions import DirectoryBusy, ResultsConflict
 from compare.analysis.metrics import compute_summary
 from compare.analysis.results import (
     ResultsWriter,
     collect_sweep,
+    finished_methods,
     is_finished,
     load_steps,
     load_summary,
+    merge_run_summary,
     sweep_run_dir,
     write_json_atomic,
     write_sweep_summary,
@@ -56,7 +59,15 @@ def test_writer_creates_directory_config_and_top_level_keys(tmp_path):
     writer = ResultsWriter(out, "case1", 3, 70.0, "x = 1\n")
     assert (out / "config.toml").read_text() == "x = 1\n"
     summary = load_summary(out)
-    assert set(summary) == {"scenario", "seed", "sim_time_s", "versions", "methods"}
+    assert set(summary) == {
+        "scenario",
+        "seed",
+        "sim_time_s",
+        "versions",
+        "config_hash",
+        "config_fingerprint",
+        "methods",
+    }
     assert summary["scenario"] == "case1" and summary["seed"] == 3 and summary["sim_time_s"] == 70.0
     assert summary["methods"] == {}
     assert "python" in summary["versions"]
@@ -207,3 +218,165 @@ def test_empty_sweep_is_not_an_error(tmp_path):
     assert collect_sweep(tmp_path).empty
     summary = write_sweep_summary(tmp_path)
     assert summary["runs"] == 0 and summary["methods"] == {}
+
+
+# ------------------------------------------------------------------ results directories are safe
+
+HASH_A, HASH_B = "a" * 64, "b" * 64
+FP_A = {"scenario.name": "synthetic", "scenario.duration_s": 10.0, "scenario.seed": 0}
+FP_B = {**FP_A, "scenario.duration_s": 12.0}
+
+
+def _writer(out: Path, methods: list[str], config_hash: str | None = HASH_A, **kwargs) -> ResultsWriter:
+    fingerprint = FP_A if config_hash == HASH_A else FP_B
+    return ResultsWriter(
+        out,
+        "synthetic",
+        0,
+        10.0,
+        "x = 1\n",
+        config_hash=config_hash,
+        config_fingerprint=fingerprint,
+        methods=methods,
+        **kwargs,
+    )
+
+
+def _add(writer: ResultsWriter, name: str, **kwargs) -> Path:
+    summary, steps = _method_result(**kwargs)
+    return writer.add_method(name, summary, steps)
+
+
+def test_a_second_run_with_the_same_config_adds_its_method_and_touches_nothing_else(tmp_path):
+    with _writer(tmp_path, ["tpik"]) as w:
+        tpik_table = _add(w, "tpik")
+    before = (tpik_table.read_bytes(), tpik_table.stat().st_mtime_ns, load_summary(tmp_path)["methods"]["tpik"])
+    with _writer(tmp_path, ["hqp-daqp"]) as w:
+        _add(w, "hqp-daqp", slow=10.0)
+    summary = load_summary(tmp_path)
+    assert set(summary["methods"]) == {"tpik", "hqp-daqp"}
+    assert (tpik_table.read_bytes(), tpik_table.stat().st_mtime_ns, summary["methods"]["tpik"]) == before
+    assert (
+        summary["methods"]["hqp-daqp"]["solve_time_us"]["median"]
+        > summary["methods"]["tpik"]["solve_time_us"]["median"]
+    )
+
+
+def test_a_method_with_finished_results_is_refused_without_overwrite(tmp_path):
+    with _writer(tmp_path, ["tpik"]) as w:
+        _add(w, "tpik")
+    with pytest.raises(ResultsConflict, match=r"already holds finished results of tpik; use --overwrite"):
+        _writer(tmp_path, ["hqp-daqp", "tpik"])
+    assert set(load_summary(tmp_path)["methods"]) == {"tpik"}
+
+
+def test_another_config_is_refused_naming_the_key_that_differs(tmp_path):
+    with _writer(tmp_path, ["tpik"]) as w:
+        _add(w, "tpik")
+    with pytest.raises(ResultsConflict) as err:
+        _writer(tmp_path, ["mink"], config_hash=HASH_B)
+    message = str(err.value)
+    assert "another configuration (scenario.duration_s 10.0 → 12.0)" in message and "\n" not in message
+
+
+def test_results_without_a_config_hash_are_refused(tmp_path):
+    with ResultsWriter(tmp_path, "synthetic", 0, 10.0, None) as w:  # an older version's directory
+        _add(w, "tpik")
+    with pytest.raises(ResultsConflict, match="no config hash"):
+        _writer(tmp_path, ["mink"])
+
+
+def test_results_of_another_project_version_are_refused(tmp_path, monkeypatch):
+    with _writer(tmp_path, ["tpik"]) as w:
+        _add(w, "tpik")
+    monkeypatch.setattr("compare.analysis.results.run_versions", lambda: {"project": "99.0", "python": "3.11"})
+    with pytest.raises(ResultsConflict, match=r"tpik-compare .* this is 99\.0"):
+        _writer(tmp_path, ["mink"])
+
+
+def test_overwrite_replaces_every_method_on_purpose(tmp_path):
+    with _writer(tmp_path, ["tpik", "mink"]) as w:
+        _add(w, "tpik")
+        _add(w, "mink")
+    (tmp_path / "plots").mkdir()
+    (tmp_path / "plots" / "old.png").write_bytes(b"png")
+    with _writer(tmp_path, ["tpik"], config_hash=HASH_B, overwrite=True) as w:
+        _add(w, "tpik", slow=3.0)
+    summary = load_summary(tmp_path)
+    assert set(summary["methods"]) == {"tpik"} and summary["config_hash"] == HASH_B
+    assert sorted(p.name for p in (tmp_path / "steps").iterdir()) == ["tpik.parquet"]
+    assert not (tmp_path / "plots").exists()
+
+
+def test_a_sweep_directory_is_refused_even_with_overwrite(tmp_path):
+    _write_run(sweep_run_dir(tmp_path, 0), 0, {"tpik": {}})
+    for overwrite in (False, True):
+        with pytest.raises(ResultsConflict, match="is a sweep directory"):
+            _writer(tmp_path, ["tpik"], overwrite=overwrite)
+    assert is_finished(sweep_run_dir(tmp_path, 0), ["tpik"])
+
+
+def test_an_unreadable_summary_is_refused_not_replaced(tmp_path):
+    (tmp_path / "summary.json").write_text('{"scenario": "x", "meth')
+    with pytest.raises(ResultsConflict, match="unreadable"):
+        _writer(tmp_path, ["tpik"])
+    assert (tmp_path / "summary.json").read_text() == '{"scenario": "x", "meth'
+
+
+def test_a_method_with_a_truncated_table_is_not_finished_and_is_run_again(tmp_path):
+    with _writer(tmp_path, ["tpik", "mink"]) as w:
+        _add(w, "tpik")
+        table = _add(w, "mink")
+    data = table.read_bytes()
+    table.write_bytes(data[: len(data) // 2])  # e.g. written by an older, non-atomic version
+    assert finished_methods(tmp_path) == {"tpik"}
+    assert not is_finished(tmp_path, ["mink"]) and is_finished(tmp_path, ["tpik"])
+    with _writer(tmp_path, ["mink"]) as w:  # no --overwrite needed: it was not a finished result
+        _add(w, "mink")
+    assert finished_methods(tmp_path) == {"tpik", "mink"}
+
+
+def test_a_table_with_fewer_rows_than_recorded_is_not_finished(tmp_path):
+    with _writer(tmp_path, ["tpik"]) as w:
+        table = _add(w, "tpik")
+    pd.read_parquet(table).iloc[:10].to_parquet(table, index=False)
+    assert finished_methods(tmp_path) == set()
+
+
+def test_a_second_writer_of_the_same_directory_is_refused_while_the_first_is_open(tmp_path):
+    first = _writer(tmp_path, ["tpik"])
+    with pytest.raises(DirectoryBusy, match="being written by another tpik-compare process"):
+        _writer(tmp_path, ["mink"])
+    first.close()
+    with _writer(tmp_path, ["mink"]) as w:
+        _add(w, "mink")
+
+
+def test_a_crash_between_table_and_summary_leaves_a_run_that_is_completed_later(tmp_path, monkeypatch):
+    import compare.analysis.atomic_files as atomic
+
+    with _writer(tmp_path, ["tpik", "mink"]) as w:
+        _add(w, "tpik")
+
+        def crash(tmp: Path, final: Path) -> None:
+            if final.name == "summary.json":
+                raise KeyboardInterrupt  # killed after mink's table, before the summary naming it
+
+        monkeypatch.setattr(atomic, "before_replace", crash)
+        with pytest.raises(KeyboardInterrupt):
+            _add(w, "mink")
+        monkeypatch.setattr(atomic, "before_replace", None)
+    assert set(load_summary(tmp_path)["methods"]) == {"tpik"}
+    assert not list(tmp_path.glob(".summary.json.*"))
+    with _writer(tmp_path, ["mink"]) as w:  # the resume runs the missing method only
+        _add(w, "mink")
+    assert finished_methods(tmp_path) == {"tpik", "mink"}
+
+
+def test_merge_run_summary_keeps_the_methods_already_there(tmp_path):
+    _write_run(tmp_path, 0, {"tpik": {}}, errors={"mink": "boom"})
+    incoming = {**load_summary(tmp_path), "methods": {"mink": {"failures": 0}}}
+    incoming.pop("errors")
+    merged = merge_run_summary(tmp_path, incoming)
+    assert set(merged["methods"]) == {"tpik", "mink"} and "errors" not in merged
+    assert load_summary(tmp_path) == merged
