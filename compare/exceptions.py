@@ -5,6 +5,7 @@ Each sub-package keeps its own errors next to the code that raises them, all und
 * :class:`compare.config.ConfigError` (and :class:`compare.campaign.executors.ExecutorUnavailable`),
 * :class:`compare.methods.UnknownMethod`,
 * :class:`compare.analysis.metrics.MetricsError`,
+* :class:`compare.analysis.exceptions.ResultsError` (``ResultsConflict``, ``DirectoryBusy``, ``OutputUnusable``),
 * :class:`compare.sensing.exceptions.SensingError` (and ``UnknownSceneElement``),
 * :class:`compare.hardware.exceptions.HardwareError` (``RosUnavailable``, ``MasterUnreachable``,
   ``StartRefused``).

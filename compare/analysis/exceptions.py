@@ -2,8 +2,10 @@
 
 from __future__ import annotations
 
+from compare.exceptions import CompareError
 
-class ResultsError(Exception):
+
+class ResultsError(CompareError):
     """A results directory cannot be used as asked."""
 
 
