@@ -17,7 +17,7 @@ from compare.analysis.metrics import RunMeta, SetTaskInfo, compute_summary
 from compare.analysis.results import ResultsWriter
 from compare.campaign.random_scenario import realize
 from compare.config import Config
-from compare.loop.closed_loop import LoopSettings, ObstacleSource, run_loop
+from compare.loop.closed_loop import LoopSettings, ObstacleSource, run_loop, warm_up_solver
 from compare.loop.faults import FaultInjector, unsafe_commands
 from compare.loop.simulation import build_simulation
 from compare.loop.waypoints import WaypointSchedule
@@ -105,6 +105,7 @@ def run_method(config: Config, method: str, robot: robots.Robot, progress: Progr
         obstacles = sim.pipeline.source(io.read_depth)  # depth mode: the pipeline reads the faulty frames
     elif sim.pipeline is None:
         obstacles = injector.wrap_obstacles(obstacles)  # geometric mode: frame faults emulated
+    warmup_steps = warm_up_solver(solver, hierarchy, robot, q0, sc.dt)  # before faults and timing
     solver = injector.wrap_solver(solver)
     stale_after_s = (
         None if settings.stale_frame_periods is None else settings.stale_frame_periods * settings.sensing_period_s
@@ -128,6 +129,7 @@ def run_method(config: Config, method: str, robot: robots.Robot, progress: Progr
         wall_time_s=out.wall_time_s,
         sensing=sc.sensing,
         set_tasks=set_task_infos(hierarchy),
+        warmup_steps=warmup_steps,
     )
     summary = compute_summary(steps, meta)
     summary["faults"] = injector.summarize(steps, settings.sensing_period_s)
@@ -167,8 +169,8 @@ def run_scenario(
             t0 = time.perf_counter()
             try:
                 result = run_method(config, method, robot, bar if progress else None)
-            except Exception as exc:  # record and go on: the other methods' results are kept
-                log.exception("method %s failed", method)
+            except Exception as exc:  # a bug: traceback in the log, recorded, non-zero exit; other methods kept
+                log.exception("method %s aborted", method)
                 writer.add_error(method, f"{type(exc).__name__}: {exc}")
                 continue
             writer.add_method(method, result["summary"], result["steps"])
