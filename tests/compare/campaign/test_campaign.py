@@ -153,7 +153,7 @@ def test_fifty_run_campaign_keeps_joint_limits_and_walls_for_tpik_and_hqp(tmp_pa
         assert m["worst_safety_margin"]["walls"] > -SAFETY_TOL["walls"]
         assert m["unsafe_commands"] == 0
     # The hard family really is hard: the person gets within the obstacle threshold in some runs.
-    assert summary["methods"]["tpik"]["share_runs_obstacle_violation"] > 0.0
+    assert summary["methods"]["tpik"]["share_runs_obstacle_violation"]["rate"] > 0.0
     report = (out / "sweep_report.md").read_text()
     assert "joint-limit or wall violation" in report and "ISO" in report
     assert summary["campaign"]["plant"]["drive"] == "decoupled"
