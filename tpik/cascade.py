@@ -150,14 +150,9 @@ def _own_solution(
 def _cascade(
     G: np.ndarray,
     x: np.ndarray,
-    e: np.ndarray,
-    star_from_error: bool,
     layout: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray],
     in_mode: np.ndarray,
-    ss: bool,
-    compensate: bool,
-    vnorm: float,
-    tol: float,
+    params: tuple[np.ndarray, bool, bool, bool, float, float],
     cache: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray],
     work: tuple[np.ndarray, np.ndarray, np.ndarray],
     z: np.ndarray,
@@ -171,11 +166,13 @@ def _cascade(
     compensated form that of ``e`` when ``star_from_error`` is set, else that of the
     compensated reference :math:`x_K - J_K\dot q_{above}` (``e`` is ``x`` then).
 
-    ``layout`` is (eq_ptr, eq_rows, cand_ptr, cand_row): each level's equality rows and
-    candidates. ``cache`` is (t_has, t_y, t_c, t_lam): the NSB term per (level, subset of the
-    level's candidates), shared across modes; ``t_has`` with zero columns disables it (too
-    many subsets to tabulate). ``work`` is (iw (2, R) int, fw (6, R), mw (4, R, R)) workspaces.
+    ``params`` is (e, star_from_error, ss, compensate, ‖q̇‖_max, rank tolerance). ``layout`` is
+    (eq_ptr, eq_rows, cand_ptr, cand_row): each level's equality rows and candidates.
+    ``cache`` is (t_has, t_y, t_c, t_lam): the NSB term per (level, subset of the level's
+    candidates), shared across modes; ``t_has`` with zero columns disables it (too many
+    subsets to tabulate). ``work`` is (iw (2, R) int, fw (6, R), mw (4, R, R)) workspaces.
     """
+    e, star_from_error, ss, compensate, vnorm, tol = params
     eq_ptr, eq_rows, cand_ptr, cand_row = layout
     t_has, t_y, t_c, t_lam = cache
     iw, fw, mw = work
@@ -435,6 +432,7 @@ def search_modes(
     t_c = np.empty((n_levels, n_sub, R))
     t_lam = np.empty((n_levels, n_sub))
     layout = (eq_ptr, eq_rows, cand_ptr, cand_row)
+    params = (e, star_from_error, ss, compensate, velocity_norm_max, rank_tol)
     cache = (t_has, t_y, t_c, t_lam)
     work = (iw, fw, mw)
 
@@ -444,22 +442,7 @@ def search_modes(
     best_norm2 = math.nan
     best_active = 0
     if n_cand == 0:
-        _cascade(
-            G,
-            x,
-            e,
-            star_from_error,
-            layout,
-            in_mode,
-            ss,
-            compensate,
-            velocity_norm_max,
-            rank_tol,
-            cache,
-            work,
-            best_z,
-            lams,
-        )
+        _cascade(G, x, layout, in_mode, params, cache, work, best_z, lams)
         evaluated = 1
         found = True
     elif n_cand <= max_exhaustive:
@@ -477,22 +460,7 @@ def search_modes(
                     in_mode[cand_ptr[li] + j] = on
                     if on:
                         n_in += 1
-            _cascade(
-                G,
-                x,
-                e,
-                star_from_error,
-                layout,
-                in_mode,
-                ss,
-                compensate,
-                velocity_norm_max,
-                rank_tol,
-                cache,
-                work,
-                z,
-                trial_lams,
-            )
+            _cascade(G, x, layout, in_mode, params, cache, work, z, trial_lams)
             evaluated += 1
             norm2, admissible = _check(G, z, x, in_mode, cand_row, cand_side, admissibility_tol, return_rate, gz)
             if not math.isfinite(norm2) or not admissible:
@@ -507,22 +475,7 @@ def search_modes(
     else:
         how = SEARCH_GREEDY
         in_mode[:] = True
-        _cascade(
-            G,
-            x,
-            e,
-            star_from_error,
-            layout,
-            in_mode,
-            ss,
-            compensate,
-            velocity_norm_max,
-            rank_tol,
-            cache,
-            work,
-            z,
-            trial_lams,
-        )
+        _cascade(G, x, layout, in_mode, params, cache, work, z, trial_lams)
         evaluated = 1
         norm2, _ = _check(G, z, x, in_mode, cand_row, cand_side, admissibility_tol, return_rate, gz)
         if math.isfinite(norm2):  # S = C is always admissible
@@ -542,22 +495,7 @@ def search_modes(
                     continue
                 in_mode[:] = active
                 in_mode[drop] = False
-                _cascade(
-                    G,
-                    x,
-                    e,
-                    star_from_error,
-                    layout,
-                    in_mode,
-                    ss,
-                    compensate,
-                    velocity_norm_max,
-                    rank_tol,
-                    cache,
-                    work,
-                    z,
-                    trial_lams,
-                )
+                _cascade(G, x, layout, in_mode, params, cache, work, z, trial_lams)
                 evaluated += 1
                 norm2, admissible = _check(G, z, x, in_mode, cand_row, cand_side, admissibility_tol, return_rate, gz)
                 if not math.isfinite(norm2) or not admissible:

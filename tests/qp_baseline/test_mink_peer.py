@@ -16,6 +16,7 @@ from tests.qp_baseline.helpers import (
     obstacle_level,
     position_level,
     rollout,
+    wall_behind_ee,
     wall_box_level,
 )
 from tpik.hierarchy import Hierarchy, Level
@@ -25,7 +26,6 @@ from tpik.tasks import (
     OrientationTask,
     PoseTask,
     Thresholds,
-    VirtualWallTask,
 )
 
 CARTESIAN_TOLERANCE = 1e-4  # m, second-order term of one 10 ms step
@@ -141,14 +141,7 @@ def test_return_task_is_weighted_above_the_operational_task(jaco):
     """Past its threshold a wall comes back at its reference rate although the EE target is beyond it."""
     kin = jaco.kinematics(jaco.home)
     ee = kin.frame_position("end_effector")
-    wall = VirtualWallTask(
-        "wall",
-        "end_effector",
-        np.array([1.0, 0.0, 0.0]),
-        ee[0] + 0.01,
-        Thresholds(-0.05, 0.0, math.inf, math.inf, 0.03),
-        gain=2.0,
-    )
+    wall = wall_behind_ee(ee, 0.01, gain=2.0)
     hierarchy = Hierarchy([Level("walls", (wall,)), position_level(ee - np.array([0.2, 0.0, 0.0]), gain=2.0)])
     result = MinkSolver(jaco).solve(hierarchy, kin, DT)
     rate = float(wall.compute_state(kin).jacobian[0] @ result.qdot)

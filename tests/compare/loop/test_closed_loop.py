@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
 import pytest
 
@@ -12,11 +10,11 @@ from compare.loop.robot_io import DepthFrame, JointReading, RobotIO
 from compare.loop.waypoints import WaypointSchedule
 from compare.methods import make_method
 from qp_baseline.exceptions import NoSolutionFound
-from tests.qp_baseline.helpers import joint_limit_level, position_level
+from tests.qp_baseline.helpers import joint_limit_level, position_level, wall_behind_ee
 from tpik.exceptions import TargetNotSet
 from tpik.hierarchy import Hierarchy, Level
 from tpik.step_result import StepResult
-from tpik.tasks import PositionTask, Thresholds, VirtualWallTask
+from tpik.tasks import PositionTask
 
 DT = 0.01
 METHODS = ("tpik", "tpik-paper", "hqp-daqp", "mink", "mink-hard")
@@ -119,14 +117,7 @@ def test_one_status_rule_marks_a_missed_return_rate_degraded_for_every_method(ja
     """
     kin = jaco.kinematics(jaco.home)
     ee = kin.frame_position("end_effector")
-    wall = VirtualWallTask(
-        "wall",
-        "end_effector",
-        np.array([1.0, 0.0, 0.0]),
-        ee[0] + 0.005,
-        Thresholds(-0.05, 0.0, math.inf, math.inf, 0.03),
-        gain=10.0,
-    )
+    wall = wall_behind_ee(ee, 0.005, gain=10.0)
     position = PositionTask("position_end_effector", gain=1.0)
     hierarchy = Hierarchy([Level("walls", (wall,)), Level("operational", (position,))])
     io = KinematicIO(DT, jaco.nq, q=jaco.home)
