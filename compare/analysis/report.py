@@ -218,9 +218,9 @@ def rate_with_ci(x: Any) -> str:
     """``1.2 % [0.6, 2.3] (12/1000)`` from a rate entry (Wilson 95 % interval)."""
     if not isinstance(x, dict) or x.get("rate") is None:
         return _pct(x)
-    lo, hi = x.get("ci95") or (None, None)
-    ci = f" [{100.0 * lo:.1f}, {100.0 * hi:.1f}]" if lo is not None else ""
-    return f"{100.0 * x['rate']:.1f} %{ci} ({x['count']}/{x['runs']})"
+    interval = x.get("ci95")
+    ci = f" [{100.0 * interval[0]:.1f}, {100.0 * interval[1]:.1f}]" if interval else ""
+    return f"{100.0 * float(x['rate']):.1f} %{ci} ({x['count']}/{x['runs']})"
 
 
 def render_sweep_report(sweep_dir: Path, command: str | None = None) -> Path:

@@ -99,6 +99,7 @@ def write_ablation(sweep_dir: Path) -> Path:
         "EE final error [m] (median)",
         "solve median [µs] (95 %)",
         "steps degraded / failed",
+        "time below a physical threshold [s]",
     ]
     rows = []
     for name, r in table["methods"].items():
@@ -116,6 +117,7 @@ def write_ablation(sweep_dir: Path) -> Path:
                 fmt_number(r["ee_error_final_m_median"], ".3f"),
                 fmt_number(r["solve_time_us_median"], ".0f") + (f" [{ci[0]:.0f}, {ci[1]:.0f}]" if ci else ""),
                 f"{st.get('degraded', '–')} / {st.get('failed', '–')}",
+                fmt_number(r["time_below_physical_s"], ".2f"),
             ]
         )
     lines.append(markdown_table(headers, rows) if rows else "No finished run.")
