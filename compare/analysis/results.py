@@ -500,7 +500,15 @@ def _percentile(values: pd.Series, q: float) -> float | None:
 
 
 TIMING_KEYS = frozenset(
-    {"solve_time_us", "realtime_factor", "wall_time_s", "solve_time_us_by_active_count", "versions", "steps_file"}
+    {
+        "solve_time_us",
+        "realtime_factor",
+        "wall_time_s",
+        "solve_time_us_by_active_count",
+        "versions",
+        "steps_file",
+        "deadline_misses",
+    }
 )
 """Keys of ``summary.json`` whose values depend on the machine's speed or environment, not on
 (config, seed): left out when runs are compared for determinism."""
