@@ -18,7 +18,7 @@ from compare.analysis.results import ResultsWriter
 from compare.campaign.random_scenario import realize
 from compare.config import Config
 from compare.config_hash import config_fingerprint, config_hash, method_settings
-from compare.loop.closed_loop import LoopOutput, LoopSettings, ObstacleSource, run_loop
+from compare.loop.closed_loop import LoopOutput, LoopSettings, ObstacleSource, run_loop, warm_up_solver
 from compare.loop.deadline import guard_solver
 from compare.loop.faults import FaultInjector, unsafe_commands
 from compare.loop.simulation import build_simulation
@@ -41,7 +41,9 @@ def set_task_infos(hierarchy: Hierarchy) -> tuple[SetTaskInfo, ...]:
     return tuple(infos)
 
 
-def run_meta(config: Config, method: str, hierarchy: Hierarchy, out: LoopOutput, sensing: str) -> RunMeta:
+def run_meta(
+    config: Config, method: str, hierarchy: Hierarchy, out: LoopOutput, sensing: str, warmup_steps: int = 0
+) -> RunMeta:
     """What the metrics need besides the per-step table, for a simulated or a hardware run.
 
     Args:
@@ -50,6 +52,7 @@ def run_meta(config: Config, method: str, hierarchy: Hierarchy, out: LoopOutput,
         hierarchy: The hierarchy the run used (its set tasks' groups and thresholds).
         out: The loop's output (simulated and wall time).
         sensing: How obstacles were sensed (``depth``, ``geometric``, ``none``).
+        warmup_steps: Untimed solves made before the first step (excluded from the timing).
     """
     sc = config.scenario
     return RunMeta(
@@ -61,6 +64,7 @@ def run_meta(config: Config, method: str, hierarchy: Hierarchy, out: LoopOutput,
         wall_time_s=out.wall_time_s,
         sensing=sensing,
         set_tasks=set_task_infos(hierarchy),
+        warmup_steps=warmup_steps,
     )
 
 
@@ -122,6 +126,7 @@ def run_method(config: Config, method: str, robot: robots.Robot, progress: Progr
         obstacles = sim.pipeline.source(io.read_depth)  # depth mode: the pipeline reads the faulty frames
     elif sim.pipeline is None:
         obstacles = injector.wrap_obstacles(obstacles)  # geometric mode: frame faults emulated
+    warmup_steps = warm_up_solver(solver, hierarchy, robot, q0, sc.dt)  # before faults and timing
     solver = guard_solver(injector.wrap_solver(solver), config.solver_limit, sc.dt)
     stale_after_s = (
         None if settings.stale_frame_periods is None else settings.stale_frame_periods * settings.sensing_period_s
@@ -136,7 +141,7 @@ def run_method(config: Config, method: str, robot: robots.Robot, progress: Progr
     steps = injector.annotate(out.steps)
     if monitor is not None:
         steps = pd.concat([steps, monitor.margins(steps, robot, config.iso15066)], axis=1)
-    summary = compute_summary(steps, run_meta(config, method, hierarchy, out, sc.sensing))
+    summary = compute_summary(steps, run_meta(config, method, hierarchy, out, sc.sensing, warmup_steps))
     summary["faults"] = injector.summarize(steps, settings.sensing_period_s)
     summary["unsafe_commands"] = unsafe_commands(steps, robot.v_max)
     if monitor is not None:
@@ -238,8 +243,8 @@ def run_scenario(
                 t0 = time.perf_counter()
                 try:
                     result = run_method(config, method, robot, bar if progress else None)
-                except Exception as exc:  # record and go on: the other methods' results are kept
-                    log.exception("method %s failed", method)
+                except Exception as exc:  # a bug: traceback in the log, recorded, non-zero exit; other methods kept
+                    log.exception("method %s aborted", method)
                     writer.add_error(method, f"{type(exc).__name__}: {exc}")
                     continue
                 writer.add_method(method, result["summary"], result["steps"])

@@ -2,9 +2,11 @@ r"""Hierarchical QP: the tpik hierarchy solved as a lexicographic cascade of QPs
 
 Level :math:`k` (highest first) holds equality tasks, stacked as :math:`J_k,\ r_k` with the CLIK
 reference :math:`r = \dot\sigma_d + K\tilde\sigma` (paper eq. 2), and set-based tasks, whose
-:meth:`~tpik.tasks.SetTask.velocity_bounds` give rows :math:`G_k \dot q \le h_k` (a finite upper
-bound :math:`J\dot q \le \dot\sigma_u`, a finite lower one :math:`-J\dot q \le -\dot\sigma_l`; a
-non-finite σ, e.g. no obstacle, gives no row). Each level solves
+reference rates give rows :math:`G_k \dot q \le h_k` (a finite upper bound
+:math:`J\dot q \le \dot\sigma_u`, a finite lower one :math:`-J\dot q \le -\dot\sigma_l`; a
+non-finite σ, e.g. no obstacle, gives no row; :mod:`qp_baseline.set_rows`, shared with mink).
+Both references come from :mod:`tpik.reference`, the one every method uses (gain cap
+``gain_cap``). Each level solves
 
 .. math::
     \min_{\dot q,\ w_k}\ \|J_k \dot q - r_k\|^2 + \|w_k\|^2 + \epsilon \|\dot q\|^2
@@ -74,9 +76,12 @@ import qpsolvers
 import scipy.sparse as spa
 
 from qp_baseline.exceptions import InvalidSettings, NoSolutionFound, UnknownSolver
+from qp_baseline.set_rows import SetRowBuilder
 from qp_baseline.time_limits import TimeLimited
 from robots import Kinematics, Robot
+from tpik.exceptions import InvalidTaskState
 from tpik.hierarchy import Hierarchy
+from tpik.reference import ControlReference
 from tpik.step_result import SolveStatus, StepResult, failed
 from tpik.tasks import SetTask, Task
 
@@ -258,6 +263,8 @@ class HqpSettings:
         unconstrained_first: Skip the backend when a level's unconstrained minimiser is feasible.
         min_norm_level: Solve the final min-norm level; :data:`MIN_NORM_LEVEL` when None.
         retry: Retry a failed level once with :data:`RETRY_SETTINGS`.
+        gain_cap: Cap every task gain at 1/dt in the control reference (:mod:`tpik.reference`;
+            the same default as TPIK and mink).
     """
 
     regularization: float = 1e-9
@@ -267,6 +274,7 @@ class HqpSettings:
     unconstrained_first: bool = True
     min_norm_level: bool | None = None
     retry: bool = True
+    gain_cap: bool = True
 
     def check(self, solver: str) -> None:
         """Raise :class:`InvalidSettings` naming the first bad value."""
@@ -277,7 +285,7 @@ class HqpSettings:
             number = isinstance(value, int | float) and not isinstance(value, bool)
             if not (number and math.isfinite(value) and value > 0):
                 raise InvalidSettings(solver, f"setting '{key}' must be a finite number > 0, got {value!r}", key)
-        for key in ("unconstrained_first", "min_norm_level", "retry"):
+        for key in ("unconstrained_first", "min_norm_level", "retry", "gain_cap"):
             value = getattr(self, key)
             if not (isinstance(value, bool) or (value is None and key == "min_norm_level")):
                 raise InvalidSettings(solver, f"setting '{key}' must be true or false, got {value!r}", key)
@@ -334,6 +342,7 @@ class HqpSolver(TimeLimited):
         self.solver = solver
         self.name = name or f"hqp-{solver}"
         self.options, user_kwargs = split_settings(solver, settings)
+        self.reference = ControlReference(gain_cap=self.options.gain_cap)
         probe_settings(solver, user_kwargs)
         self.qp_settings: dict[str, Any] = {**SOLVER_DEFAULTS[solver], **user_kwargs}
         self._kwargs = backend_kwargs(solver, self.qp_settings)
@@ -354,6 +363,7 @@ class HqpSolver(TimeLimited):
         self._levels: list[_Level] = []
         self._set_tasks: tuple[SetTask, ...] = ()
         self._set_level: tuple[int, ...] = ()
+        self._rows = SetRowBuilder((), n, self.reference)
         self._no_rows = np.zeros((0, n))
         self._no_bounds = np.zeros(0)
         self._no_owner = np.zeros(0, dtype=int)
@@ -390,6 +400,7 @@ class HqpSolver(TimeLimited):
         self._levels = levels
         self._set_tasks = tuple(set_tasks)
         self._set_level = tuple(set_level)
+        self._rows = SetRowBuilder(self._set_tasks, n, self.reference)
         self._hierarchy = hierarchy
 
     def _box(self, q: np.ndarray, dt: float) -> tuple[np.ndarray, np.ndarray]:
@@ -414,48 +425,26 @@ class HqpSolver(TimeLimited):
             ``cuts``: the rows of level k are ``cuts[k]:cuts[k + 1]``.
         """
         finite = True
+        reference = self.reference
         for lv in self._levels:
             for task, sl in zip(lv.eq_tasks, lv.eq_slices, strict=True):
                 state = task.compute_state(kin)
                 lv.J[sl] = state.jacobian
-                lv.r[sl] = state.feedforward + task.gain * state.error
+                lv.r[sl] = reference.equality(task, state, dt)
             if lv.r.size:
                 finite = finite and bool(np.isfinite(lv.r).all() and np.isfinite(lv.J).all())
         if not finite:
-            raise ValueError("non-finite equality task Jacobian or reference")
-        jacs: list[np.ndarray] = []
-        bounds: list[float] = []
-        signs: list[float] = []
-        owner: list[int] = []
-        level_end = [0] * (len(self._levels) + 1)
-        for i, (task, k) in enumerate(zip(self._set_tasks, self._set_level, strict=True)):
-            state = task.compute_state(kin)
-            lo, hi = task.velocity_bounds(state, dt)
-            jac = state.jacobian[0]
-            if hi < math.inf:  # J q̇ ≤ hi
-                jacs.append(jac)
-                bounds.append(hi)
-                signs.append(1.0)
-                owner.append(i)
-            if lo > -math.inf:  # −J q̇ ≤ −lo
-                jacs.append(jac)
-                bounds.append(-lo)
-                signs.append(-1.0)
-                owner.append(i)
-            level_end[k + 1] = len(owner)
-        if not jacs:
+            raise InvalidTaskState(f"{self.name}: non-finite equality task Jacobian or reference")
+        rows = self._rows.build(kin, dt)
+        if not rows.h.size:
             self._G, self._h, self._owner = self._no_rows, self._no_bounds, self._no_owner
             return [0] * (len(self._levels) + 1)
-        for k in range(1, len(level_end)):
-            level_end[k] = max(level_end[k], level_end[k - 1])
-        G = np.array(jacs)
-        G *= np.array(signs)[:, None]
-        if not np.isfinite(G).all():
-            raise ValueError("non-finite set task Jacobian")
-        h = np.array(bounds)
+        row_level = np.asarray(self._set_level)[rows.owner]
+        level_end = np.searchsorted(row_level, np.arange(len(self._levels) + 1), side="left")
+        G, h = rows.G, rows.h
         reach = G @ (0.5 * (ub + lb)) + np.abs(G) @ (0.5 * (ub - lb))  # max of g·q̇ over the box
         keep = np.flatnonzero(reach > h)
-        self._G, self._h, self._owner = G[keep], h[keep], np.array(owner)[keep]
+        self._G, self._h, self._owner = G[keep], h[keep], rows.owner[keep]
         return np.searchsorted(keep, level_end).tolist()  # type: ignore[no-any-return]
 
     # ------------------------------------------------------------------ solve
@@ -483,10 +472,7 @@ class HqpSolver(TimeLimited):
         self._backend_time = 0.0
         self._prepare(hierarchy)
         lb, ub = self._box(kin.q, dt)
-        try:
-            cuts = self._evaluate(kin, dt, lb, ub)
-        except Exception as exc:  # noqa: BLE001 - a task that cannot be evaluated fails the step
-            return self._failed(f"{self.name}: task evaluation failed: {type(exc).__name__}: {exc}", t_start, 0)
+        cuts = self._evaluate(kin, dt, lb, ub)  # a task error (tpik.TpikError) propagates, as in every solver
         G_all, h_rel = self._G, self._h.copy()  # h_rel: bounds relaxed by the levels' slacks
         eps = self.options.regularization
         qd = self._zeros.copy()

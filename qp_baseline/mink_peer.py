@@ -1,4 +1,4 @@
-r"""The mink peer: the same hierarchy handed to :func:`mink.solve_ik` (weighted, not strict, priorities).
+r"""The mink peer: the same hierarchy given to mink as its users set it up (weighted, not strict, priorities).
 
 mink solves one QP per step over the configuration displacement :math:`\Delta q = \dot q\,dt`:
 
@@ -6,39 +6,52 @@ mink solves one QP per step over the configuration displacement :math:`\Delta q 
     \min_{\Delta q}\ \sum_i c_i^2 \|J_i \Delta q + \alpha_i e_i\|^2 + \mu \|\Delta q\|^2
     \quad \text{s.t.}\quad G \Delta q \le h
 
-and :func:`mink.solve_ik` returns :math:`v = \Delta q / dt` [rad/s]: the velocity is per second,
-``dt`` only scales the constraints (``VelocityLimit`` gives :math:`|\Delta q| \le v_{max} dt`) and
-the damping :math:`\mu` multiplies :math:`\|\Delta q\|^2` (unitless relative to the task terms).
+and returns :math:`v = \Delta q / dt` [rad/s] (what :func:`mink.solve_ik` does; ``dt`` scales
+the constraints, e.g. ``VelocityLimit`` gives :math:`|\Delta q| \le v_{max} dt`).
 
-How our tasks map onto mink:
+Set up as a mink user would (its README, examples and issues: kinematics from
+``mink.Configuration``, frame targets through ``FrameTask``, limits that the zero step always
+satisfies, as ``ConfigurationLimit`` and ``CollisionAvoidanceLimit`` are written):
 
-* Position / orientation / pose tasks become a :class:`mink.FrameTask` on the same MJCF body
-  (position cost only for a position task, orientation cost only for an orientation task). The
-  CLIK reference :math:`r = \dot\sigma_d + K\tilde\sigma` of our task becomes the frame target
-  :math:`p_t = p + r_p\,dt/\alpha`, :math:`R_t = \mathrm{Exp}(r_\omega dt/\alpha) R` with
-  :math:`\alpha = \min(1, K dt)` the mink gain, so that :math:`\alpha (p_t - p) = r_p\,dt`: with no
-  feedforward and :math:`K dt \le 1` the target is exactly :math:`p_d`.
-* Any other equality task (e.g. manipulability) becomes a small :class:`mink.Task` adapter with
-  error :math:`e = -r\,dt` and the task's own Jacobian.
-* Every set-based task becomes a row pair of :class:`SetTaskLimit` (a :class:`mink.Limit`):
-  :math:`\dot\sigma_l\,dt \le J \Delta q \le \dot\sigma_u\,dt` from :meth:`tpik.tasks.SetTask.velocity_bounds`.
-  These are *hard* constraints without slack: when they cannot all be met mink finds no solution
-  and the step is reported FAILED with a zero velocity.
+* **Kinematics**: every task is evaluated on :class:`~qp_baseline.mink_kinematics.MinkKinematics`,
+  mink's own ``Configuration`` (MuJoCo data), not on our pinocchio snapshot. The obstacle points
+  are those of the shared sensing, set on the same task objects as for every method.
+* **Frame tasks**: position / orientation / pose tasks become a :class:`mink.FrameTask` on the
+  same MJCF body (position cost only for a position task, orientation cost only for an
+  orientation task). The one control reference :math:`r = \dot\sigma_d + K\tilde\sigma` of
+  :mod:`tpik.reference` becomes the frame target :math:`p_t = p + r_p\,dt/\alpha`,
+  :math:`R_t = \mathrm{Exp}(r_\omega dt/\alpha) R` with the mink gain :math:`\alpha = \min(1, K dt)`,
+  so that :math:`\alpha (p_t - p) = r_p\,dt`: with no feedforward and :math:`K dt \le 1` the
+  target is exactly :math:`p_d`. Other equality tasks (e.g. manipulability) become a small
+  :class:`mink.Task` with error :math:`e = -r\,dt` and the task's Jacobian.
+* **Set-based tasks, formulation ``soft_return`` (method ``mink``)**: one :class:`SetTaskLimit`
+  (a :class:`mink.Limit`) with the rows of :mod:`qp_baseline.set_rows` relaxed so that
+  :math:`\Delta q = 0` satisfies them (``hold_at_zero``): inside its safety set a task may
+  approach its threshold no faster than its reference :math:`K(\sigma_s - \sigma)`; past it, no
+  further. Coming back into the safe set is a soft task (:class:`SetTaskReturn`): for each task
+  past its safety threshold, :math:`J\Delta q \to K(\sigma_s - \sigma)\,dt`, weighted above the
+  operational tasks (the hierarchy's order, one factor ρ per level). With the joint limits
+  (``ConfigurationLimit``, ``VelocityLimit``) every limit holds at :math:`\Delta q = 0` while q is
+  inside the model's joint ranges, so the QP always has a solution there.
+* **Formulation ``hard`` (method ``mink-hard``, the strict variant)**: the set-task rows are
+  HQP's hard return-rate rows :math:`\dot\sigma_l\,dt \le J\Delta q \le \dot\sigma_u\,dt` with
+  no slack, and no return task: a task past its threshold *demands* its return rate, and when
+  the rows cannot all hold (a person closer than the arm can retreat from within its velocity
+  limits) mink finds no solution and the step is FAILED.
 * Joint position limits of the model: :class:`mink.ConfigurationLimit`; joint velocity limits
   ``robot.v_max``: :class:`mink.VelocityLimit`.
 
-Priorities are weights (mink's nature): the equality levels, highest first, get the costs
+Priorities are weights (mink's nature): the levels, highest first, get the costs
 :math:`c_k = \rho^{-k}` (:math:`\rho` = ``level_cost_ratio``, default 10, i.e. a factor 100 per
-level on the squared residual). Set-task levels are constraints whatever their level.
-
-The set-based task Jacobians come from pinocchio through our :class:`~robots.Kinematics`;
-mink computes the frame Jacobians from MuJoCo. Both read the same MJCF file.
+level on the squared residual), counted so that the first level with an equality task has cost 1.
+In ``mink`` the return tasks of the safety levels above it so get :math:`\rho, \rho^2, \dots`.
 
 A step calls :func:`mink.build_ik` then :func:`qpsolvers.solve_problem` and divides by ``dt``,
-which is all :func:`mink.solve_ik` does besides a limit check that only logs: the build and
-solve times can so be reported apart (``tests/qp_baseline/test_mink_peer.py`` checks the
-velocity equals ``mink.solve_ik``'s). mink's failures (no solution, an exception, a velocity
-outside the limits by more than ``tolerance``) give a FAILED step with zero velocity.
+which is all :func:`mink.solve_ik` does besides a limit check that only logs; the build and solve
+times can so be reported apart. The answer is checked as mink's own problem states it:
+:math:`G\Delta q \le h` to the backend's tolerance (:data:`qp_baseline.hqp.TOLERANCES`, in Δq
+units). A backend's no-solution or a failed check gives a FAILED step with zero velocity; an
+error of a task (:class:`tpik.TpikError`) propagates, as from every solver.
 """
 
 from __future__ import annotations
@@ -55,25 +68,35 @@ import numpy as np
 import qpsolvers
 
 from qp_baseline.exceptions import InvalidSettings, UnknownSolver
-from qp_baseline.hqp import available_qp_solvers, backend_iterations, backend_kwargs, probe_settings
+from qp_baseline.hqp import TOLERANCES, available_qp_solvers, backend_iterations, backend_kwargs, probe_settings
+from qp_baseline.mink_kinematics import MinkKinematics
+from qp_baseline.set_rows import SetRowBuilder, SetRows
 from qp_baseline.time_limits import TimeLimited
 from robots import Kinematics, Robot
 from tpik.hierarchy import Hierarchy
+from tpik.reference import ControlReference
 from tpik.step_result import SolveStatus, StepResult, failed
 from tpik.tasks import OrientationTask, PoseTask, PositionTask, SetTask, Task, TaskState
+
+FORMULATIONS: dict[str, str] = {"soft_return": "mink", "hard": "mink-hard"}
+"""Set-task formulation → method name (module docstring)."""
 
 
 @dataclass(frozen=True)
 class MinkSettings:
-    r"""Settings of the mink peer (the ``[methods.mink]`` table of a config).
+    r"""Settings of the mink peer (the ``[methods.settings.mink]`` table of a config).
 
     Attributes:
         solver: QP backend mink hands its problem to (any name of
             :func:`qp_baseline.hqp.available_qp_solvers`).
         damping: mink's Levenberg–Marquardt damping µ on :math:`\|\Delta q\|^2` (mink's default).
-        level_cost_ratio: ρ ≥ 1: the k-th equality level (0 = highest) has cost ρ^-k.
+        level_cost_ratio: ρ ≥ 1: the k-th level below the first equality level has cost ρ^-k,
+            the k-th above it (set-task return tasks) ρ^k.
         configuration_limit_gain: Gain in (0, 1] of :class:`mink.ConfigurationLimit`.
-        tolerance: Constraint tolerance [rad/s or m/s] of the check on the returned velocity.
+        tolerance: Accepted violation of the returned step's constraints, in Δq units [rad or
+            task unit]; None = the backend's tolerance (:data:`qp_baseline.hqp.TOLERANCES`).
+        gain_cap: Cap every task gain at 1/dt in the control reference (:mod:`tpik.reference`;
+            the same default as TPIK and HQP).
         qp_settings: Keyword arguments forwarded to the QP backend.
     """
 
@@ -81,7 +104,8 @@ class MinkSettings:
     damping: float = 1e-12
     level_cost_ratio: float = 10.0
     configuration_limit_gain: float = 0.95
-    tolerance: float = 1e-6
+    tolerance: float | None = None
+    gain_cap: bool = True
     qp_settings: Mapping[str, Any] | None = None
 
     @classmethod
@@ -102,35 +126,39 @@ class MinkSettings:
         """Raise :class:`InvalidSettings` naming the first bad value."""
         if self.solver not in available_qp_solvers():
             raise UnknownSolver(self.solver, available_qp_solvers())
-        checks = (
+        checks = [
             ("damping", self.damping, lambda v: v >= 0.0, ">= 0"),
             ("level_cost_ratio", self.level_cost_ratio, lambda v: v >= 1.0, ">= 1"),
             ("configuration_limit_gain", self.configuration_limit_gain, lambda v: 0.0 < v <= 1.0, "in (0, 1]"),
-            ("tolerance", self.tolerance, lambda v: v > 0.0, "> 0"),
-        )
+        ]
+        if self.tolerance is not None:
+            checks.append(("tolerance", self.tolerance, lambda v: v > 0.0, "> 0"))
         for key, value, ok, expected in checks:
-            if not isinstance(value, int | float) or not math.isfinite(value) or not ok(value):
+            number = isinstance(value, int | float) and not isinstance(value, bool)
+            if not number or not math.isfinite(value) or not ok(value):
                 raise InvalidSettings("mink", f"setting '{key}' must be a finite number {expected}, got {value!r}", key)
+        if not isinstance(self.gain_cap, bool):
+            raise InvalidSettings(
+                "mink", f"setting 'gain_cap' must be true or false, got {self.gain_cap!r}", "gain_cap"
+            )
         if self.qp_settings is not None and not isinstance(self.qp_settings, Mapping):
             raise InvalidSettings("mink", f"'qp_settings' must be a table, got {self.qp_settings!r}", "qp_settings")
 
 
 class SetTaskLimit(mink.Limit):
-    r"""Set-based tasks as a mink limit: :math:`\dot\sigma_l\,dt \le J \Delta q \le \dot\sigma_u\,dt`.
+    r"""Set-based tasks as a mink limit: rows :math:`G \Delta q \le h\,dt` (h per second).
 
-    The rows are loaded each step by :meth:`set_rows` from the task states and
-    :meth:`tpik.tasks.SetTask.velocity_bounds`; infinite bounds give no row.
+    The rows are loaded each step by :meth:`set_rows` (from :mod:`qp_baseline.set_rows`).
     """
 
     def __init__(self, nv: int) -> None:
         self.nv = nv
         self._G = np.zeros((0, nv))
         self._h = np.zeros(0)
-        self.names: list[str] = []
 
-    def set_rows(self, G: np.ndarray, h: np.ndarray, names: list[str]) -> None:
-        """Load ``G q̇ ≤ h`` [h in task units per second]; ``names[i]`` is row i's task."""
-        self._G, self._h, self.names = G, h, names
+    def set_rows(self, G: np.ndarray, h: np.ndarray) -> None:
+        """Load ``G q̇ ≤ h`` [h in task units per second]."""
+        self._G, self._h = G, h
 
     def compute_qp_inequalities(self, configuration: mink.Configuration, dt: float) -> mink.Constraint:
         r"""Rows :math:`G \Delta q \le h\,dt` (``configuration`` is unused: rows come from our tasks)."""
@@ -141,20 +169,29 @@ class SetTaskLimit(mink.Limit):
 
 
 class _StateTask(mink.Task):
-    """Any equality task of ours as a mink task: error ``-r dt``, our Jacobian."""
+    """A task of stored rows as a mink task: error ``e`` (Δq units) and Jacobian set each step."""
 
-    def __init__(self, dim: int, cost: float) -> None:
-        super().__init__(cost=np.full(dim, cost), gain=1.0)
-        self.error = np.zeros(dim)
-        self.jacobian = np.zeros((dim, 0))
+    def __init__(self, cost: np.ndarray) -> None:
+        super().__init__(cost=np.asarray(cost, dtype=float), gain=1.0)
+        self.error = np.zeros(len(cost))
+        self.jacobian = np.zeros((len(cost), 0))
 
     def compute_error(self, configuration: mink.Configuration) -> np.ndarray:
-        """The stored error ``-r dt``."""
+        """The stored error."""
         return self.error
 
     def compute_jacobian(self, configuration: mink.Configuration) -> np.ndarray:
-        """The stored Jacobian (from pinocchio)."""
+        """The stored Jacobian."""
         return self.jacobian
+
+
+class SetTaskReturn(_StateTask):
+    r"""Soft return of the set-based tasks past their safety thresholds (formulation ``soft_return``).
+
+    One row per set task: for a task past a safety threshold, :math:`J\Delta q \approx
+    K(\sigma_s - \sigma)\,dt` (error :math:`e = -K(\sigma_s - \sigma)\,dt`, its Jacobian row);
+    zero elsewhere (no contribution). Costs per row from the task's level.
+    """
 
 
 @dataclass
@@ -184,55 +221,75 @@ class MinkSolver(TimeLimited):
         robot: The robot; mink gets ``robot.mj_model`` (same MJCF as pinocchio).
         settings: A plain dict validated by :meth:`MinkSettings.from_dict`.
         name: Method name reported in results.
+        formulation: ``"soft_return"`` (``mink``, default) or ``"hard"`` (``mink-hard``).
 
     Raises:
         UnknownSolver: ``settings["solver"]`` is not an installed QP backend.
         InvalidSettings: Unknown key or bad value.
     """
 
-    def __init__(self, robot: Robot, settings: Mapping[str, Any] | None = None, name: str = "mink") -> None:
+    def __init__(
+        self,
+        robot: Robot,
+        settings: Mapping[str, Any] | None = None,
+        name: str = "mink",
+        formulation: str = "soft_return",
+    ) -> None:
+        if formulation not in FORMULATIONS:
+            raise InvalidSettings("mink", f"unknown formulation {formulation!r}; known: {', '.join(FORMULATIONS)}")
         self.robot = robot
         self.name = name
+        self.formulation = formulation
         self.settings = MinkSettings.from_dict(settings)
-        self._qp_kwargs = backend_kwargs(self.settings.solver, self.settings.qp_settings or {})
+        s = self.settings
+        self.reference = ControlReference(gain_cap=s.gain_cap)
+        self.tolerance = float(s.tolerance if s.tolerance is not None else TOLERANCES[s.solver])
+        self._qp_kwargs = backend_kwargs(s.solver, s.qp_settings or {})
         self.configuration = mink.Configuration(robot.mj_model)
         nv = robot.nq
         self._limit_rows = SetTaskLimit(nv)
         velocities = {robot.joint_names[i]: float(robot.v_max[i]) for i in range(nv)}
         self._limits: list[mink.Limit] = [
-            mink.ConfigurationLimit(robot.mj_model, gain=self.settings.configuration_limit_gain),
+            mink.ConfigurationLimit(robot.mj_model, gain=s.configuration_limit_gain),
             mink.VelocityLimit(robot.mj_model, velocities),
             self._limit_rows,
         ]
+        self._bodies: dict[str, int] = {}
         self._hierarchy: Hierarchy | None = None
         self._adapters: list[_Adapter] = []
-        self._set_tasks: list[SetTask] = []
-        self._check_qp_settings()
+        self._rows = SetRowBuilder((), nv, self.reference)
+        self._return: SetTaskReturn | None = None
+        self._tasks: list[mink.Task] = []
+        probe_settings(s.solver, s.qp_settings or {})  # a bad backend setting fails here, not mid-run
 
-    def _check_qp_settings(self) -> None:
-        """Solve a tiny QP with the backend settings so a bad one fails here, not mid-run."""
-        probe_settings(self.settings.solver, self.settings.qp_settings or {})
+    def __repr__(self) -> str:
+        return f"MinkSolver(name={self.name!r}, formulation={self.formulation!r}, settings={self.settings})"
 
     def _prepare(self, hierarchy: Hierarchy) -> None:
         """Build the mink tasks of a hierarchy once (rebuilt only for a new hierarchy object)."""
         if hierarchy is self._hierarchy:
             return
+        rho = self.settings.level_cost_ratio
+        levels = list(hierarchy.levels)
+        first_eq = next(
+            (k for k, lv in enumerate(levels) if any(not isinstance(t, SetTask) for t in lv.tasks)), len(levels)
+        )
         adapters: list[_Adapter] = []
         set_tasks: list[SetTask] = []
-        eq_level = 0
-        for level in hierarchy.levels:
-            has_equality = False
-            cost = self.settings.level_cost_ratio ** (-eq_level)
+        set_costs: list[float] = []
+        for k, level in enumerate(levels):
+            cost = rho ** (first_eq - k)
             for task in level.tasks:
                 if isinstance(task, SetTask):
                     set_tasks.append(task)
-                    continue
-                has_equality = True
-                adapters.append(self._adapter(task, cost))
-            if has_equality:
-                eq_level += 1
+                    set_costs.append(cost)
+                else:
+                    adapters.append(self._adapter(task, cost))
         self._adapters = adapters
-        self._set_tasks = set_tasks
+        soft = self.formulation == "soft_return"
+        self._rows = SetRowBuilder(set_tasks, self.robot.nq, self.reference, hold_at_zero=soft)
+        self._return = SetTaskReturn(np.array(set_costs)) if soft and set_tasks else None
+        self._tasks = [a.mink_task for a in adapters] + ([self._return] if self._return is not None else [])
         self._hierarchy = hierarchy
 
     def _adapter(self, task: Task, cost: float) -> _Adapter:
@@ -249,19 +306,19 @@ class MinkSolver(TimeLimited):
                 body = frame if frame.startswith(prefix) else prefix + frame
                 frame_task = mink.FrameTask(body, "body", position_cost=pos_cost, orientation_cost=rot_cost)
                 return _Adapter(task, frame_task, kind, body)
-        return _Adapter(task, _StateTask(task.dim, cost), "state")
+        return _Adapter(task, _StateTask(np.full(task.dim, cost)), "state")
 
-    def _update_task(self, adapter: _Adapter, state: TaskState, dt: float) -> None:
+    def _update_task(self, adapter: _Adapter, state: TaskState, mkin: MinkKinematics, dt: float) -> None:
         task = adapter.task
-        r = state.feedforward + task.gain * state.error  # CLIK reference (paper eq. 2)
+        r = self.reference.equality(task, state, dt)  # the one control reference (paper eq. 2)
         if adapter.kind == "state":
             stask = adapter.mink_task
             assert isinstance(stask, _StateTask)
             stask.error = -r * dt
             stask.jacobian = state.jacobian
             return
-        alpha = min(1.0, task.gain * dt)
-        frame = self.configuration.get_transform_frame_to_world(adapter.body, "body").as_matrix()
+        alpha = min(1.0, self.reference.gain(task, dt) * dt)
+        frame = mkin.frame_pose(adapter.body)
         p, R = frame[:3, 3], frame[:3, :3]
         scale = dt / alpha
         if adapter.kind == "position":
@@ -277,17 +334,45 @@ class MinkSolver(TimeLimited):
         ftask.gain = alpha
         ftask.set_target(mink.SE3.from_matrix(target))
 
+    def _update_return(self, mkin: MinkKinematics, sigma: np.ndarray, dt: float) -> list[tuple[int, float, float]]:
+        """Rows of the return task; returns (task index, reference rate, side) of the tasks it pulls back."""
+        ret = self._return
+        assert ret is not None
+        tasks = self._rows.tasks
+        error = np.zeros(len(tasks))
+        jac = np.zeros((len(tasks), self.robot.nq))
+        pulled: list[tuple[int, float, float]] = []
+        for i, task in enumerate(tasks):
+            s = float(sigma[i])
+            if not math.isfinite(s):
+                continue
+            th = task.thresholds
+            if th.safety_lower <= s <= th.safety_upper:
+                continue
+            lo, hi = self.reference.set_rates(task, s, dt)
+            rate, side = (lo, -1.0) if s < th.safety_lower else (hi, 1.0)
+            jac[i] = task.compute_jacobian(mkin)[0]
+            error[i] = -rate * dt
+            pulled.append((i, rate, side))
+        ret.error, ret.jacobian = error, jac
+        return pulled
+
     def solve(self, hierarchy: Hierarchy, kin: Kinematics, dt: float) -> StepResult:
         """One step: build mink's QP at ``kin.q`` and solve it with the configured backend.
 
         Args:
             hierarchy: The shared hierarchy (only read).
-            kin: Kinematics snapshot at the current configuration.
+            kin: Kinematics snapshot at the current configuration (only ``kin.q`` is read:
+                mink computes its own kinematics).
             dt: Control period [s].
 
         Returns:
-            A :class:`StepResult`; FAILED with zero velocity when mink finds no solution or
-            its velocity breaks a limit by more than ``tolerance``.
+            A :class:`StepResult`; FAILED with zero velocity when the backend finds no solution
+            or its step breaks a constraint by more than ``tolerance``; DEGRADED when a task past
+            its safety threshold comes back slower than its reference rate.
+
+        Raises:
+            tpik.TpikError: A task cannot be evaluated (e.g. a target not set).
         """
         n = self.robot.nq
         if not (math.isfinite(dt) and dt > 0.0):
@@ -295,67 +380,73 @@ class MinkSolver(TimeLimited):
         t0 = time.perf_counter()
         if self.budget is not None:
             self.budget.start()
-        try:
-            self._prepare(hierarchy)
-            self.configuration.update(kin.q)
-            for adapter in self._adapters:
-                self._update_task(adapter, adapter.task.compute_state(kin), dt)
-            rows, bounds, names = [], [], []
-            for task in self._set_tasks:
-                state = task.compute_state(kin)
-                lo, hi = task.velocity_bounds(state, dt)
-                jac = state.jacobian[0]
-                if math.isfinite(hi):
-                    rows.append(jac)
-                    bounds.append(hi)
-                    names.append(task.name)
-                if math.isfinite(lo):
-                    rows.append(-jac)
-                    bounds.append(-lo)
-                    names.append(task.name)
-            G = np.array(rows) if rows else np.zeros((0, n))
-            self._limit_rows.set_rows(G, np.array(bounds, dtype=float), names)
-            tasks = [a.mink_task for a in self._adapters]
-            problem = mink.build_ik(self.configuration, tasks, dt, self.settings.damping, self._limits)
-        except Exception as exc:  # noqa: BLE001 - mink errors, its asserts, a task that cannot be evaluated
-            return failed(n, f"mink could not build the problem: {type(exc).__name__}: {exc}")
+        self._prepare(hierarchy)
+        self.configuration.update(kin.q)
+        mkin = MinkKinematics(self.robot, self.configuration, self._bodies)
+        for adapter in self._adapters:
+            self._update_task(adapter, adapter.task.compute_state(mkin), mkin, dt)
+        rows = self._rows.build(mkin, dt)
+        self._limit_rows.set_rows(rows.G, rows.h)
+        pulled = self._update_return(mkin, rows.sigma, dt) if self._return is not None else []
+        problem = mink.build_ik(self.configuration, self._tasks, dt, self.settings.damping, self._limits)
         t1 = time.perf_counter()
         try:
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore")
                 kwargs = self._budget_kwargs(self.settings.solver, self._qp_kwargs)
                 solution = qpsolvers.solve_problem(problem, solver=self.settings.solver, **kwargs)
-        except Exception as exc:  # noqa: BLE001 - any backend error becomes a FAILED step
-            res = failed(n, f"mink ({self.settings.solver}) raised {type(exc).__name__}: {exc}")
+        except (qpsolvers.QPError, ValueError, ArithmeticError) as exc:  # the backend's own failure
+            res = failed(n, f"{self.name} ({self.settings.solver}) raised {type(exc).__name__}: {exc}")
             res.build_time_s, res.solve_time_s = t1 - t0, time.perf_counter() - t1
             return res
         t2 = time.perf_counter()
-        result = self._finish(solution, G, dt)
+        result = self._finish(solution, problem, rows, pulled, mkin, dt)
         result.build_time_s, result.solve_time_s = t1 - t0, t2 - t1
         return result
 
-    def _finish(self, solution: qpsolvers.Solution, G: np.ndarray, dt: float) -> StepResult:
+    def _finish(
+        self,
+        solution: qpsolvers.Solution,
+        problem: qpsolvers.Problem,
+        rows: SetRows,
+        pulled: list[tuple[int, float, float]],
+        mkin: MinkKinematics,
+        dt: float,
+    ) -> StepResult:
         n = self.robot.nq
         x = solution.x
         iterations = backend_iterations(solution)
         if not solution.found or x is None or x.shape != (n,) or not np.all(np.isfinite(x)):
-            return failed(n, f"mink: QP solver {self.settings.solver} found no solution", iterations=iterations)
-        qdot = x / dt  # mink.solve_ik returns Δq / dt: a velocity [rad/s]
-        tol = self.settings.tolerance
-        excess = float(np.max(np.abs(qdot) - self.robot.v_max))
-        h = self._limit_rows._h
-        row_excess = float(np.max(G @ qdot - h)) if h.size else -math.inf
-        if excess > tol or row_excess > tol:
-            return failed(
-                n,
-                f"mink: solution breaks a limit (velocity by {excess:.3g}, set rows by {row_excess:.3g})",
-                iterations=iterations,
-            )
-        qdot = np.clip(qdot, -self.robot.v_max, self.robot.v_max)
+            return failed(n, f"{self.name}: QP solver {self.settings.solver} found no solution", iterations=iterations)
+        tol = self.tolerance
+        if problem.G is not None and problem.h is not None:
+            excess = float(np.max(problem.G @ x - problem.h))
+            if excess > tol:
+                return failed(
+                    n,
+                    f"{self.name}: the step breaks its constraints by {excess:.3g} (tolerance {tol:g}, Δq units)",
+                    iterations=iterations,
+                )
+        qdot = np.clip(x / dt, -self.robot.v_max, self.robot.v_max)  # mink.solve_ik returns Δq / dt [rad/s]
+        tasks = self._rows.tasks
         active: list[str] = []
-        if h.size:
-            binding = G @ qdot >= h - tol
-            for name, hit in zip(self._limit_rows.names, binding, strict=True):
-                if hit and name not in active:
-                    active.append(name)
-        return StepResult(qdot, SolveStatus.OK, tuple(active), extras={"iterations": iterations})
+        if rows.h.size:
+            binding = (rows.G @ x) >= rows.h * dt - tol  # a row at its bound: the task is held
+            for owner, hit in zip(rows.owner.tolist(), binding.tolist(), strict=True):
+                if hit and tasks[owner].name not in active:
+                    active.append(tasks[owner].name)
+        slow: list[str] = []
+        for index, rate, side in pulled:
+            task = tasks[index]
+            if task.name not in active:
+                active.append(task.name)
+            actual = float(task.compute_jacobian(mkin)[0] @ qdot)
+            if side * (actual - rate) > tol / dt:
+                slow.append(task.name)
+        extras = {"iterations": iterations, "returning": [tasks[i].name for i, _, _ in pulled]}
+        if slow:
+            message = f"{self.name}: past their safety threshold, coming back slower than the reference: "
+            return StepResult(
+                qdot, SolveStatus.DEGRADED, tuple(active), message=message + ", ".join(slow), extras=extras
+            )
+        return StepResult(qdot, SolveStatus.OK, tuple(active), extras=extras)

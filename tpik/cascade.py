@@ -34,7 +34,7 @@ import math
 import numba
 import numpy as np
 
-from tpik.dls import backward, forward, gram_dls
+from tpik.dls import backward, forward, gram_dls_star
 
 SEARCH_NONE, SEARCH_EXHAUSTIVE, SEARCH_GREEDY = 0, 1, 2
 """Codes of the search used (``how`` of :func:`search_modes`)."""
@@ -111,6 +111,7 @@ def _add_rows(
 def _own_solution(
     G: np.ndarray,
     x: np.ndarray,
+    e: np.ndarray,
     K: np.ndarray,
     m: int,
     vnorm: float,
@@ -123,14 +124,19 @@ def _own_solution(
 ) -> float:
     r"""NSB term of one level: :math:`y = (G_{KK}+\lambda^2I)^{-1}x_K` and :math:`c = G_{\cdot K}y`.
 
+    λ from :math:`\sigma^* = \|e_K\|/\|\dot q\|_{\max}` (``e`` is ``x`` itself, or the task
+    errors σ̃, see :func:`search_modes`).
+
     Returns:
         λ.
     """
+    en2 = 0.0
     for a in range(m):
         r[a] = x[K[a]]
+        en2 += e[K[a]] * e[K[a]]
         for b in range(m):
             S[a, b] = G[K[a], K[b]]
-    lam = gram_dls(S, r, m, vnorm, tol, work, y)
+    lam = gram_dls_star(S, r, m, math.sqrt(en2) / vnorm, tol, work, y)
     for j in range(G.shape[0]):
         acc = 0.0
         for b in range(m):
@@ -146,25 +152,27 @@ def _cascade(
     x: np.ndarray,
     layout: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray],
     in_mode: np.ndarray,
-    ss: bool,
-    compensate: bool,
-    vnorm: float,
-    tol: float,
+    params: tuple[np.ndarray, bool, bool, bool, float, float],
     cache: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray],
     work: tuple[np.ndarray, np.ndarray, np.ndarray],
     z: np.ndarray,
     lams: np.ndarray,
 ) -> None:
-    """Solve one mode through every level into ``z`` (row coordinates) and ``lams`` (λ per level).
+    r"""Solve one mode through every level into ``z`` (row coordinates) and ``lams`` (λ per level).
 
     A level is solved in the compensated (SS) form when ``ss`` is set, or when ``compensate``
-    is set and the mode inserts one of the level's candidates; else by eq. 4 (NSB).
+    is set and the mode inserts one of the level's candidates; else by eq. 4 (NSB). σ* of a
+    level's damping is the norm of its rows of ``e`` (over ‖q̇‖_max) in eq. 4, and in the
+    compensated form that of ``e`` when ``star_from_error`` is set, else that of the
+    compensated reference :math:`x_K - J_K\dot q_{above}` (``e`` is ``x`` then).
 
-    ``layout`` is (eq_ptr, eq_rows, cand_ptr, cand_row): each level's equality rows and
-    candidates. ``cache`` is (t_has, t_y, t_c, t_lam): the NSB term per (level, subset of the
-    level's candidates), shared across modes; ``t_has`` with zero columns disables it (too
-    many subsets to tabulate). ``work`` is (iw (2, R) int, fw (6, R), mw (4, R, R)) workspaces.
+    ``params`` is (e, star_from_error, ss, compensate, ‖q̇‖_max, rank tolerance). ``layout`` is
+    (eq_ptr, eq_rows, cand_ptr, cand_row): each level's equality rows and candidates.
+    ``cache`` is (t_has, t_y, t_c, t_lam): the NSB term per (level, subset of the level's
+    candidates), shared across modes; ``t_has`` with zero columns disables it (too many
+    subsets to tabulate). ``work`` is (iw (2, R) int, fw (6, R), mw (4, R, R)) workspaces.
     """
+    e, star_from_error, ss, compensate, vnorm, tol = params
     eq_ptr, eq_rows, cand_ptr, cand_row = layout
     t_has, t_y, t_c, t_lam = cache
     iw, fw, mw = work
@@ -187,11 +195,11 @@ def _cascade(
             # NSB (eq. 4): q̇_K = J_K^# x_K = A_Kᵀ y, then projected on the null space above.
             if sub < t_has.shape[1]:
                 if not t_has[li, sub]:
-                    t_lam[li, sub] = _own_solution(G, x, K, m, vnorm, tol, S, r, scratch, t_y[li, sub], t_c[li, sub])
+                    t_lam[li, sub] = _own_solution(G, x, e, K, m, vnorm, tol, S, r, scratch, t_y[li, sub], t_c[li, sub])
                     t_has[li, sub] = True
                 yv, cv, lam = t_y[li, sub], t_c[li, sub], t_lam[li, sub]
             else:
-                lam = _own_solution(G, x, K, m, vnorm, tol, S, r, scratch, y, c_own)
+                lam = _own_solution(G, x, e, K, m, vnorm, tol, S, r, scratch, y, c_own)
                 yv, cv = y, c_own
             for b in range(m):
                 z[K[b]] += yv[b]
@@ -224,7 +232,11 @@ def _cascade(
                 for a in range(m):
                     for b in range(m):
                         S[a, b] = G[K[a], K[b]]
-            lam = gram_dls(S, r, m, vnorm, tol, scratch, y)
+            sn2 = 0.0
+            for a in range(m):
+                v = e[K[a]] if star_from_error else r[a]
+                sn2 += v * v
+            lam = gram_dls_star(S, r, m, math.sqrt(sn2) / vnorm, tol, scratch, y)
             if n_p > 0:
                 for t in range(n_p):
                     acc = 0.0
@@ -263,6 +275,7 @@ def _check(
     cand_row: np.ndarray,
     cand_side: np.ndarray,
     adm_tol: float,
+    return_rate: bool,
     gz: np.ndarray,
 ) -> tuple[float, bool]:
     r"""Norm and admissibility of a solved mode.
@@ -275,7 +288,8 @@ def _check(
     * past it (a moving obstacle or a tracking error put it there, :math:`s\,x_c < 0`): the
       solution without it brings it back at least as fast as inserting it would. Otherwise a
       task the arm is not moving, e.g. an obstacle distance the person closes, would be left
-      out while violated and the arm would never react.
+      out while violated and the arm would never react. Without ``return_rate`` (the paper's
+      eqs. 8–9 alone) the bound is 0 on both sides.
 
     Returns:
         (:math:`\|\dot q\|^2 = z^TGz`, admissible).
@@ -291,7 +305,8 @@ def _check(
     for c in range(cand_row.shape[0]):
         r = cand_row[c]
         s = cand_side[c]
-        if not in_mode[c] and gz[r] * s > min(0.0, x[r] * s) + adm_tol:
+        bound = min(0.0, x[r] * s) if return_rate else 0.0
+        if not in_mode[c] and gz[r] * s > bound + adm_tol:
             return norm2, False
     return norm2, True
 
@@ -300,12 +315,15 @@ def _check(
 def search_modes(
     A: np.ndarray,
     x: np.ndarray,
+    e: np.ndarray,
     row_level: np.ndarray,
     row_side: np.ndarray,
     inv_v_max: np.ndarray,
     ss: bool,
     compensate: bool,
     largest_norm: bool,
+    return_rate: bool,
+    star_from_error: bool,
     velocity_norm_max: float,
     rank_tol: float,
     admissibility_tol: float,
@@ -323,6 +341,8 @@ def search_modes(
         A: Stacked rows, level by level, each level's equality rows before its candidates.
             Shape (R, n).
         x: CLIK reference of every row [task unit/s]. Shape (R,).
+        e: Per row, what σ* of the damping is the norm of (over ``velocity_norm_max``): ``x``
+            itself, or the task error σ̃ (the paper's sec. II-A as printed). Shape (R,).
         row_level: Index of each row's level (non-decreasing, levels with a row numbered
             0..L−1). Shape (R,).
         row_side: 0 for an equality row; +1 / −1 for a candidate past its upper / lower
@@ -332,6 +352,10 @@ def search_modes(
         compensate: NSB only: solve a level in the compensated form whenever the mode inserts
             one of its set-based tasks (:attr:`tpik.solver.TpikSettings.compensate_set_tasks`).
         largest_norm: Selection rule: largest norm first (else fewest active first).
+        return_rate: A left-out candidate past its safety threshold must come back at least at
+            its reference rate (:func:`_check`); False = eqs. 8–9 alone.
+        star_from_error: Compensated levels take σ* from ``e`` too (else from their
+            compensated reference).
         velocity_norm_max: :math:`\|\dot q\|_{\max}` of the damping [rad/s].
         rank_tol: Rank tolerance on singular values.
         admissibility_tol: Slack on :math:`J_c\dot q` in eqs. 8–9 [task unit/s].
@@ -408,6 +432,7 @@ def search_modes(
     t_c = np.empty((n_levels, n_sub, R))
     t_lam = np.empty((n_levels, n_sub))
     layout = (eq_ptr, eq_rows, cand_ptr, cand_row)
+    params = (e, star_from_error, ss, compensate, velocity_norm_max, rank_tol)
     cache = (t_has, t_y, t_c, t_lam)
     work = (iw, fw, mw)
 
@@ -417,7 +442,7 @@ def search_modes(
     best_norm2 = math.nan
     best_active = 0
     if n_cand == 0:
-        _cascade(G, x, layout, in_mode, ss, compensate, velocity_norm_max, rank_tol, cache, work, best_z, lams)
+        _cascade(G, x, layout, in_mode, params, cache, work, best_z, lams)
         evaluated = 1
         found = True
     elif n_cand <= max_exhaustive:
@@ -435,9 +460,9 @@ def search_modes(
                     in_mode[cand_ptr[li] + j] = on
                     if on:
                         n_in += 1
-            _cascade(G, x, layout, in_mode, ss, compensate, velocity_norm_max, rank_tol, cache, work, z, trial_lams)
+            _cascade(G, x, layout, in_mode, params, cache, work, z, trial_lams)
             evaluated += 1
-            norm2, admissible = _check(G, z, x, in_mode, cand_row, cand_side, admissibility_tol, gz)
+            norm2, admissible = _check(G, z, x, in_mode, cand_row, cand_side, admissibility_tol, return_rate, gz)
             if not math.isfinite(norm2) or not admissible:
                 continue
             if found and not _better(norm2, n_in, best_norm2, best_active, largest_norm):
@@ -450,9 +475,9 @@ def search_modes(
     else:
         how = SEARCH_GREEDY
         in_mode[:] = True
-        _cascade(G, x, layout, in_mode, ss, compensate, velocity_norm_max, rank_tol, cache, work, z, trial_lams)
+        _cascade(G, x, layout, in_mode, params, cache, work, z, trial_lams)
         evaluated = 1
-        norm2, _ = _check(G, z, x, in_mode, cand_row, cand_side, admissibility_tol, gz)
+        norm2, _ = _check(G, z, x, in_mode, cand_row, cand_side, admissibility_tol, return_rate, gz)
         if math.isfinite(norm2):  # S = C is always admissible
             found = True
             best_norm2, best_active = norm2, n_cand
@@ -470,9 +495,9 @@ def search_modes(
                     continue
                 in_mode[:] = active
                 in_mode[drop] = False
-                _cascade(G, x, layout, in_mode, ss, compensate, velocity_norm_max, rank_tol, cache, work, z, trial_lams)
+                _cascade(G, x, layout, in_mode, params, cache, work, z, trial_lams)
                 evaluated += 1
-                norm2, admissible = _check(G, z, x, in_mode, cand_row, cand_side, admissibility_tol, gz)
+                norm2, admissible = _check(G, z, x, in_mode, cand_row, cand_side, admissibility_tol, return_rate, gz)
                 if not math.isfinite(norm2) or not admissible:
                     continue
                 if step_found and not _better(norm2, best_active - 1, step_norm2, best_active - 1, largest_norm):
@@ -520,6 +545,6 @@ def warm_up() -> None:
     if not search_modes.signatures:  # nothing loaded in this process yet
         one, level = np.ones(1), np.zeros(1, dtype=np.int64)
         rows = np.ones((1, 1))
-        search_modes(rows, one, level, np.zeros(1), one, False, True, True, 1.0, 1e-6, 1e-9, 6)
+        search_modes(rows, one, one, level, np.zeros(1), one, False, True, True, True, False, 1.0, 1e-6, 1e-9, 6)
         rows.flags.writeable = False  # the solver passes its Jacobian rows read-only: a second signature
-        search_modes(rows, one, level, np.zeros(1), one, False, True, True, 1.0, 1e-6, 1e-9, 6)
+        search_modes(rows, one, one, level, np.zeros(1), one, False, True, True, True, False, 1.0, 1e-6, 1e-9, 6)

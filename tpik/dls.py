@@ -142,11 +142,8 @@ def gram_dls(
 ) -> float:
     r"""Damped least squares in Gram coordinates: :math:`y = (S + \lambda^2 I)^{-1} r`.
 
-    ``S = BBᵀ`` (leading m × m block) for the matrix ``B`` the level inverts; the caller forms
-    :math:`B^T y`. λ is :func:`dynamic_damping` of :math:`\sigma_{\min}(B) =
-    \sqrt{\lambda_{\min}(S)}` and :math:`\sigma^* = \|r\|/\|\dot q\|_{\max}`. Directions whose
-    singular value is at or below ``rank_tol`` are dropped (their damped gain is zero), so a
-    rank-deficient ``B`` with λ = 0 never divides by zero.
+    :func:`gram_dls_star` with :math:`\sigma^* = \|r\|/\|\dot q\|_{\max}` (the reference
+    of the level in place of the paper's task error, see :class:`tpik.solver.TpikSettings`).
 
     Args:
         S: :math:`BB^T`; leading m × m block used.
@@ -163,7 +160,33 @@ def gram_dls(
     rn2 = 0.0
     for i in range(m):
         rn2 += r[i] * r[i]
-    sigma_star = math.sqrt(rn2) / velocity_norm_max
+    return gram_dls_star(S, r, m, math.sqrt(rn2) / velocity_norm_max, rank_tol, work, y)
+
+
+@numba.njit(cache=True, nogil=True)
+def gram_dls_star(
+    S: np.ndarray, r: np.ndarray, m: int, sigma_star: float, rank_tol: float, work: np.ndarray, y: np.ndarray
+) -> float:
+    r"""Damped least squares in Gram coordinates with a given σ*: :math:`y = (S + \lambda^2 I)^{-1} r`.
+
+    ``S = BBᵀ`` (leading m × m block) for the matrix ``B`` the level inverts; the caller forms
+    :math:`B^T y`. λ is :func:`dynamic_damping` of :math:`\sigma_{\min}(B) =
+    \sqrt{\lambda_{\min}(S)}` and ``sigma_star``. Directions whose singular value is at or
+    below ``rank_tol`` are dropped (their damped gain is zero), so a rank-deficient ``B`` with
+    λ = 0 never divides by zero.
+
+    Args:
+        S: :math:`BB^T`; leading m × m block used.
+        r: Level reference [task unit/s]; first m entries used.
+        m: Number of rows of the level.
+        sigma_star: σ* of the damping (sec. II-A), in the unit of the singular values.
+        rank_tol: Rank tolerance on singular values.
+        work: Workspace, at least m × m.
+        y: Output, at least m entries.
+
+    Returns:
+        λ.
+    """
     if m == 1:
         w = S[0, 0]
         lam = dynamic_damping(math.sqrt(max(w, 0.0)), sigma_star)

@@ -6,8 +6,9 @@ One control step (DESIGN §3):
    :math:`x = \dot\sigma_d + K\tilde\sigma`. A set-based task whose σ is past an activation
    threshold is a *candidate*; its reference is :math:`K(\sigma_s - \sigma)` with σ_s the safety
    threshold it crossed (eq. 7). Tasks with a non-finite σ (no obstacle in range) are inactive.
-   Gains are capped at ``1/dt``: one explicit-Euler step then never overshoots a target or a
-   safety threshold.
+   Both come from the one control reference of every method (:mod:`tpik.reference`); with its
+   gain cap (``gain_cap``, default) gains are capped at ``1/dt``: one explicit-Euler step then
+   never overshoots a target or a safety threshold.
 2. For each subset S of the candidate set C (a *mode*), the tasks of S are inserted at their own
    priority level as equality tasks, stacked with the level's other rows (eq. 5), and the
    hierarchy is solved by the null-space cascade with damped least squares per level:
@@ -32,16 +33,17 @@ One control step (DESIGN §3):
    Jacobian (eqs. 5–6), so a lower level never disturbs a higher one.
 3. A mode is *admissible* when no left-out candidate moves further out (eqs. 8–9):
    :math:`J_A\dot q_S \le 0` past an upper threshold, :math:`\ge 0` past a lower one (to a
-   small tolerance). A candidate already past its *safety* threshold (a moving obstacle or a
-   tracking error put it there) may be left out only if :math:`\dot q_S` brings it back at least
-   at its reference rate, :math:`J_A\dot q_S \le K(\sigma_{s,u} - \sigma) < 0` (resp.
+   small tolerance). With ``return_rate_condition`` (default) a candidate already past its
+   *safety* threshold (a moving obstacle or a tracking error put it there) may be left out only
+   if :math:`\dot q_S` brings it back at least at its reference rate,
+   :math:`J_A\dot q_S \le K(\sigma_{s,u} - \sigma) < 0` (resp.
    :math:`\ge K(\sigma_{s,l} - \sigma) > 0`): a person walking into a still arm must not be
    left out. S = C is always admissible.
-4. Among admissible modes, the pure eq. 4 (``nsb`` without ``compensate_set_tasks``) takes the
-   one of largest :math:`\|\dot q_S\|` (the least restricted motion, Moe et al. 2016; ties go
-   to the mode with fewer active tasks); the default (compensated) solvers take the one with the
-   fewest active tasks (ties to the largest norm): a task is released as soon as the solution
-   without it is admissible (eqs. 8–9), see :attr:`TpikSettings.selection`. The result is then
+4. Among admissible modes, ``selection = "largest_norm"`` (the paper and DESIGN §3 step 4)
+   takes the one of largest :math:`\|\dot q_S\|` (the least restricted motion, Moe et al. 2016;
+   ties go to the mode with fewer active tasks); the default ``"fewest_active"`` takes the one
+   with the fewest active tasks (ties to the largest norm): a task is released as soon as the
+   solution without it is admissible (eqs. 8–9), see :attr:`TpikSettings.selection`. The result is then
    scaled by one factor so that every joint is within its velocity limit (direction kept).
    Uniform scaling keeps every sign of step 3 and only slows the convergence of the active tasks
    to their thresholds, so it never makes a set-based task cross.
@@ -59,8 +61,12 @@ so the safety guarantee is the same; only optimality among modes is given up.
 Damping (sec. II-A): λ of each level comes from the smallest singular value of the matrix that
 level inverts — :math:`J_k` in ``nsb`` (eq. 4 inverts each level on its own), :math:`J_k
 N_{1,k-1}` in ``ss`` — with :math:`\sigma^* = \|x\|/\|\dot q\|_{\max}`, x being the level's
-CLIK reference (the paper's :math:`\|\tilde\sigma\|` for K = I and σ̇_d = 0; with a gain the
-reference keeps σ* a ratio of velocities). :math:`\|\dot q\|_{\max}` defaults to
+CLIK reference (``damping_sigma_star = "reference"``, default; the paper's
+:math:`\|\tilde\sigma\|` for K = I and σ̇_d = 0; with a gain the reference keeps σ* a ratio of
+velocities), or the paper's :math:`\sigma^* = \|\tilde\sigma\|/\|\dot q\|_{\max}` as printed
+(``"task_error"``, ``tpik-paper``). As printed the units do not match (σ̃ in m or rad,
+‖q̇‖_max in rad/s, σ_min in m/rad): we read ‖σ̃‖ as the rate that closes the error in one second,
+i.e. σ̃ over 1 s (K = I s⁻¹), which makes σ* a singular value [m/rad] like σ_min. :math:`\|\dot q\|_{\max}` defaults to
 :math:`\|\dot q_{\max}\|_2`, the norm of the joint velocity limits (the largest joint-velocity
 norm the arm can produce): damping then acts only when a level alone could exceed what the arm
 can do, and the final scaling enforces the per-joint limits. The damping bounds every level's
@@ -89,43 +95,58 @@ from tpik.cascade import (
 )
 from tpik.exceptions import InvalidSettings, InvalidTaskState, TpikError
 from tpik.hierarchy import Hierarchy
+from tpik.reference import ControlReference
 from tpik.step_result import SolveStatus, StepResult, failed
 from tpik.tasks.task import SetTask, Task
 
 VARIANTS: tuple[str, ...] = ("nsb", "ss")
 """Solver variants; the first is the default."""
 
-SELECTIONS: tuple[str, ...] = ("auto", "largest_norm", "fewest_active")
-"""Rules to choose among admissible modes (see :class:`TpikSettings`)."""
+SELECTIONS: tuple[str, ...] = ("fewest_active", "largest_norm")
+"""Rules to choose among admissible modes (see :class:`TpikSettings`); the first is the default."""
+
+SIGMA_STAR_SOURCES: tuple[str, ...] = ("reference", "task_error")
+"""What σ* of the damping is computed from (see :class:`TpikSettings`); the first is the default."""
 
 
 @dataclass(frozen=True)
 class TpikSettings:
     r"""Settings of :class:`TpikSolver`.
 
+    The defaults are the project's ``tpik``. Each way in which it departs from the paper is one
+    setting, listed in :data:`DEVIATIONS`; :data:`PAPER_SETTINGS` switches them all back
+    (``tpik-paper``).
+
     Attributes:
         variant: ``"nsb"`` (eq. 4, default) or ``"ss"`` (Siciliano–Slotine, compensated).
-        selection: Rule among admissible modes. ``"largest_norm"`` (DESIGN §3, Moe et al.
-            2016): largest :math:`\|\dot q_S\|`, ties to fewer active tasks.
-            ``"fewest_active"`` (a literal reading of the paper's eqs. 8–9: release a task as
-            soon as the solution without it is admissible): fewest active tasks, ties to the
-            largest norm. ``"auto"`` (default): ``largest_norm`` only for the pure eq. 4
-            (``nsb`` with ``compensate_set_tasks = false``, DESIGN §3 as written),
-            ``fewest_active`` otherwise. Why: a task inserted in its activation band is driven
-            *toward* its safety threshold (eq. 7), and a compensated level (``ss``, or ``nsb``
-            compensating an inserted set task) inverts :math:`J_kN_{1,k-1}`, which grows as
-            more tasks are inserted. Both add norm to the modes that hold a task, so the largest
-            norm holds a task that could be released: it is pulled to its threshold and sticks
-            there (``tests/tpik/test_solver_closed_loop.py``), or the choice flips every step
-            between holding and releasing (issue 9: seed 838 of the hard campaign alternated
-            ±0.09 rad/s every 10 ms for 0.2 s; with the servo lag of the dynamic arm the EE
-            went 3.5 mm past a wall).
+        selection: Rule among admissible modes. ``"largest_norm"`` (the paper, DESIGN §3 step 4,
+            Moe et al. 2016): largest :math:`\|\dot q_S\|`, ties to fewer active tasks.
+            ``"fewest_active"`` (default; a literal reading of eqs. 8–9: release a task as soon
+            as the solution without it is admissible): fewest active tasks, ties to the largest
+            norm. Why: a task inserted in its activation band is driven *toward* its safety
+            threshold (eq. 7), and a compensated level (``ss``, or ``nsb`` compensating an
+            inserted set task) inverts :math:`J_kN_{1,k-1}`, which grows as more tasks are
+            inserted. Both add norm to the modes that hold a task, so the largest norm holds a
+            task that could be released: it is pulled to its threshold and sticks there
+            (``tests/tpik/test_solver_closed_loop.py``), or the choice flips every step between
+            holding and releasing (issue 9: seed 838 of the hard campaign alternated ±0.09 rad/s
+            every 10 ms for 0.2 s; with the servo lag of the dynamic arm the EE went 3.5 mm past
+            a wall).
         max_exhaustive_candidates: Largest |C| for which all 2^|C| modes are tried; above it
             the greedy release search is used.
         compensate_set_tasks: ``nsb`` only: solve a level in the compensated form whenever the
             mode inserts one of its set-based tasks, so an inserted task tracks its reference
             despite the motion of the levels above (module docstring). False = eq. 4 on every
             level, as the paper writes it. ``ss`` compensates every level anyway.
+        return_rate_condition: A candidate already past its safety threshold may be left out
+            only if the mode brings it back at least at its reference rate (default); False =
+            eqs. 8–9 alone (it may be left out as soon as it does not move further out).
+        gain_cap: Cap every gain at 1/dt in the control reference (:mod:`tpik.reference`,
+            default, as for HQP and mink); False = the gains as configured (the paper).
+        damping_sigma_star: ``"reference"`` (default): :math:`\sigma^* =
+            \|\dot\sigma_d + K\tilde\sigma\|/\|\dot q\|_{\max}` from the level's (compensated)
+            reference; ``"task_error"``: :math:`\|\tilde\sigma\|/\|\dot q\|_{\max}` as printed
+            in sec. II-A (module docstring: how its units are read).
         velocity_norm_max: :math:`\|\dot q\|_{\max}` [rad/s] of the dynamic damping; None =
             the 2-norm of the robot's joint velocity limits.
         rank_tolerance: Singular values at or below this count as zero (projectors and
@@ -135,9 +156,12 @@ class TpikSettings:
     """
 
     variant: str = VARIANTS[0]
-    selection: str = "auto"
+    selection: str = SELECTIONS[0]
     max_exhaustive_candidates: int = 6
     compensate_set_tasks: bool = True
+    return_rate_condition: bool = True
+    gain_cap: bool = True
+    damping_sigma_star: str = SIGMA_STAR_SOURCES[0]
     velocity_norm_max: float | None = None
     rank_tolerance: float = 1e-6
     admissibility_tolerance: float = 1e-9
@@ -147,8 +171,14 @@ class TpikSettings:
             raise InvalidSettings(f"variant: unknown TPIK variant {self.variant!r}; known: {', '.join(VARIANTS)}")
         if self.selection not in SELECTIONS:
             raise InvalidSettings(f"selection: unknown rule {self.selection!r}; known: {', '.join(SELECTIONS)}")
-        if not isinstance(self.compensate_set_tasks, bool):
-            raise InvalidSettings(f"compensate_set_tasks: must be true or false, got {self.compensate_set_tasks!r}")
+        if self.damping_sigma_star not in SIGMA_STAR_SOURCES:
+            raise InvalidSettings(
+                f"damping_sigma_star: unknown source {self.damping_sigma_star!r}; "
+                f"known: {', '.join(SIGMA_STAR_SOURCES)}"
+            )
+        for key in ("compensate_set_tasks", "return_rate_condition", "gain_cap"):
+            if not isinstance(getattr(self, key), bool):
+                raise InvalidSettings(f"{key}: must be true or false, got {getattr(self, key)!r}")
         if isinstance(self.max_exhaustive_candidates, bool) or not isinstance(self.max_exhaustive_candidates, int):
             raise InvalidSettings(
                 f"max_exhaustive_candidates: must be an integer, got {self.max_exhaustive_candidates!r}"
@@ -164,11 +194,13 @@ class TpikSettings:
 
     @property
     def selection_rule(self) -> str:
-        """The rule actually used: ``selection`` with ``"auto"`` resolved (see ``selection``)."""
-        if self.selection != "auto":
-            return self.selection
-        pure_eq4 = self.variant == "nsb" and not self.compensate_set_tasks
-        return "largest_norm" if pure_eq4 else "fewest_active"
+        """The rule used among admissible modes (``selection``)."""
+        return self.selection
+
+    @property
+    def deviations(self) -> tuple[str, ...]:
+        """Names of the :data:`DEVIATIONS` from the paper these settings keep on."""
+        return tuple(name for name, dev in DEVIATIONS.items() if getattr(self, dev.setting) != dev.paper)
 
     @classmethod
     def from_dict(cls, values: Mapping[str, Any] | None) -> TpikSettings:
@@ -182,7 +214,7 @@ class TpikSettings:
         for key in data:
             if key not in known:
                 raise InvalidSettings(f"unknown TPIK setting '{key}'; known: {', '.join(known)}")
-        for key in ("variant", "selection"):
+        for key in ("variant", "selection", "damping_sigma_star"):
             if key in data and not isinstance(data[key], str):
                 raise InvalidSettings(f"{key}: must be a string, got {data[key]!r}")
         for key in ("velocity_norm_max", "rank_tolerance", "admissibility_tolerance"):
@@ -190,6 +222,63 @@ class TpikSettings:
                 _check_number(key, data[key], allow_zero=True)
                 data[key] = float(data[key])
         return cls(**data)
+
+
+@dataclass(frozen=True)
+class Deviation:
+    """One way the default ``tpik`` departs from the paper: a setting and the paper's value of it.
+
+    Attributes:
+        setting: Field of :class:`TpikSettings`.
+        paper: The paper's value (``tpik-paper``); ``tpik`` uses the field's default.
+        why: One line: what it does and what it was introduced for.
+    """
+
+    setting: str
+    paper: Any
+    why: str
+
+
+DEVIATIONS: dict[str, Deviation] = {
+    "compensated-levels": Deviation(
+        "compensate_set_tasks",
+        False,
+        "a level holding an inserted set task is solved in the compensated form, so a higher level cannot drag it"
+        " across its threshold (eq. 4 did: seed 759, 7.5 mm past a wall)",
+    ),
+    "fewest-active": Deviation(
+        "selection",
+        "largest_norm",
+        "among admissible modes the one with the fewest active tasks instead of the largest norm (which pulled"
+        " tasks to their thresholds and chattered: seed 838)",
+    ),
+    "return-rate": Deviation(
+        "return_rate_condition",
+        False,
+        "a candidate past its safety threshold may be left out only if the mode brings it back at its reference"
+        " rate (eqs. 8-9 alone let a still arm ignore a person walking in)",
+    ),
+    "gain-cap": Deviation(
+        "gain_cap",
+        False,
+        "gains capped at 1/dt in the reference, so one Euler step never overshoots (same reference for HQP and mink)",
+    ),
+    "reference-damping": Deviation(
+        "damping_sigma_star",
+        "task_error",
+        "sigma* of the damping from the level's reference velocity instead of the task error ||sigma~||",
+    ),
+}
+"""Every deviation of ``tpik`` from the paper, by name (``tpik-no-<name>`` switches one off)."""
+
+PAPER_SETTINGS: dict[str, Any] = {
+    **{dev.setting: dev.paper for dev in DEVIATIONS.values()},
+    "variant": "nsb",
+    "max_exhaustive_candidates": 12,
+}
+"""``tpik-paper``: eq. 4 at every level, the largest-norm mode admissible by eqs. 8–9 alone, the
+damping of sec. II-A with σ* = ‖σ̃‖/‖q̇‖_max, no gain cap; every mode tried up to 12 candidates
+(all 12 set tasks of case 2; DESIGN §3 allows the greedy search only as a documented shortcut)."""
 
 
 def _check_number(key: str, value: object, allow_zero: bool = False) -> None:
@@ -247,8 +336,10 @@ class TpikSolver:
             float(np.linalg.norm(v_max)) if s.velocity_norm_max is None else float(s.velocity_norm_max)
         )
         self._ss = s.variant == "ss"
-        self._selection = s.selection_rule
+        self._selection = s.selection
         self._largest_norm = self._selection == "largest_norm"
+        self._star_from_error = s.damping_sigma_star == "task_error"
+        self.reference = ControlReference(gain_cap=s.gain_cap)
         self._plan_for: Hierarchy | None = None
         self._plan: list[_LevelPlan] = []
         warm_up()  # the compiled mode search is loaded now, not at the first control step
@@ -319,11 +410,13 @@ class TpikSolver:
         if not (type(dt) is float or isinstance(dt, int | float)) or not (math.isfinite(dt) and dt > 0.0):
             raise TpikError(f"{self.name}: dt must be a finite number > 0 [s], got {dt!r}")
         plan = self._compile(hierarchy)
-        k_max = 1.0 / dt
+        reference = self.reference
+        from_error = self._star_from_error
 
         # ---- 1. evaluate every task once; CLIK references (eq. 2) and candidates (eq. 7).
         blocks: list[np.ndarray] = []  # the rows of A, level by level
         x: list[float] = []
+        err: list[float] = []  # per row: the task error σ̃ (σ* of the paper's damping)
         row_level: list[int] = []  # per row: index among the levels that have rows
         row_side: list[float] = []  # per row: 0 equality, ±1 candidate past its upper/lower threshold
         level_names: list[str] = []
@@ -344,13 +437,14 @@ class TpikSolver:
                     or state.desired.shape != (m,)
                 ):
                     state.validate(task.name, n)  # raises InvalidTaskState naming the array
-                gain = task.gain if task.gain < k_max else k_max
-                x.extend((state.feedforward + gain * state.error).tolist())
+                x.extend(reference.equality(task, state, dt).tolist())
+                if from_error:
+                    err.extend(state.error.tolist())
                 row_level.extend([li] * m)
                 row_side.extend([0.0] * m)
                 blocks.append(state.jacobian)
                 block_names.append(task.name)
-            for direct, set_task, name, gain, act_lower, act_upper, safe_lower, safe_upper in lp.set_tasks:
+            for direct, set_task, name, _gain, act_lower, act_upper, safe_lower, safe_upper in lp.set_tasks:
                 if direct is not None:
                     sigma = float(direct(kin))
                     jac = None
@@ -368,10 +462,11 @@ class TpikSolver:
                     jac = set_task.compute_jacobian(kin)
                     if jac.shape != row_shape:
                         raise InvalidTaskState(f"task '{name}': jacobian has shape {jac.shape}, expected (1, {n})")
-                if gain > k_max:
-                    gain = k_max
+                lo_rate, hi_rate = reference.set_rates(set_task, sigma, dt)
                 cand_names.append(name)
-                x.append(gain * (target - sigma))
+                x.append(hi_rate if side > 0.0 else lo_rate)
+                if from_error:
+                    err.append(target - sigma)
                 row_level.append(li)
                 row_side.append(side)
                 blocks.append(jac)
@@ -389,15 +484,19 @@ class TpikSolver:
         t1 = time.perf_counter()
 
         # ---- 2–4. mode search (cascade per mode, admissibility, selection), q̇ and its scaling.
+        x_arr = np.array(x)
         qdot, inserted, lams, status, evaluated, how, scale = search_modes(
             A,
-            np.array(x),
+            x_arr,
+            np.array(err) if from_error else x_arr,
             np.array(row_level, dtype=np.int64),
             np.array(row_side),
             self._inv_v_max,
             self._ss,
             s.compensate_set_tasks,
             self._largest_norm,
+            s.return_rate_condition,
+            from_error,
             self.velocity_norm_max,
             s.rank_tolerance,
             s.admissibility_tolerance,
@@ -454,4 +553,15 @@ def solve_tpik(hierarchy: Hierarchy, kin: Kinematics, dt: float, settings: TpikS
     return TpikSolver(kin.robot, settings).solve(hierarchy, kin, dt)
 
 
-__all__ = ["SELECTIONS", "VARIANTS", "InvalidSettings", "TpikSettings", "TpikSolver", "solve_tpik"]
+__all__ = [
+    "DEVIATIONS",
+    "PAPER_SETTINGS",
+    "SELECTIONS",
+    "SIGMA_STAR_SOURCES",
+    "VARIANTS",
+    "Deviation",
+    "InvalidSettings",
+    "TpikSettings",
+    "TpikSolver",
+    "solve_tpik",
+]

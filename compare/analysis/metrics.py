@@ -23,6 +23,8 @@ column                     unit     meaning
 ``solve_time_us``          µs       wall time of the solver call
 ``status``                 str      ``ok`` | ``degraded`` | ``failed``
 ``fallback``               bool     the loop replaced the solver output by the safe fallback
+``deadline_miss``          bool     the solve took longer than its deadline (the control period,
+                                    or the solver time limit when one is set)
 ``blind``                  bool     sensing reported a blind or stale frame
 ``deadline_miss``          bool     the solve missed its deadline: no answer within the solver
                                     time limit (``compare.loop.deadline``; the step is FAILED and
@@ -145,6 +147,8 @@ class RunMeta:
         sensing: ``depth`` or ``geometric``.
         set_tasks: Every scalar set-based task of the hierarchy.
         control_points: Frames of the obstacle control points (``dist_*:<frame>`` columns).
+        warmup_steps: Untimed solves made before the first control step (not in the table,
+            hence not in the solve-time percentiles).
     """
 
     scenario: str
@@ -156,6 +160,7 @@ class RunMeta:
     sensing: str
     set_tasks: tuple[SetTaskInfo, ...]
     control_points: tuple[str, ...] = DEFAULT_CONTROL_POINTS
+    warmup_steps: int = 0
 
 
 def to_jsonable(obj: Any) -> Any:
@@ -373,7 +378,10 @@ def compute_summary(steps: pd.DataFrame, meta: RunMeta, waypoint_tolerance_m: fl
     Returns:
         JSON-ready dict. The DESIGN §7 keys (``solve_time_us``, ``realtime_factor``,
         ``joint_limits``, ``walls``, ``obstacles``, ``min_obstacle_distance_m``, ``ee_error_m``,
-        ``failures``, ``fallbacks``, ``deadline_misses``, ``activation_toggles_per_s``) plus extras: ``steps``,
+        ``failures``, ``fallbacks``, ``activation_toggles_per_s``, and the step accounting
+        ``status_steps`` {ok, degraded, failed}, ``fallback_steps``, ``time_below_physical_s``
+        (any set task past its physical threshold, exact), ``deadline_misses``,
+        ``warmup_steps``) plus extras: ``steps``,
         ``dt``, ``sim_time_s``, ``wall_time_s``, ``sensing``, ``blind_steps``,
         ``activation_toggles``, ``waypoints_reached``, ``time_to_waypoint_s``,
         ``waypoint_sequence``, ``waypoint_tolerance_m``, ``peak_joint_acceleration_rad_s2``,
@@ -400,6 +408,11 @@ def compute_summary(steps: pd.DataFrame, meta: RunMeta, waypoint_tolerance_m: fl
     for group in task_groups(meta.set_tasks):
         groups[group] = _group_metrics(per_task_raw, [task for task in meta.set_tasks if task.group == group], dt)
     per_task = {name: {k: v for k, v in m.items() if not k.startswith("_")} for name, m in per_task_raw.items()}
+    below_physical = np.zeros(len(steps), dtype=bool)
+    for task in meta.set_tasks:
+        physical = margins(task_sigma_for_safety(steps, task), task.physical_lower, task.physical_upper)
+        with np.errstate(invalid="ignore"):
+            below_physical |= np.nan_to_num(physical, nan=0.0) < 0.0
 
     min_dist: list[float | None] = [_nanmin(_column(steps, f"dist_true:{cp}")) for cp in meta.control_points]
 
@@ -443,8 +456,13 @@ def compute_summary(steps: pd.DataFrame, meta: RunMeta, waypoint_tolerance_m: fl
         },
         "failures": int((status == "failed").sum()),
         "fallbacks": int(np.count_nonzero(fallback)),
-        "deadline_misses": int(np.count_nonzero(_bool_column(steps, "deadline_miss"))),
         "activation_toggles_per_s": toggles / sim_time_s if sim_time_s > 0 else None,
+        # One accounting for every method (DESIGN §3, §7).
+        "status_steps": {key: int((status == key).sum()) for key in ("ok", "degraded", "failed")},
+        "fallback_steps": int(np.count_nonzero(fallback)),
+        "time_below_physical_s": float(np.count_nonzero(below_physical) * dt),
+        "deadline_misses": int(np.count_nonzero(_bool_column(steps, "deadline_miss"))),
+        "warmup_steps": int(meta.warmup_steps),
         # Extras.
         "steps": len(steps),
         "dt": dt,

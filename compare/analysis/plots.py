@@ -33,6 +33,7 @@ from compare.analysis.metrics import (
     summary_groups,
 )
 from compare.analysis.results import RUNS_DIR, collect_sweep, load_steps, load_summary, safe_name, summarize_sweep_rows
+from compare.analysis.statistics import rate_value
 
 log = logging.getLogger(__name__)
 
@@ -436,7 +437,7 @@ def plot_sweep(sweep_dir: Path) -> list[Path]:
     for name in methods:
         agg = aggregates.get(name) or {}
         solve = agg.get("solve_time_us") or {}
-        x, share = solve.get("median_of_medians"), agg.get("share_runs_any_violation")
+        x, share = solve.get("median_of_medians"), rate_value(agg.get("share_runs_any_violation"))
         if x is not None and share is not None and x > 0:
             _annotated_point(
                 left, x, solve.get("median_of_p99"), 100.0 * share, f"{name} (n={agg['runs']})", colors[name]

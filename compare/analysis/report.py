@@ -17,6 +17,7 @@ from rich.text import Text
 from compare.analysis.atomic_files import write_text_atomic
 from compare.analysis.metrics import GROUPS, group_summary, summary_groups
 from compare.analysis.results import REPORT_FILE, SWEEP_REPORT_FILE, load_summary
+from compare.analysis.statistics import rate_value
 
 PLOTS_DIR = "plots"  # as compare.analysis.plots.PLOTS_DIR; not imported to keep matplotlib out of the CLI table
 
@@ -39,11 +40,12 @@ def _headers(groups: list[str]) -> list[tuple[str, str]]:
         *[(_GROUP_HEADERS.get(g, f"{g} margin"), "right") for g in groups],
         ("min obstacle dist. [m]", "right"),
         ("EE final error [m]", "right"),
-        ("failures / fallbacks", "right"),
+        ("degraded / failed / fallback steps", "right"),
     ]
 
 
-def _fmt(x: Any, fmt: str = ".3g") -> str:
+def fmt_number(x: Any, fmt: str = ".3g") -> str:
+    """``x`` formatted with ``fmt``; "–" for None and non-finite numbers."""
     if x is None or (isinstance(x, float) and not math.isfinite(x)):
         return "–"
     return format(x, fmt)
@@ -58,25 +60,57 @@ def _cells(name: str, m: dict[str, Any], groups: list[str]) -> list[str]:
     solve = m.get("solve_time_us") or {}
     cells = [
         name,
-        _fmt(solve.get("median"), ".1f"),
-        _fmt(solve.get("p99"), ".1f"),
-        _fmt(m.get("realtime_factor"), ".2f"),
+        fmt_number(solve.get("median"), ".1f"),
+        fmt_number(solve.get("p99"), ".1f"),
+        fmt_number(m.get("realtime_factor"), ".2f"),
     ]
     for group in groups:
         g = group_summary(m, group)
         if g is None:
             cells.append("n/a")
             continue
-        cell = _fmt(g.get("safety_margin_min"), "+.3f")
+        cell = fmt_number(g.get("safety_margin_min"), "+.3f")
         if g.get("violations"):
             cell += f" ({g['violations']}× {g.get('violation_time_s', 0.0):.2f} s)"
         cells.append(cell)
     cells += [
-        _fmt(_min_finite(m.get("min_obstacle_distance_m") or []), ".3f"),
-        _fmt((m.get("ee_error_m") or {}).get("final"), ".4f"),
-        f"{m.get('failures', 0)} / {m.get('fallbacks', 0)}",
+        fmt_number(_min_finite(m.get("min_obstacle_distance_m") or []), ".3f"),
+        fmt_number((m.get("ee_error_m") or {}).get("final"), ".4f"),
+        f"{(m.get('status_steps') or {}).get('degraded', '–')} / {m.get('failures', 0)} / {m.get('fallbacks', 0)}",
     ]
     return cells
+
+
+_ACCOUNTING_HEADERS = [
+    "method",
+    "steps ok / degraded / failed",
+    "fallback steps",
+    "time below a physical threshold [s]",
+    "deadline misses",
+    "warm-up solves",
+]
+
+
+def _accounting_cells(name: str, m: dict[str, Any]) -> list[str]:
+    """One row of the step accounting (DESIGN §3: the same definitions for every method)."""
+    st = m.get("status_steps") or {}
+    return [
+        name,
+        " / ".join(str(st.get(k, "–")) for k in ("ok", "degraded", "failed")),
+        str(m.get("fallback_steps", m.get("fallbacks", "–"))),
+        fmt_number(m.get("time_below_physical_s"), ".2f"),
+        str(m.get("deadline_misses", "–")),
+        str(m.get("warmup_steps", "–")),
+    ]
+
+
+_ACCOUNTING_NOTE = (
+    "Every step of every method by the same rules (DESIGN §3): failed = no usable command (a solver-domain"
+    " error, a backend's no-solution, a command the loop's guard refused: the fallback acts); degraded = the"
+    " solver reports a relaxation (slack, level given up, damping, velocity scaling) or its command misses the"
+    " reference rate of a set task at or past an activation threshold; ok otherwise. Deadline: the control"
+    " period (or the solver time limit). Warm-up solves are made before the first step and are not timed."
+)
 
 
 def _negative(m: dict[str, Any], group: str) -> bool:
@@ -91,7 +125,8 @@ def summary_table(summary: dict[str, Any]) -> Table:
     violations and their total time); ``n/a`` when the scenario has no task of that group. A
     set-task group beyond joint limits, walls and obstacles (a new safety task's) gets its own column.
     """
-    title = f"{summary.get('scenario', '?')} (seed {summary.get('seed', '?')}, {_fmt(summary.get('sim_time_s'))} s)"
+    sim_time = fmt_number(summary.get("sim_time_s"))
+    title = f"{summary.get('scenario', '?')} (seed {summary.get('seed', '?')}, {sim_time} s)"
     table = Table(title=title)
     methods = summary.get("methods") or {}
     groups = _groups(methods)
@@ -111,7 +146,9 @@ def summary_table(summary: dict[str, Any]) -> Table:
     return table
 
 
-def _markdown_table(headers: list[str], rows: list[list[str]]) -> str:
+def markdown_table(headers: list[str], rows: list[list[str]]) -> str:
+    """A Markdown table (first column left-aligned, the others right-aligned; "|" escaped)."""
+
     def esc(cell: str) -> str:
         return cell.replace("|", "\\|")
 
@@ -140,7 +177,7 @@ def render_report(results_dir: Path, command: str | None = None) -> Path:
         f"# Results: {summary.get('scenario', '?')} (seed {summary.get('seed', '?')})",
         "",
         f"- generated: {now}",
-        f"- simulated time: {_fmt(summary.get('sim_time_s'))} s",
+        f"- simulated time: {fmt_number(summary.get('sim_time_s'))} s",
         f"- git commit: `{versions.get('git_commit', 'unknown')}`",
         f"- machine: {versions.get('cpu', 'unknown')} ({versions.get('machine', '?')}), "
         f"Python {versions.get('python', '?')}",
@@ -158,12 +195,18 @@ def render_report(results_dir: Path, command: str | None = None) -> Path:
     if methods:
         groups = _groups(methods)
         rows = [_cells(n, m, groups) for n, m in methods.items()]
-        out.append(_markdown_table([h for h, _ in _headers(groups)], rows))
+        out.append(markdown_table([h for h, _ in _headers(groups)], rows))
         out += [
             "",
             "Margins: worst signed distance to the safety threshold over the run (negative = violated;"
             " in brackets: number of violation episodes × total time). Obstacle margins and distances use the"
             " ground-truth geometry.",
+            "",
+            "## Step accounting",
+            "",
+            markdown_table(_ACCOUNTING_HEADERS, [_accounting_cells(n, m) for n, m in methods.items()]),
+            "",
+            _ACCOUNTING_NOTE,
         ]
     else:
         out.append("No method finished.")
@@ -172,14 +215,24 @@ def render_report(results_dir: Path, command: str | None = None) -> Path:
         out += ["", "## Failed methods", ""]
         out += [f"- `{name}`: {message}" for name, message in errors.items()]
     out += _figures(results_dir, "*.png", "Plots")
-    return _write_markdown(results_dir / REPORT_FILE, out)
+    return write_markdown(results_dir / REPORT_FILE, out)
 
 
 # --------------------------------------------------------------------------------------- sweeps
 
 
 def _pct(x: Any) -> str:
-    return "–" if x is None else f"{100.0 * float(x):.1f} %"
+    value = rate_value(x)
+    return "–" if value is None else f"{100.0 * value:.1f} %"
+
+
+def rate_with_ci(x: Any) -> str:
+    """``1.2 % [0.6, 2.3] (12/1000)`` from a rate entry (Wilson 95 % interval)."""
+    if not isinstance(x, dict) or x.get("rate") is None:
+        return _pct(x)
+    interval = x.get("ci95")
+    ci = f" [{100.0 * interval[0]:.1f}, {100.0 * interval[1]:.1f}]" if interval else ""
+    return f"{100.0 * float(x['rate']):.1f} %{ci} ({x['count']}/{x['runs']})"
 
 
 def render_sweep_report(sweep_dir: Path, command: str | None = None) -> Path:
@@ -256,29 +309,65 @@ def render_sweep_report(sweep_dir: Path, command: str | None = None) -> Path:
             [
                 name,
                 f"{m.get('runs', 0)}" + (f" (+{m['errors']} errors)" if m.get("errors") else ""),
-                _pct(m.get("share_runs_limit_or_wall_violation")),
-                _pct(m.get("share_runs_obstacle_violation")),
-                _fmt(worst.get("joint_limits"), "+.4f"),
-                _fmt(worst.get("walls"), "+.4f"),
-                *[_fmt(worst.get(g), "+.4f") for g in other_groups],
+                rate_with_ci(m.get("share_runs_limit_or_wall_violation")),
+                rate_with_ci(m.get("share_runs_obstacle_violation")),
+                fmt_number(worst.get("joint_limits"), "+.4f"),
+                fmt_number(worst.get("walls"), "+.4f"),
+                *[fmt_number(worst.get(g), "+.4f") for g in other_groups],
                 f"{_pct(m.get('share_runs_with_failures'))} / {_pct(m.get('share_runs_with_fallbacks'))}",
                 f"{m.get('failures', 0)} / {m.get('fallbacks', 0)}",
                 str(m.get("unsafe_commands", 0)),
             ]
         )
-    out.append(_markdown_table(headers, rows) if rows else "No finished run.")
+    out.append(markdown_table(headers, rows) if rows else "No finished run.")
     out += [
         "",
         "A violation is a safety-margin episode beyond the metrics' tolerance (1 mm / 1 mrad); worst margins are"
         " exact. Obstacle distances use the ground-truth geometry. Unsafe commands (non-finite or beyond the"
-        " velocity limits) are counted on what the loop sent: 0 by construction.",
+        " velocity limits) are counted on what the loop sent: 0 by construction. Rates: share of runs, Wilson 95 %"
+        " interval in brackets, (runs with / runs).",
+        "",
+        "## Step accounting per method",
+        "",
+    ]
+    rows = []
+    for name, m in methods.items():
+        st = m.get("status_steps") or {}
+        steps = m.get("steps") or 0
+        failed_share = f" ({100.0 * st.get('failed', 0) / steps:.2f} %)" if steps else ""
+        rows.append(
+            [
+                name,
+                str(steps),
+                " / ".join(str(st.get(k, "–")) for k in ("ok", "degraded", "failed")) + failed_share,
+                str(m.get("fallback_steps", "–")),
+                fmt_number(m.get("time_below_physical_s"), ".2f"),
+                rate_with_ci(m.get("share_runs_below_physical")),
+                str(m.get("deadline_misses", "–")),
+                str(m.get("warmup_steps", "–")),
+            ]
+        )
+    headers = [
+        "method",
+        "steps",
+        "ok / degraded / failed (failed share)",
+        "fallback steps",
+        "time below a physical threshold [s]",
+        "runs below a physical threshold",
+        "deadline misses",
+        "warm-up solves",
+    ]
+    out.append(markdown_table(headers, rows) if rows else "No finished run.")
+    out += [
+        "",
+        _ACCOUNTING_NOTE,
         "",
         "## Cost and ISO/TS 15066 margin",
         "",
     ]
     headers = [
         "method",
-        "solve median [µs]",
+        "solve median [µs] (bootstrap 95 %)",
         "median of run p99 [µs]",
         "p95 of run p99 [µs]",
         "max [µs]",
@@ -291,31 +380,70 @@ def render_sweep_report(sweep_dir: Path, command: str | None = None) -> Path:
         solve = m.get("solve_time_us") or {}
         pct = m.get("solve_time_percentiles_us") or {}
         iso = m.get("iso15066") or {}
+        ci = solve.get("median_of_medians_ci95")
         rows.append(
             [
                 name,
-                _fmt(solve.get("median_of_medians"), ".0f"),
-                _fmt(solve.get("median_of_p99"), ".0f"),
-                _fmt(pct.get("p95_of_run_p99"), ".0f"),
-                _fmt(solve.get("max"), ".0f"),
-                _fmt((m.get("realtime_factor") or {}).get("median"), ".1f"),
-                _fmt(iso.get("min_margin_m"), "+.3f"),
+                fmt_number(solve.get("median_of_medians"), ".0f") + (f" [{ci[0]:.0f}, {ci[1]:.0f}]" if ci else ""),
+                fmt_number(solve.get("median_of_p99"), ".0f"),
+                fmt_number(pct.get("p95_of_run_p99"), ".0f"),
+                fmt_number(solve.get("max"), ".0f"),
+                fmt_number((m.get("realtime_factor") or {}).get("median"), ".1f"),
+                fmt_number(iso.get("min_margin_m"), "+.3f"),
                 _pct(iso.get("share_runs_below_zero")),
             ]
         )
     if rows:
-        out.append(_markdown_table(headers, rows))
+        out.append(markdown_table(headers, rows))
     out += [
         "",
         "ISO margin: measured separation minus the protective separation distance S_p of ISO/TS 15066 clause"
         " 5.5.4 (formula (1)), with the human speed estimated from the sensing; negative = the arm could not stop"
         " before contact if the person kept coming (compare/analysis/iso15066.py).",
     ]
+    out += _paired_section(summary.get("paired") or {})
     failed = summary.get("failed_runs") or []
     if failed:
         out += ["", "## Failed runs", ""] + [f"- {line}" for line in failed[:50]]
     out += _figures(sweep_dir, "sweep_*.png", "Figures")
-    return _write_markdown(sweep_dir / SWEEP_REPORT_FILE, out)
+    return write_markdown(sweep_dir / SWEEP_REPORT_FILE, out)
+
+
+def _paired_section(paired: dict[str, Any]) -> list[str]:
+    """Markdown of the paired per-seed comparisons (exact McNemar p-values)."""
+    if not paired:
+        return []
+    out = ["", "## Paired comparisons (same seeds, exact McNemar test)", ""]
+    headers = [
+        "pair (a vs b)",
+        "runs",
+        "joint-limit/wall violation: a only / b only",
+        "p",
+        "obstacle violation: a only / b only",
+        "p",
+    ]
+    rows = []
+    for pair, entry in paired.items():
+        lw = entry.get("limit_or_wall_violation") or {}
+        ob = entry.get("obstacle_violation") or {}
+        rows.append(
+            [
+                pair,
+                str(entry.get("runs", "–")),
+                f"{lw.get('a_only', '–')} / {lw.get('b_only', '–')}",
+                fmt_number(lw.get("p_value"), ".3g"),
+                f"{ob.get('a_only', '–')} / {ob.get('b_only', '–')}",
+                fmt_number(ob.get("p_value"), ".3g"),
+            ]
+        )
+    out.append(markdown_table(headers, rows))
+    out += [
+        "",
+        'Only the seeds where exactly one method had the outcome ("a only", "b only") carry information; p is'
+        ' the two-sided exact binomial test of those against 1/2. p < 0.05 supports "one of the two is better" on'
+        " this family of scenarios, not a general ranking.",
+    ]
+    return out
 
 
 def _figures(directory: Path, pattern: str, title: str) -> list[str]:
@@ -331,6 +459,7 @@ def _figures(directory: Path, pattern: str, title: str) -> list[str]:
     return out
 
 
-def _write_markdown(path: Path, lines: list[str]) -> Path:
+def write_markdown(path: Path, lines: list[str]) -> Path:
+    """Write ``lines`` as one Markdown file, atomically; returns ``path``."""
     write_text_atomic(path, "\n".join(lines).rstrip() + "\n")
     return path

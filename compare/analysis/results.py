@@ -63,6 +63,7 @@ from compare.analysis.atomic_files import (
 from compare.analysis.exceptions import DirectoryBusy, ResultsConflict
 from compare.analysis.metrics import GROUPS, group_summary, summary_groups, to_jsonable
 from compare.analysis.preflight import check_output_dir
+from compare.analysis.statistics import bootstrap_median_ci, mcnemar, rate
 from compare.versions import versions
 
 log = logging.getLogger(__name__)
@@ -531,7 +532,12 @@ def flatten_method(summary: dict[str, Any]) -> dict[str, Any]:
             "ee_error_mean_m": ee.get("mean"),
             "failures": summary.get("failures"),
             "fallbacks": summary.get("fallbacks"),
+            "steps": summary.get("steps"),
+            **{f"status_steps_{k}": (summary.get("status_steps") or {}).get(k) for k in ("ok", "degraded", "failed")},
+            "fallback_steps": summary.get("fallback_steps"),
+            "time_below_physical_s": summary.get("time_below_physical_s"),
             "deadline_misses": summary.get("deadline_misses"),
+            "warmup_steps": summary.get("warmup_steps"),
             "activation_toggles_per_s": summary.get("activation_toggles_per_s"),
             "blind_steps": summary.get("blind_steps"),
             "waypoints_reached": summary.get("waypoints_reached"),
@@ -627,11 +633,17 @@ def _method_aggregate(rows: pd.DataFrame) -> dict[str, Any]:
     def values(name: str) -> pd.Series:
         return ok[name] if name in ok.columns else pd.Series(np.nan, index=ok.index, dtype=float)
 
-    def share(mask: pd.Series) -> float | None:
-        return float(mask.sum()) / n if n else None
+    def share(mask: pd.Series) -> dict[str, Any]:
+        return rate(int(mask.sum()), n)
 
     def violated(group: str) -> pd.Series:
         return pd.to_numeric(values(f"{group}_violations"), errors="coerce").fillna(0) > 0
+
+    def positive(name: str) -> pd.Series:
+        return pd.to_numeric(values(name), errors="coerce").fillna(0) > 0
+
+    def total(name: str) -> int:
+        return int(_stat(values(name), "sum") or 0)
 
     limits_or_walls = violated("joint_limits") | violated("walls")
     obstacles = violated("obstacles")
@@ -639,6 +651,8 @@ def _method_aggregate(rows: pd.DataFrame) -> dict[str, Any]:
     other = pd.Series(False, index=ok.index)
     for group in groups[len(GROUPS) :]:  # a new safety task's group
         other |= violated(group)
+    steps = total("steps")
+    status_steps = {k: total(f"status_steps_{k}") for k in ("ok", "degraded", "failed")}
     return {
         "runs": n,
         "errors": int(len(rows) - n),
@@ -647,6 +661,7 @@ def _method_aggregate(rows: pd.DataFrame) -> dict[str, Any]:
         "share_runs_any_violation": share(limits_or_walls | obstacles | other),
         "solve_time_us": {
             "median_of_medians": _stat(values("solve_median_us"), "median"),
+            "median_of_medians_ci95": bootstrap_median_ci(pd.to_numeric(values("solve_median_us"), errors="coerce")),
             "p99_of_medians": _stat(values("solve_median_us"), "p99"),
             "median_of_p99": _stat(values("solve_p99_us"), "median"),
             "max": _stat(values("solve_max_us"), "max"),
@@ -660,13 +675,22 @@ def _method_aggregate(rows: pd.DataFrame) -> dict[str, Any]:
         },
         "failures": int(_stat(values("failures"), "sum") or 0),
         "fallbacks": int(_stat(values("fallbacks"), "sum") or 0),
-        "deadline_misses": int(_stat(values("deadline_misses"), "sum") or 0),
         "activation_toggles_per_s_median": _stat(values("activation_toggles_per_s"), "median"),
+        # One accounting for every method (DESIGN §3): step totals over the runs.
+        "steps": steps,
+        "status_steps": status_steps,
+        "share_steps_failed": status_steps["failed"] / steps if steps else None,
+        "share_steps_degraded": status_steps["degraded"] / steps if steps else None,
+        "fallback_steps": total("fallback_steps"),
+        "time_below_physical_s": float(_stat(values("time_below_physical_s"), "sum") or 0.0),
+        "share_runs_below_physical": share(positive("time_below_physical_s")),
+        "deadline_misses": total("deadline_misses"),
+        "warmup_steps": total("warmup_steps"),
         # Reliability campaigns (issue 9).
         "share_runs_joint_limit_violation": share(violated("joint_limits")),
         "share_runs_wall_violation": share(violated("walls")),
-        "share_runs_with_failures": share(pd.to_numeric(values("failures"), errors="coerce").fillna(0) > 0),
-        "share_runs_with_fallbacks": share(pd.to_numeric(values("fallbacks"), errors="coerce").fillna(0) > 0),
+        "share_runs_with_failures": share(positive("failures")),
+        "share_runs_with_fallbacks": share(positive("fallbacks")),
         "solve_time_percentiles_us": {
             "p50_of_run_p99": _stat(values("solve_p99_us"), "median"),
             "p95_of_run_p99": _percentile(values("solve_p99_us"), 95),
@@ -676,9 +700,7 @@ def _method_aggregate(rows: pd.DataFrame) -> dict[str, Any]:
         "iso15066": {
             "min_margin_m": _stat(values("iso_min_margin_m"), "min"),
             "median_min_margin_m": _stat(values("iso_min_margin_m"), "median"),
-            "share_runs_below_zero": share(
-                pd.to_numeric(values("iso_time_below_zero_s"), errors="coerce").fillna(0) > 0
-            ),
+            "share_runs_below_zero": share(positive("iso_time_below_zero_s")),
             "time_below_zero_s_total": _stat(values("iso_time_below_zero_s"), "sum"),
         },
         "unsafe_commands": int(_stat(values("unsafe_commands"), "sum") or 0),
@@ -689,6 +711,47 @@ def _method_aggregate(rows: pd.DataFrame) -> dict[str, Any]:
     }
 
 
+PAIRED_OUTCOMES: dict[str, tuple[str, ...]] = {
+    "limit_or_wall_violation": ("joint_limits", "walls"),
+    "obstacle_violation": ("obstacles",),
+}
+"""Per-run yes/no outcomes compared between methods (``"paired"`` of ``sweep_summary.json``)."""
+
+
+def paired_comparisons(runs: pd.DataFrame) -> dict[str, dict[str, Any]]:
+    """Exact McNemar test per pair of methods on :data:`PAIRED_OUTCOMES`, over the seeds both finished.
+
+    Returns:
+        ``{"<a> vs <b>": {"runs": n, "<outcome>": {"a_only", "b_only", "both", "neither",
+        "p_value"}, ...}}`` for every pair in the order the methods appear.
+    """
+    if runs.empty or "method" not in runs.columns:
+        return {}
+    ok = runs[runs["error"].isna()] if "error" in runs.columns else runs
+    outcome_cols: dict[str, pd.DataFrame] = {}
+    for outcome, groups in PAIRED_OUTCOMES.items():
+        flags = np.zeros(len(ok), dtype=bool)
+        for group in groups:
+            col = f"{group}_violations"
+            if col in ok.columns:
+                flags |= pd.to_numeric(ok[col], errors="coerce").fillna(0).to_numpy() > 0
+        outcome_cols[outcome] = pd.DataFrame({"seed": ok["seed"], "method": ok["method"], "flag": flags}).pivot_table(
+            index="seed", columns="method", values="flag", aggfunc="max"
+        )
+    methods = [str(m) for m in dict.fromkeys(ok["method"])]
+    out: dict[str, dict[str, Any]] = {}
+    for i, a in enumerate(methods):
+        for b in methods[i + 1 :]:
+            entry: dict[str, Any] = {}
+            for outcome, table in outcome_cols.items():
+                both = table[[a, b]].dropna()
+                test = mcnemar(both[a].astype(bool).to_numpy(), both[b].astype(bool).to_numpy())
+                entry["runs"] = test.pop("runs")
+                entry[outcome] = test
+            out[f"{a} vs {b}"] = entry
+    return out
+
+
 def _percentile(values: pd.Series, q: float) -> float | None:
     x = pd.to_numeric(values, errors="coerce").to_numpy(dtype=float)
     x = x[np.isfinite(x)]
@@ -696,7 +759,15 @@ def _percentile(values: pd.Series, q: float) -> float | None:
 
 
 TIMING_KEYS = frozenset(
-    {"solve_time_us", "realtime_factor", "wall_time_s", "solve_time_us_by_active_count", "versions", "steps_file"}
+    {
+        "solve_time_us",
+        "realtime_factor",
+        "wall_time_s",
+        "solve_time_us_by_active_count",
+        "versions",
+        "steps_file",
+        "deadline_misses",
+    }
 )
 """Keys of ``summary.json`` whose values depend on the machine's speed or environment, not on
 (config, seed): left out when runs are compared for determinism."""
@@ -722,11 +793,16 @@ def write_sweep_summary(out_dir: Path, runs: pd.DataFrame | None = None) -> dict
         ``{"runs": <run directories with a summary>, "scenario", "versions",
         "methods": {method: {"runs", "errors", "share_runs_limit_or_wall_violation",
         "share_runs_obstacle_violation", "share_runs_any_violation",
-        "solve_time_us": {"median_of_medians", "p99_of_medians", "median_of_p99", "max"},
+        "solve_time_us": {"median_of_medians", "median_of_medians_ci95", "p99_of_medians",
+        "median_of_p99", "max"},
         "worst_safety_margin": {group: ...}, "worst_physical_margin": {group: ...},
         "min_obstacle_distance_m", "ee_error_final_m": {"median", "max"}, "failures",
-        "fallbacks", "activation_toggles_per_s_median"}}}``. Shares are over the runs where
-        the method finished; a violation is any safety-margin episode (``violations > 0``).
+        "fallbacks", "activation_toggles_per_s_median", "status_steps", "fallback_steps",
+        "time_below_physical_s", "deadline_misses", "warmup_steps", ...}},
+        "paired": {"<a> vs <b>": ...}}`` (:func:`paired_comparisons`). Every share of runs is
+        ``{"count", "runs", "rate", "ci95"}`` (Wilson, :func:`compare.analysis.statistics.rate`),
+        over the runs where the method finished; a violation is any safety-margin episode
+        (``violations > 0``). ``median_of_medians_ci95`` is a bootstrap 95 % interval.
     """
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
@@ -743,6 +819,7 @@ def write_sweep_summary(out_dir: Path, runs: pd.DataFrame | None = None) -> dict
         scenarios = runs["scenario"].dropna().unique()
         summary["scenario"] = str(scenarios[0]) if len(scenarios) == 1 else [str(s) for s in scenarios]
         summary["methods"] = summarize_sweep_rows(runs)
+        summary["paired"] = paired_comparisons(runs)
     summary = to_jsonable(summary)
     write_json_atomic(out_dir / SWEEP_SUMMARY_FILE, summary)
     return summary

@@ -11,16 +11,20 @@ Two tables:
   ``tpik-candidates-<k>``): the cost of the 2^|C| mode search, and of greedy release above
   ``max_exhaustive_candidates``.
 
-A timed call is ``kin = robot.kinematics(q); solver.solve(hierarchy, kin, dt)``. Methods are
-timed in interleaved blocks of 10 calls, so a slow phase of a shared machine hits every method
-alike and the ratios to the reference (mink) stay meaningful.
+A timed call is ``kin = robot.kinematics(q); solver.solve(hierarchy, kin, dt)``. The reference
+of every ratio (``ratio_to_mink``, "× mink") is ``mink-native``
+(:class:`compare.bench.mink_native.MinkCase2`): the same problem written with mink alone, as a
+mink user writes it, one call = ``configuration.update(q)`` + its limits + ``mink.solve_ik``. The
+``mink`` row is the project's adapter (our task layer on mink's kinematics), timed beside it.
+Methods are timed in interleaved blocks of 10 calls, so a slow phase of a shared machine hits
+every method alike and the ratios to the reference stay meaningful.
 """
 
 from __future__ import annotations
 
 import math
 from collections.abc import Callable, Mapping, Sequence
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -32,11 +36,15 @@ from tpik.hierarchy import Hierarchy, Level
 from tpik.step_result import IkSolver
 from tpik.tasks import JointLimitTask, ObstacleDistanceTask, PositionTask, Task, Thresholds, VirtualWallTask
 
+if TYPE_CHECKING:
+    from compare.bench.mink_native import MinkCase2
+
 DT = 0.01
 """Control period of the benchmark steps [s] (100 Hz, as the loop)."""
 
-DEFAULT_METHODS = ["tpik", "tpik-ss", "hqp-daqp", "mink"]
-REFERENCE = "mink"
+DEFAULT_METHODS = ["tpik", "tpik-paper", "tpik-ss", "hqp-daqp", "mink"]
+REFERENCE = "mink-native"
+"""The reference of every ratio: mink alone on the same problem (:mod:`compare.bench.mink_native`)."""
 BLOCK = 10
 
 
@@ -96,6 +104,35 @@ def _split(robot: Robot, solver: IkSolver, hierarchy: Hierarchy, q: np.ndarray, 
     return extra
 
 
+def native_for(robot: Robot, hierarchy: Hierarchy) -> MinkCase2:
+    """``mink-native`` for a case-2-shaped hierarchy: its thresholds, gains, obstacle points and target.
+
+    Only the numbers are read from the hierarchy (once, untimed); a step is mink alone.
+    """
+    from compare.bench.mink_native import MinkCase2
+
+    joints, walls, gains, obstacles = [], [], {}, {}
+    safety_distance, target = 0.35, None
+    for task in hierarchy.tasks:
+        if isinstance(task, JointLimitTask):
+            joints.append((task.joint, task.thresholds.safety_lower, task.thresholds.safety_upper))
+            gains["joint_limits"] = task.gain
+        elif isinstance(task, VirtualWallTask):
+            walls.append((task.normal, task.offset))
+            gains["walls"] = task.gain
+        elif isinstance(task, ObstacleDistanceTask):
+            safety_distance = task.thresholds.safety_lower
+            obstacles[task.frame] = task.obstacle
+            gains["obstacles"] = task.gain
+        elif isinstance(task, PositionTask):
+            target = task.target
+            gains["position"] = task.gain
+    velocities = {name: float(v) for name, v in zip(robot.joint_names, robot.v_max, strict=True)}
+    native = MinkCase2(robot.mj_model, robot.spec.prefix, velocities, joints, walls, safety_distance, gains)
+    native.set_scene([obstacles.get(cp) for cp in CONTROL_POINTS], target if target is not None else np.zeros(3))
+    return native
+
+
 def _rows_for(
     robot: Robot,
     solvers: Mapping[str, IkSolver],
@@ -103,8 +140,11 @@ def _rows_for(
     q: np.ndarray,
     case: str,
     repeats: int,
+    native: MinkCase2 | None = None,
 ) -> list[BenchRow]:
     fns: dict[str, Callable[[], object]] = {}
+    if native is not None:
+        fns[REFERENCE] = lambda: native.step(q, DT)
     for name, solver in solvers.items():
         try:
             solver.solve(hierarchies[name], robot.kinematics(q), DT)
@@ -115,13 +155,13 @@ def _rows_for(
     samples = interleaved(fns, repeats)
     rows = []
     for name, us in samples.items():
-        extra = _split(robot, solvers[name], hierarchies[name], q, min(repeats, 50))
+        extra = {} if name == REFERENCE else _split(robot, solvers[name], hierarchies[name], q, min(repeats, 50))
         rows.append(summarize(name, case, us, **extra))
     return _with_ratios(rows)
 
 
 def _with_ratios(rows: list[BenchRow]) -> list[BenchRow]:
-    """Add ``ratio_to_mink`` (median / median of the reference in the same case) to each row."""
+    """Add ``ratio_to_mink`` (median / median of ``mink-native`` in the same case) to each row."""
     ref = {r.case: r.median_us for r in rows if r.name == REFERENCE}
     out = []
     for r in rows:
@@ -141,9 +181,9 @@ def run_solver_bench(method_names: list[str], repeats: int) -> list[BenchRow]:
         repeats: Timed calls per method and case.
 
     Returns:
-        One row per (method, case): median and p95 [µs], ``extra`` with the build/solve split
-        reported by the solver (``build_us``, ``solve_us``), the active set size, and
-        ``ratio_to_mink`` when mink ran.
+        One row per (method, case), ``mink-native`` first: median and p95 [µs], ``extra`` with
+        the build/solve split reported by the solver (``build_us``, ``solve_us``), the active set
+        size, and ``ratio_to_mink`` (to ``mink-native``, timed in the same interleaved run).
     """
     robot = robots.load("jaco2")
     solvers = build_methods(method_names, robot)
@@ -152,7 +192,10 @@ def run_solver_bench(method_names: list[str], repeats: int) -> list[BenchRow]:
     for state in case2_states(robot):
         for h in hierarchies.values():
             apply_state(h, state)
-        rows += _rows_for(robot, solvers, hierarchies, state.q, state.name, repeats)
+        reference = case2_hierarchy(robot)
+        apply_state(reference, state)
+        native = native_for(robot, reference)
+        rows += _rows_for(robot, solvers, hierarchies, state.q, state.name, repeats, native)
     return rows
 
 
@@ -207,7 +250,7 @@ def candidate_hierarchy(robot: Robot, q: np.ndarray, k: int) -> Hierarchy:
 
 
 def run_candidate_bench(
-    repeats: int, max_candidates: int = 8, method_names: Sequence[str] = ("tpik", "tpik-ss", REFERENCE)
+    repeats: int, max_candidates: int = 8, method_names: Sequence[str] = ("tpik", "tpik-ss")
 ) -> list[BenchRow]:
     """TPIK step time against the number of candidate set tasks |C| (cases ``tpik-candidates-<k>``).
 
@@ -217,7 +260,8 @@ def run_candidate_bench(
     Args:
         repeats: Timed calls per method and case.
         max_candidates: Largest |C| (≤ 12).
-        method_names: Methods timed at every |C| (mink as the reference).
+        method_names: Methods timed at every |C| (``mink-native`` on the same hierarchy is the
+            reference).
     """
     robot = robots.load("jaco2")
     q = case2_states(robot)[0].q
@@ -225,7 +269,8 @@ def run_candidate_bench(
     rows: list[BenchRow] = []
     for k in range(max_candidates + 1):
         hierarchies = {name: candidate_hierarchy(robot, q, k) for name in solvers}
-        rows += _rows_for(robot, solvers, hierarchies, q, f"tpik-candidates-{k}", repeats)
+        native = native_for(robot, candidate_hierarchy(robot, q, k))
+        rows += _rows_for(robot, solvers, hierarchies, q, f"tpik-candidates-{k}", repeats, native)
     return rows
 
 

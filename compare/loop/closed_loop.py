@@ -20,7 +20,15 @@ advance, the source is polled again at every control step (not only at the sensi
 frozen frame is caught within half a period plus one control period of being overdue. The
 older rule stays as a second guard: no good update for ``max_sensing_age_s`` → safe stop.
 
-Every method runs this same code on the same scenario, seed and sensing.
+Every method runs this same code on the same scenario, seed and sensing, and every step is
+classified by the same rules (DESIGN §3): FAILED when the solver reports it or raises one of its
+package's own errors (:data:`SOLVER_ERRORS`: a backend's no-solution, a task that cannot be
+evaluated); DEGRADED when the solver reports it (a slack used, a level given up, damping, the
+velocity scaled) or when its command misses the reference rate of a set-based task at or past an
+activation threshold (:func:`tpik.reference.unmet_set_rates`); OK otherwise. Any other exception
+is a bug: the loop stops the robot and re-raises it, so the run aborts with its traceback.
+A step whose solve takes longer than its deadline (``LoopSettings.deadline_s``, default the
+control period) is flagged ``deadline_miss``.
 """
 
 from __future__ import annotations
@@ -37,14 +45,38 @@ import pandas as pd
 
 from compare.loop.robot_io import RobotIO
 from compare.loop.waypoints import WaypointSchedule
+from qp_baseline.exceptions import HqpError
 from robots import Kinematics, Robot
+from tpik.exceptions import TpikError
 from tpik.hierarchy import Hierarchy
+from tpik.reference import DEFAULT_REFERENCE, ControlReference, unmet_set_rates
 from tpik.step_result import IkSolver, SolveStatus
 from tpik.tasks import ObstacleDistanceTask, PositionTask, SetTask
 
 log = logging.getLogger(__name__)
 
 CONTROL_POINTS = ("link_4", "link_6", "link_7")
+
+
+def _solver_errors() -> tuple[type[Exception], ...]:
+    errors: list[type[Exception]] = [TpikError, HqpError]
+    try:
+        from mink.exceptions import MinkError
+
+        errors.append(MinkError)
+    except ImportError:
+        pass
+    try:
+        from qpsolvers.exceptions import QPError
+
+        errors.append(QPError)
+    except ImportError:
+        pass
+    return tuple(errors)
+
+
+SOLVER_ERRORS: tuple[type[Exception], ...] = _solver_errors()
+"""The solver-domain errors (each package's root error): a FAILED step, not a bug."""
 
 
 class ObstacleReadingLike(Protocol):
@@ -85,6 +117,8 @@ class LoopSettings:
         stale_frame_periods: A sensing update whose frame stamp is more than this many sensing
             periods older than the loop time is stale (frozen or delayed frame) → zero velocity
             at that update; ``None`` disables the check (then only ``max_sensing_age_s`` applies).
+        deadline_s: A solve longer than this is a deadline miss (``deadline_miss`` column) [s];
+            None = the control period ``dt`` (a solver time limit, when one is set, replaces it).
     """
 
     dt: float = 0.01
@@ -95,6 +129,7 @@ class LoopSettings:
     max_sensing_age_s: float = 0.2
     stop_when_blind: bool = True
     stale_frame_periods: float | None = 1.5
+    deadline_s: float | None = None
 
 
 @dataclass
@@ -188,6 +223,37 @@ def _guard(qdot: np.ndarray, v_max: np.ndarray) -> str | None:
     return None
 
 
+WARMUP_SOLVES = 3
+"""Untimed solves at the start state before the first control step (:func:`warm_up_solver`)."""
+
+
+def warm_up_solver(
+    solver: IkSolver, hierarchy: Hierarchy, robot: Robot, q: np.ndarray, dt: float, solves: int = WARMUP_SOLVES
+) -> int:
+    """Solve ``solves`` times at ``q`` before the run, untimed, results discarded.
+
+    The first calls of a fresh process pay for lazy imports, caches and compiled code; done here,
+    they never reach the solve-time percentiles (``warmup_steps`` in ``summary.json``). The EE
+    targets are set to the EE's own position for the warm-up (the loop sets the real ones at its
+    first step); an error of the solver's domain is left for the loop to report.
+
+    Returns:
+        The number of warm-up solves made.
+    """
+    kin = robot.kinematics(q)
+    for task in hierarchy.tasks:
+        if isinstance(task, PositionTask) and task.frame == "end_effector":
+            task.set_target(kin.frame_position("end_effector"))
+    done = 0
+    for _ in range(solves):
+        try:
+            solver.solve(hierarchy, robot.kinematics(q), dt)
+        except SOLVER_ERRORS:
+            break
+        done += 1
+    return done
+
+
 def run_loop(
     io: RobotIO,
     robot: Robot,
@@ -215,8 +281,11 @@ def run_loop(
         on_step: Called after every step (e.g. to sync a viewer); returning False stops the loop.
 
     Returns:
-        :class:`LoopOutput` (the steps table even if a solver raised mid-run: the exception
-        is logged as a failure and the loop goes on with the fallback).
+        :class:`LoopOutput`. A solver error of its own domain (:data:`SOLVER_ERRORS`) is a FAILED
+        step and the loop goes on with the fallback.
+
+    Raises:
+        Exception: Any other exception of the solver (a bug): the robot is stopped first.
     """
     dt = settings.dt
     n_steps = max(1, round(settings.duration_s / dt))
@@ -232,19 +301,22 @@ def run_loop(
     truth_record = [(cols[f"truth:{t.name}"], t.frame) for t in obstacle_tasks]
     c_t, c_ee_x, c_ee_y, c_ee_z = cols["t"], cols["ee_x"], cols["ee_y"], cols["ee_z"]
     c_tx, c_ty, c_tz, c_err = cols["target_x"], cols["target_y"], cols["target_z"], cols["ee_error_m"]
-    c_solve, c_wp, c_status, c_fallback, c_blind = (
+    c_solve, c_wp, c_status, c_fallback, c_blind, c_deadline = (
         cols["solve_time_us"],
         cols["waypoint"],
         cols["status"],
         cols["fallback"],
         cols["blind"],
+        cols["deadline_miss"],
     )
+    deadline_us = 1e6 * (settings.deadline_s if settings.deadline_s is not None else dt)
+    reference: ControlReference = getattr(solver, "reference", DEFAULT_REFERENCE)
+    sigmas = [math.nan] * len(set_tasks)
     events: list[str] = []
     v_max = robot.v_max
     # A deadline miss: flagged by the solver's time-limit guard (compare.loop.deadline) when it
-    # has one, else a solve longer than the control period.
+    # has one, else a solve longer than ``settings.deadline_s`` (default the control period).
     guarded = getattr(solver, "deadline_s", None) is not None
-    c_miss = cols["deadline_miss"]
     last_safe = np.zeros(robot.nq)
     last_safe_t = -math.inf
     next_sense_t = -math.inf
@@ -264,127 +336,143 @@ def run_loop(
     t0 = io.now()
     next_progress = 0.0
 
-    for i in range(n_steps):
-        reading = io.read_joints()
-        t = io.now() - t0
-        if reading is None:
-            io.send_velocity(np.zeros(robot.nq))
-            io.wait()
-            continue
-        kin = robot.kinematics(reading.q)
-
-        if obstacles is not None and obstacle_tasks and (t + 1e-9 >= next_sense_t or repoll):
-            if t + 1e-9 >= next_sense_t:
-                next_sense_t = (
-                    t + settings.sensing_period_s if next_sense_t < 0 else next_sense_t + settings.sensing_period_s
-                )
-            result = obstacles.update(t, kin)
-            stamp = float(getattr(result, "stamp_s", math.nan))
-            repoll = math.isfinite(stamp) and stamp == last_stamp  # frame did not advance: look again next step
-            last_stamp = stamp
-            sensing_reason = sensing_problem(result, t, stale_after_s)
-            if sensing_reason is None:
-                last_good_sense_t = t
-                for task in obstacle_tasks:
-                    r = result.readings.get(task.frame)
-                    task.set_obstacle(r.closest_point if r is not None and r.in_range else None)
-                for cp in CONTROL_POINTS:
-                    r = result.readings.get(cp)
-                    measured[cp] = r.distance_m if r is not None and r.in_range else math.inf
-        if obstacles is not None and obstacle_tasks:
-            if sensing_reason is not None:
-                reason_now = sensing_reason
-            elif t - last_good_sense_t > settings.max_sensing_age_s:
-                reason_now = f"no good sensing update (for {1e3 * (t - last_good_sense_t):.0f} ms)"
-            else:
-                reason_now = ""
-            blind = bool(reason_now)
-            if blind != was_blind or (blind and reason_now.split(" (")[0] != blind_reason.split(" (")[0]):
-                what = f"sensing blind or stale: {reason_now}: safe stop" if blind else "sensing recovered"
-                events.append(f"t={t:.3f} s: {what}")
-                log.warning(events[-1])
-                was_blind = blind
-            blind_reason = reason_now
-
-        ee = kin.frame_position("end_effector")
-        target = waypoints.update(t, ee)
-        for task in position_tasks:
-            task.set_target(target)
-
-        wall0 = time.perf_counter_ns()
-        try:
-            result_step = solver.solve(hierarchy, kin, dt)
-            qdot, status, active, message = (
-                result_step.qdot,
-                result_step.status,
-                result_step.active_set,
-                result_step.message,
-            )
-            missed = bool(result_step.extras.get("deadline_miss", False))
-        except Exception as exc:  # a solver bug must not kill the run: log it, use the fallback
-            qdot, status, active, message = np.zeros(robot.nq), SolveStatus.FAILED, (), f"{type(exc).__name__}: {exc}"
-            missed = False
-        solve_us = (time.perf_counter_ns() - wall0) * 1e-3
-        c_miss[i] = missed or (not guarded and solve_us > dt * 1e6)
-        if not kin.is_current:  # a solver computed kinematics of its own: take a fresh snapshot
+    try:
+        for i in range(n_steps):
+            reading = io.read_joints()
+            t = io.now() - t0
+            if reading is None:
+                io.send_velocity(np.zeros(robot.nq))
+                io.wait()
+                continue
             kin = robot.kinematics(reading.q)
 
-        reason = message if status is SolveStatus.FAILED else _guard(np.asarray(qdot, dtype=float), v_max)
-        fallback = reason is not None
-        if fallback:
-            if settings.fallback == "hold_last":
-                decay = math.exp(-(t - last_safe_t) / settings.fallback_decay_s)
-                command = last_safe * decay
+            if obstacles is not None and obstacle_tasks and (t + 1e-9 >= next_sense_t or repoll):
+                if t + 1e-9 >= next_sense_t:
+                    next_sense_t = (
+                        t + settings.sensing_period_s if next_sense_t < 0 else next_sense_t + settings.sensing_period_s
+                    )
+                result = obstacles.update(t, kin)
+                stamp = float(getattr(result, "stamp_s", math.nan))
+                repoll = math.isfinite(stamp) and stamp == last_stamp  # frame did not advance: look again next step
+                last_stamp = stamp
+                sensing_reason = sensing_problem(result, t, stale_after_s)
+                if sensing_reason is None:
+                    last_good_sense_t = t
+                    for task in obstacle_tasks:
+                        r = result.readings.get(task.frame)
+                        task.set_obstacle(r.closest_point if r is not None and r.in_range else None)
+                    for cp in CONTROL_POINTS:
+                        r = result.readings.get(cp)
+                        measured[cp] = r.distance_m if r is not None and r.in_range else math.inf
+            if obstacles is not None and obstacle_tasks:
+                if sensing_reason is not None:
+                    reason_now = sensing_reason
+                elif t - last_good_sense_t > settings.max_sensing_age_s:
+                    reason_now = f"no good sensing update (for {1e3 * (t - last_good_sense_t):.0f} ms)"
+                else:
+                    reason_now = ""
+                blind = bool(reason_now)
+                if blind != was_blind or (blind and reason_now.split(" (")[0] != blind_reason.split(" (")[0]):
+                    what = f"sensing blind or stale: {reason_now}: safe stop" if blind else "sensing recovered"
+                    events.append(f"t={t:.3f} s: {what}")
+                    log.warning(events[-1])
+                    was_blind = blind
+                blind_reason = reason_now
+
+            ee = kin.frame_position("end_effector")
+            target = waypoints.update(t, ee)
+            for task in position_tasks:
+                task.set_target(target)
+
+            wall0 = time.perf_counter_ns()
+            try:
+                result_step = solver.solve(hierarchy, kin, dt)
+                qdot, status, active, message = (
+                    result_step.qdot,
+                    result_step.status,
+                    result_step.active_set,
+                    result_step.message,
+                )
+                missed = bool(result_step.extras.get("deadline_miss", False))
+            except SOLVER_ERRORS as exc:  # the solver's own domain (no solution, a task it cannot evaluate)
+                qdot, status, active, message = (
+                    np.zeros(robot.nq),
+                    SolveStatus.FAILED,
+                    (),
+                    f"{type(exc).__name__}: {exc}",
+                )
+                missed = False
+            solve_us = (time.perf_counter_ns() - wall0) * 1e-3
+            if not kin.is_current:  # a solver computed kinematics of its own: take a fresh snapshot
+                kin = robot.kinematics(reading.q)
+
+            reason = message if status is SolveStatus.FAILED else _guard(np.asarray(qdot, dtype=float), v_max)
+            fallback = reason is not None
+            if fallback:
+                status = SolveStatus.FAILED  # no usable command (DESIGN §3)
+                if settings.fallback == "hold_last":
+                    decay = math.exp(-(t - last_safe_t) / settings.fallback_decay_s)
+                    command = last_safe * decay
+                else:
+                    command = np.zeros(robot.nq)
+                if fallback_since is None:  # log the start of a fallback episode, not every step of it
+                    fallback_since = t
+                    events.append(f"t={t:.3f} s: {solver.name}: fallback ({settings.fallback}): {reason}")
+                    log.warning(events[-1])
             else:
+                command = np.array(qdot, dtype=float)
+                last_safe, last_safe_t = command, t
+                if fallback_since is not None:
+                    events.append(f"t={t:.3f} s: {solver.name}: recovered after {t - fallback_since:.2f} s of fallback")
+                    log.warning(events[-1])
+                    fallback_since = None
+            stopped = blind and settings.stop_when_blind
+            if stopped:
                 command = np.zeros(robot.nq)
-            if fallback_since is None:  # log the start of a fallback episode, not every step of it
-                fallback_since = t
-                events.append(f"t={t:.3f} s: {solver.name}: fallback ({settings.fallback}): {reason}")
-                log.warning(events[-1])
-        else:
-            command = np.array(qdot, dtype=float)
-            last_safe, last_safe_t = command, t
-            if fallback_since is not None:
-                events.append(f"t={t:.3f} s: {solver.name}: recovered after {t - fallback_since:.2f} s of fallback")
-                log.warning(events[-1])
-                fallback_since = None
-        stopped = blind and settings.stop_when_blind
-        if stopped:
-            command = np.zeros(robot.nq)
-        io.send_velocity(command)
+            io.send_velocity(command)
 
-        c_t[i] = t
-        c_ee_x[i], c_ee_y[i], c_ee_z[i] = ee
-        c_tx[i], c_ty[i], c_tz[i] = target
-        c_err[i] = math.dist(target, ee)
-        c_solve[i] = solve_us
-        c_wp[i] = waypoints.index
-        c_status[i] = status.value
-        c_fallback[i] = fallback
-        c_blind[i] = blind
-        if fallback or stopped:
-            parts = [f"sensing: {blind_reason}"] if stopped else []
-            cols["reason"][i] = "; ".join(parts + ([f"fallback: {reason}"] if fallback else []))
-        rec.q[i] = reading.q
-        rec.qdot[i] = command
-        active_names = set(active)
-        for c_sigma, c_active, name, value in sigma_record:
-            c_sigma[i] = value(kin)
-            c_active[i] = name in active_names
-        true_d = truth(kin) if truth is not None else {}
-        for c_meas, c_true, cp in dist_record:
-            c_meas[i] = measured[cp]
-            c_true[i] = true_d.get(cp, math.inf)
-        for c_truth, frame in truth_record:
-            c_truth[i] = true_d.get(frame, math.inf)
-        rec.n = i + 1
+            c_t[i] = t
+            c_ee_x[i], c_ee_y[i], c_ee_z[i] = ee
+            c_tx[i], c_ty[i], c_tz[i] = target
+            c_err[i] = math.dist(target, ee)
+            c_solve[i] = solve_us
+            c_deadline[i] = missed or (not guarded and solve_us > deadline_us)
+            c_wp[i] = waypoints.index
+            c_fallback[i] = fallback
+            c_blind[i] = blind
+            if fallback or stopped:
+                parts = [f"sensing: {blind_reason}"] if stopped else []
+                cols["reason"][i] = "; ".join(parts + ([f"fallback: {reason}"] if fallback else []))
+            rec.q[i] = reading.q
+            rec.qdot[i] = command
+            active_names = set(active)
+            for k, (c_sigma, c_active, name, value) in enumerate(sigma_record):
+                sigmas[k] = c_sigma[i] = value(kin)
+                c_active[i] = name in active_names
+            if (
+                status is SolveStatus.OK
+                and not fallback
+                and unmet_set_rates(set_tasks, sigmas, kin, qdot, dt, reference)
+            ):
+                status = SolveStatus.DEGRADED  # a set task's reference rate missed: the same rule for every method
+            c_status[i] = status.value
+            true_d = truth(kin) if truth is not None else {}
+            for c_meas, c_true, cp in dist_record:
+                c_meas[i] = measured[cp]
+                c_true[i] = true_d.get(cp, math.inf)
+            for c_truth, frame in truth_record:
+                c_truth[i] = true_d.get(frame, math.inf)
+            rec.n = i + 1
 
-        if progress is not None and t >= next_progress:
-            progress(t)
-            next_progress = t + 0.5
-        io.wait()
-        if on_step is not None and not on_step():
-            break
+            if progress is not None and t >= next_progress:
+                progress(t)
+                next_progress = t + 0.5
+            io.wait()
+            if on_step is not None and not on_step():
+                break
+    except BaseException:
+        io.stop()  # a bug (or Ctrl-C) ends the run with the robot stopped, then surfaces
+        raise
 
     io.stop()
     wall = time.perf_counter() - start_wall

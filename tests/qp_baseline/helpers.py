@@ -131,6 +131,12 @@ def wall_box_level(frame: str = "end_effector", gain: float = 1.0) -> Level:
     return Level("walls", tuple(walls))
 
 
+def wall_behind_ee(ee: np.ndarray, past_m: float, gain: float) -> VirtualWallTask:
+    """A wall x ≥ ee_x + ``past_m`` on the EE: the EE starts ``past_m`` past its safety threshold."""
+    th = Thresholds(-0.05, 0.0, math.inf, math.inf, 0.03)
+    return VirtualWallTask("wall", "end_effector", np.array([1.0, 0.0, 0.0]), float(ee[0]) + past_m, th, gain)
+
+
 def joint_limit_level(robot: Robot, joints: Sequence[int] = (2, 4, 6), gain: float = 1.0) -> Level:
     """Joint limits of the model with a 0.1 rad safety margin and ε = 0.05 rad."""
     return Level("joint_limits", tuple(JointLimitTask.from_robot(robot, j, 0.1, 0.05, gain) for j in joints))

@@ -15,14 +15,18 @@ def test_runner_times_each_case_and_skips_unknown_methods(capsys):
     rows = run_solver_bench(["tpik", "no-such-method"], repeats=3)
     assert "skipping method 'no-such-method'" in capsys.readouterr().out
     assert [(r.name, r.case) for r in rows] == [
-        ("tpik", "case2-active0"),
-        ("tpik", "case2-active1"),
-        ("tpik", "case2-active3"),
+        (name, case)
+        for case in ("case2-active0", "case2-active1", "case2-active3")
+        for name in ("mink-native", "tpik")  # mink alone, the reference of "× mink", in every case
     ]
     for row in rows:
         assert row.samples == 3 and 0 < row.median_us <= row.p95_us
+    tpik = [r for r in rows if r.name == "tpik"]
+    native = {r.case: r.median_us for r in rows if r.name == "mink-native"}
+    for row in tpik:
         assert {"build_us", "solve_us", "active", "modes_evaluated"} <= set(row.extra)
-    assert [r.extra["active"] for r in rows][0] == 0
+        assert row.extra["ratio_to_mink"] == pytest.approx(row.median_us / native[row.case])
+    assert tpik[0].extra["active"] == 0
 
 
 @pytest.mark.parametrize("k", [0, 1, 4, 9, 12])
@@ -45,6 +49,7 @@ def test_main_writes_the_design_json(tmp_path):
     assert {"versions", "results", "command"} <= set(data)
     cases = {(r["name"], r["case"]) for r in data["results"]}
     assert ("tpik", "case2-active3") in cases and ("tpik-exhaustive", "tpik-candidates-1") in cases
+    assert ("mink-native", "case2-active3") in cases and ("mink-native", "tpik-candidates-1") in cases
     assert all({"name", "case", "median_us", "p95_us"} <= set(r) for r in data["results"])
 
 

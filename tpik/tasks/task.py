@@ -13,6 +13,7 @@ import numpy as np
 
 from robots import Kinematics
 from tpik.exceptions import InvalidTaskState, TaskDefinitionError, ThresholdOrderError
+from tpik.reference import rate_bounds
 
 
 @dataclass(frozen=True, slots=True, init=False)
@@ -262,21 +263,19 @@ class SetTask(Task):
             return Activation.LOWER
         return Activation.INACTIVE
 
-    def velocity_bounds(self, state: TaskState, dt: float) -> tuple[float, float]:
-        r"""Bounds on σ̇ that keep σ inside the safety set one step ahead (used by HQP).
+    def velocity_bounds(self, state: TaskState, dt: float, gain_cap: bool = True) -> tuple[float, float]:
+        r"""Bounds on σ̇ that keep σ inside the safety set one step ahead (used by HQP and mink).
 
         .. math::
-            -K(\sigma - \sigma_{s,l}) \le \dot\sigma \le K(\sigma_{s,u} - \sigma),
+            K(\sigma_{s,l} - \sigma) \le \dot\sigma \le K(\sigma_{s,u} - \sigma),
             \quad K = \min(\text{gain}, 1/dt)
 
-        Capping K at 1/dt makes the explicit Euler step land at most on the threshold.
-        A non-finite σ gives (−inf, +inf).
+        The one control reference of :mod:`tpik.reference`: capping K at 1/dt (``gain_cap``)
+        makes the explicit Euler step land at most on the threshold. A non-finite σ gives
+        (−inf, +inf).
         """
-        sigma = float(state.value[0])
-        if not math.isfinite(sigma):
-            return (-math.inf, math.inf)
-        k = min(self.gain, 1.0 / dt)
-        return (-k * (sigma - self.thresholds.safety_lower), k * (self.thresholds.safety_upper - sigma))
+        th = self.thresholds
+        return rate_bounds(float(state.value[0]), th.safety_lower, th.safety_upper, self.gain, dt, gain_cap)
 
     def margins(self, sigma: float) -> tuple[float, float]:
         """Signed margins (safety, physical) of σ: > 0 inside the set, < 0 violated."""

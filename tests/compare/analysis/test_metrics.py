@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 
@@ -33,6 +34,12 @@ REQUIRED_KEYS = {
     "failures",
     "fallbacks",
     "activation_toggles_per_s",
+    # One accounting for every method (DESIGN §7, issue 15).
+    "status_steps",
+    "fallback_steps",
+    "time_below_physical_s",
+    "deadline_misses",
+    "warmup_steps",
 }
 GROUP_KEYS = {"safety_margin_min", "physical_margin_min", "violations", "violation_time_s"}
 
@@ -111,6 +118,35 @@ def test_quiet_run_has_exact_design_keys_and_strict_json():
     assert summary["joint_limits"]["violations"] == 0
     assert summary["walls"]["safety_margin_min"] == pytest.approx(0.2)
     assert summary["walls"]["physical_margin_min"] == pytest.approx(0.25)
+
+
+def test_step_accounting_counts_status_fallbacks_deadlines_and_time_below_physical():
+    """A hand-built table: 30 degraded, 12 failed (all fallbacks), 7 deadline misses; the person below
+    the 0.10 m physical threshold for 25 steps, a joint past its physical limit for 15, 10 of them
+    the same steps: 30 steps below a physical threshold."""
+    steps = make_steps()
+    status = steps["status"].to_numpy().copy()
+    status[100:130] = "degraded"
+    status[500:512] = "failed"
+    steps["status"] = status
+    fallback = np.zeros(len(steps), dtype=bool)
+    fallback[500:512] = True
+    steps["fallback"] = fallback
+    miss = np.zeros(len(steps), dtype=bool)
+    miss[[3, 50, 51, 52, 600, 601, 999]] = True
+    steps["deadline_miss"] = miss
+    truth = steps["truth:obstacle_link_7"].to_numpy().copy()
+    truth[200:225] = 0.099  # below the physical 0.1 m (and the 1 mm violation tolerance does not apply)
+    steps["truth:obstacle_link_7"] = truth
+    sigma = steps["sigma:joint_limit_2"].to_numpy().copy()
+    sigma[215:230] = 2.0005  # past σ_M = 2.0 for 15 steps, 10 of them within the person's 25
+    steps["sigma:joint_limit_2"] = sigma
+    summary = compute_summary(steps, dataclasses.replace(make_meta(), warmup_steps=3))
+    assert summary["status_steps"] == {"ok": 958, "degraded": 30, "failed": 12}
+    assert summary["failures"] == 12 and summary["fallback_steps"] == summary["fallbacks"] == 12
+    assert summary["deadline_misses"] == 7
+    assert summary["time_below_physical_s"] == pytest.approx((25 + 15 - 10) * DT)
+    assert summary["warmup_steps"] == 3
 
 
 def test_joint_crossing_safety_threshold_twice_counts_two_episodes_and_their_time():

@@ -203,10 +203,10 @@ def test_sweep_summary_aggregates_per_method(tmp_path):
     tpik, hqp = summary["methods"]["tpik"], summary["methods"]["hqp-daqp"]
     assert tpik["runs"] == 3 and tpik["errors"] == 0
     assert hqp["runs"] == 2 and hqp["errors"] == 1
-    assert tpik["share_runs_limit_or_wall_violation"] == pytest.approx(1 / 3)
-    assert tpik["share_runs_obstacle_violation"] == pytest.approx(1 / 3)  # 0.3 m < 0.35 m in run 1
-    assert hqp["share_runs_limit_or_wall_violation"] == 0.0
-    assert hqp["share_runs_obstacle_violation"] == 0.0
+    assert tpik["share_runs_limit_or_wall_violation"]["rate"] == pytest.approx(1 / 3)
+    assert tpik["share_runs_obstacle_violation"]["rate"] == pytest.approx(1 / 3)  # 0.3 m < 0.35 m in run 1
+    assert hqp["share_runs_limit_or_wall_violation"]["rate"] == 0.0
+    assert hqp["share_runs_obstacle_violation"]["rate"] == 0.0
     assert hqp["min_obstacle_distance_m"] == pytest.approx(0.4)
     assert tpik["worst_safety_margin"]["joint_limits"] == pytest.approx(-0.05)
     assert tpik["worst_safety_margin"]["obstacles"] == pytest.approx(-0.05)

@@ -135,7 +135,8 @@ def test_same_seeds_give_identical_summaries_on_local_processes_and_ray(tmp_path
         for method in SAFE_METHODS:
             x = pd.read_parquet(sweep_run_dir(tmp_path / "local", i) / "steps" / f"{method}.parquet")
             y = pd.read_parquet(sweep_run_dir(tmp_path / "ray", i) / "steps" / f"{method}.parquet")
-            pd.testing.assert_frame_equal(x.drop(columns="solve_time_us"), y.drop(columns="solve_time_us"))
+            timing = ["solve_time_us", "deadline_miss"]  # the machine's, not the run's
+            pd.testing.assert_frame_equal(x.drop(columns=timing), y.drop(columns=timing))
 
 
 @pytest.mark.slow
@@ -154,7 +155,7 @@ def test_fifty_run_campaign_keeps_joint_limits_and_walls_for_tpik_and_hqp(tmp_pa
         assert m["worst_safety_margin"]["walls"] > -SAFETY_TOL["walls"]
         assert m["unsafe_commands"] == 0
     # The hard family really is hard: the person gets within the obstacle threshold in some runs.
-    assert summary["methods"]["tpik"]["share_runs_obstacle_violation"] > 0.0
+    assert summary["methods"]["tpik"]["share_runs_obstacle_violation"]["rate"] > 0.0
     report = (out / "sweep_report.md").read_text()
     assert "joint-limit or wall violation" in report and "ISO" in report
     assert summary["campaign"]["plant"]["drive"] == "decoupled"
