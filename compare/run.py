@@ -17,7 +17,7 @@ from compare.analysis.metrics import RunMeta, SetTaskInfo, compute_summary
 from compare.analysis.results import ResultsWriter
 from compare.campaign.random_scenario import realize
 from compare.config import Config
-from compare.loop.closed_loop import LoopSettings, ObstacleSource, run_loop
+from compare.loop.closed_loop import LoopSettings, ObstacleSource, control_points, run_loop
 from compare.loop.faults import FaultInjector, unsafe_commands
 from compare.loop.simulation import build_simulation
 from compare.loop.waypoints import WaypointSchedule
@@ -88,7 +88,7 @@ def run_method(config: Config, method: str, robot: robots.Robot, progress: Progr
     sc = config.scenario
     q0 = np.array(sc.start_q) if sc.start_q is not None else robot.home.copy()
     sim = build_simulation(config, robot, q0)
-    schedule, settings = loop_setup(config, robot.frame_position(q0, "end_effector"))
+    schedule, settings = loop_setup(config, robot.frame_position(q0, robot.ee_frame))
     task_id = None
     callback = None
     if progress is not None:
@@ -102,14 +102,15 @@ def run_method(config: Config, method: str, robot: robots.Robot, progress: Progr
     io = injector.wrap_io(sim.io)
     obstacles: ObstacleSource = sim.obstacles
     if sim.pipeline is not None and io is not sim.io:
-        obstacles = sim.pipeline.source(io.read_depth)  # depth mode: the pipeline reads the faulty frames
+        obstacles = sim.pipeline.source(io.read_depth, sim.control_points)  # depth mode: reads the faulty frames
     elif sim.pipeline is None:
         obstacles = injector.wrap_obstacles(obstacles)  # geometric mode: frame faults emulated
     solver = injector.wrap_solver(solver)
     stale_after_s = (
         None if settings.stale_frame_periods is None else settings.stale_frame_periods * settings.sensing_period_s
     )
-    monitor = iso15066.SeparationMonitor(obstacles, stale_after_s) if config.iso15066.enabled else None
+    cps = control_points(hierarchy, robot)
+    monitor = iso15066.SeparationMonitor(obstacles, stale_after_s, cps) if config.iso15066.enabled else None
     try:
         out = run_loop(io, robot, hierarchy, solver, schedule, settings, monitor or obstacles, sim.truth, callback)
     finally:
@@ -128,12 +129,14 @@ def run_method(config: Config, method: str, robot: robots.Robot, progress: Progr
         wall_time_s=out.wall_time_s,
         sensing=sc.sensing,
         set_tasks=set_task_infos(hierarchy),
+        control_points=cps,
     )
     summary = compute_summary(steps, meta)
+    summary["robot"] = robot.name
     summary["faults"] = injector.summarize(steps, settings.sensing_period_s)
     summary["unsafe_commands"] = unsafe_commands(steps, robot.v_max)
     if monitor is not None:
-        summary["iso15066"] = iso15066.summarize(steps, sc.dt, config.iso15066)
+        summary["iso15066"] = iso15066.summarize(steps, sc.dt, config.iso15066, cps)
     summary["sensing"] = sc.sensing
     summary["events"] = out.events[:50]
     return {"summary": summary, "steps": steps}
@@ -151,7 +154,7 @@ def run_scenario(
     Returns:
         The content of ``out_dir/summary.json``.
     """
-    robot = robots.load("jaco2")
+    robot = config.load_robot()
     config = realize(config, robot)
     sc = config.scenario
     writer = ResultsWriter(Path(out_dir), sc.name, sc.seed, sc.sim_time_s, config_text)
@@ -182,14 +185,14 @@ def view_scenario(config: Config, method: str) -> None:
     """Run one method in the interactive MuJoCo viewer, in real time."""
     import mujoco.viewer
 
-    robot = robots.load("jaco2")
+    robot = config.load_robot()
     config = realize(config, robot)
     sc = config.scenario
     q0 = np.array(sc.start_q) if sc.start_q is not None else robot.home.copy()
     sim = build_simulation(config, robot, q0)
     hierarchy = config.build_hierarchy(robot)
     solver = make_method(method, robot, config.methods.settings.get(method))
-    schedule, settings = loop_setup(config, robot.frame_position(q0, "end_effector"))
+    schedule, settings = loop_setup(config, robot.frame_position(q0, robot.ee_frame))
     with mujoco.viewer.launch_passive(sim.io.model, sim.io.data) as viewer:
         clock = {"tick": time.perf_counter()}
 

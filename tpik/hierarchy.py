@@ -103,6 +103,10 @@ class Hierarchy:
                                            "safety_margin": 0.1, "activation_margin": 0.05}]},
              {"name": "operational", "tasks": [{"type": "position", "frame": "end_effector"}]}]
 
+        A task without ``frame`` acts on the robot's end-effector frame (``robot.ee_frame``); an
+        ``obstacle_distance`` without ``frame``/``frames`` on its default control points
+        (``robot.control_points``).
+
         Task types: ``position``, ``orientation``, ``pose``, ``manipulability``,
         ``joint_limit`` (``joint`` or ``joints``), ``virtual_wall`` (one plane),
         ``wall_box`` (six walls of an axis-aligned box), ``obstacle_distance`` (``frame`` or
@@ -143,7 +147,7 @@ _AXES = {"x": np.array([1.0, 0.0, 0.0]), "y": np.array([0.0, 1.0, 0.0]), "z": np
 
 
 def _wall_box(spec: dict[str, Any], robot: Robot) -> list[Task]:
-    frame = spec.pop("frame", "end_effector")
+    frame = spec.pop("frame", robot.ee_frame)
     lower = np.asarray(spec.pop("lower"), dtype=float)
     upper = np.asarray(spec.pop("upper"), dtype=float)
     phys = spec.pop("physical_margin", 0.05)
@@ -171,7 +175,7 @@ def _virtual_wall(spec: dict[str, Any], robot: Robot) -> list[Task]:
     return [
         VirtualWallTask(
             spec.pop("name"),
-            spec.pop("frame", "end_effector"),
+            spec.pop("frame", robot.ee_frame),
             spec.pop("normal"),
             spec.pop("offset"),
             th,
@@ -181,7 +185,9 @@ def _virtual_wall(spec: dict[str, Any], robot: Robot) -> list[Task]:
 
 
 def _obstacles(spec: dict[str, Any], robot: Robot) -> list[Task]:
-    frames = spec.pop("frames", None) or [spec.pop("frame")]
+    frames = spec.pop("frames", None) or [spec.pop("frame", None)]
+    if frames == [None]:  # no frame named: the robot's default control points
+        frames = list(robot.control_points)
     safety = float(spec.pop("safety_distance", 0.35))
     physical = float(spec.pop("physical_distance", 0.1))
     eps = spec.pop("activation_margin", 0.05)
@@ -198,13 +204,13 @@ def _obstacles(spec: dict[str, Any], robot: Robot) -> list[Task]:
 
 
 def _position(spec: dict[str, Any], robot: Robot) -> list[Task]:
-    frame = spec.pop("frame", "end_effector")
+    frame = spec.pop("frame", robot.ee_frame)
     robot.frame_id(frame)
     return [PositionTask(spec.pop("name", f"position_{frame}"), frame, spec.pop("gain", 1.0), spec.pop("target", None))]
 
 
 def _orientation(spec: dict[str, Any], robot: Robot) -> list[Task]:
-    frame = spec.pop("frame", "end_effector")
+    frame = spec.pop("frame", robot.ee_frame)
     robot.frame_id(frame)
     return [
         OrientationTask(
@@ -214,13 +220,13 @@ def _orientation(spec: dict[str, Any], robot: Robot) -> list[Task]:
 
 
 def _pose(spec: dict[str, Any], robot: Robot) -> list[Task]:
-    frame = spec.pop("frame", "end_effector")
+    frame = spec.pop("frame", robot.ee_frame)
     robot.frame_id(frame)
     return [PoseTask(spec.pop("name", f"pose_{frame}"), frame, spec.pop("gain", 1.0), spec.pop("target", None))]
 
 
 def _manipulability(spec: dict[str, Any], robot: Robot) -> list[Task]:
-    frame = spec.pop("frame", "end_effector")
+    frame = spec.pop("frame", robot.ee_frame)
     robot.frame_id(frame)
     return [
         ManipulabilityTask(

@@ -61,8 +61,6 @@ import pandas as pd
 GROUPS: tuple[str, ...] = ("joint_limits", "walls", "obstacles")
 """Set-task groups reported in ``summary.json`` (DESIGN §7), in that order."""
 
-DEFAULT_CONTROL_POINTS: tuple[str, ...] = ("link_4", "link_6", "link_7")
-
 
 class MetricsError(ValueError):
     """The per-step table does not match the run description (missing columns, empty table)."""
@@ -133,7 +131,8 @@ class RunMeta:
         wall_time_s: Wall-clock time of the loop [s].
         sensing: ``depth`` or ``geometric``.
         set_tasks: Every scalar set-based task of the hierarchy.
-        control_points: Frames of the obstacle control points (``dist_*:<frame>`` columns).
+        control_points: Frames of the obstacle control points (``dist_*:<frame>`` columns;
+            ``compare.loop.closed_loop.control_points``); none = no distances reported.
     """
 
     scenario: str
@@ -144,7 +143,7 @@ class RunMeta:
     wall_time_s: float
     sensing: str
     set_tasks: tuple[SetTaskInfo, ...]
-    control_points: tuple[str, ...] = DEFAULT_CONTROL_POINTS
+    control_points: tuple[str, ...] = ()
 
 
 def to_jsonable(obj: Any) -> Any:

@@ -25,7 +25,7 @@ from typing import Any
 import numpy as np
 
 import robots
-from compare.bench.solver_cases import CONTROL_POINTS, apply_state, case2_hierarchy, case2_states
+from compare.bench.solver_cases import apply_state, case2_hierarchy, case2_states
 from compare.bench.timing import BenchRow, summarize, time_calls
 from robots import Robot
 from tpik.hierarchy import Hierarchy, Level
@@ -132,24 +132,34 @@ def _with_ratios(rows: list[BenchRow]) -> list[BenchRow]:
     return out
 
 
-def run_solver_bench(method_names: list[str], repeats: int) -> list[BenchRow]:
+def run_solver_bench(
+    method_names: list[str],
+    repeats: int,
+    robot: Robot | None = None,
+    description: Sequence[Mapping[str, Any]] | None = None,
+    settings: Mapping[str, Mapping[str, Any]] | None = None,
+) -> list[BenchRow]:
     """Time one control step of each method on the case-2 states (``case2-active0/1/3``).
 
     Args:
         method_names: Names for :func:`compare.methods.make_method` (``tpik``, ``mink``, ...);
             a method whose import or construction fails is skipped with a printed note.
         repeats: Timed calls per method and case.
+        robot: The arm (default :data:`robots.DEFAULT_ROBOT`).
+        description: The case-2 levels (a config's); default the robot's
+            :func:`~compare.bench.solver_cases.case2_description`.
+        settings: Per-method settings (a config's ``[methods.settings]``).
 
     Returns:
         One row per (method, case): median and p95 [µs], ``extra`` with the build/solve split
         reported by the solver (``build_us``, ``solve_us``), the active set size, and
         ``ratio_to_mink`` when mink ran.
     """
-    robot = robots.load("jaco2")
-    solvers = build_methods(method_names, robot)
-    hierarchies = {name: case2_hierarchy(robot) for name in solvers}  # one per method: solvers may cache
+    robot = robot or robots.load(robots.DEFAULT_ROBOT)
+    solvers = build_methods(method_names, robot, settings)
+    hierarchies = {name: case2_hierarchy(robot, description) for name in solvers}  # one per method: solvers may cache
     rows: list[BenchRow] = []
-    for state in case2_states(robot):
+    for state in case2_states(robot, description=description):
         for h in hierarchies.values():
             apply_state(h, state)
         rows += _rows_for(robot, solvers, hierarchies, state.q, state.name, repeats)
@@ -167,9 +177,9 @@ def candidate_hierarchy(robot: Robot, q: np.ndarray, k: int) -> Hierarchy:
     if not 0 <= k <= 12:
         raise ValueError(f"k must be in 0..12, got {k}")
     kin = robot.kinematics(q)
-    ee = kin.frame_position("end_effector")
+    ee = kin.frame_position(robot.ee_frame)
     obstacles: list[Task] = []
-    for i, frame in enumerate(CONTROL_POINTS):
+    for i, frame in enumerate(robot.control_points[:3]):
         task = ObstacleDistanceTask(f"obstacle_{frame}", frame, Thresholds(0.1, 0.35, math.inf, math.inf, 0.05))
         offset = 0.37 if i < k else 1.5
         task.set_obstacle(kin.frame_position(frame) + offset * np.array([0.0, 0.6, 0.8]))
@@ -183,7 +193,7 @@ def candidate_hierarchy(robot: Robot, q: np.ndarray, k: int) -> Hierarchy:
         walls.append(
             VirtualWallTask(
                 f"wall_{'xyz'[axis]}_{'min' if sign > 0 else 'max'}",
-                "end_effector",
+                robot.ee_frame,
                 normal,
                 sign * ee[axis] - gap,
                 wall_th,
@@ -195,7 +205,7 @@ def candidate_hierarchy(robot: Robot, q: np.ndarray, k: int) -> Hierarchy:
         above = 0.02 if 9 + i < k else 1.0
         th = Thresholds(qj - 2.0, qj - 1.0, qj + above, qj + above + 0.1, 0.05)
         limits.append(JointLimitTask(f"joint_limit_{joint}", joint, robot.nq, th))
-    target = PositionTask("position_end_effector", target=ee + np.array([0.05, -0.05, 0.05]))
+    target = PositionTask(f"position_{robot.ee_frame}", robot.ee_frame, target=ee + np.array([0.05, -0.05, 0.05]))
     return Hierarchy(
         [
             Level("joint_limits", tuple(limits)),
@@ -207,7 +217,10 @@ def candidate_hierarchy(robot: Robot, q: np.ndarray, k: int) -> Hierarchy:
 
 
 def run_candidate_bench(
-    repeats: int, max_candidates: int = 8, method_names: Sequence[str] = ("tpik", "tpik-ss", REFERENCE)
+    repeats: int,
+    max_candidates: int = 8,
+    method_names: Sequence[str] = ("tpik", "tpik-ss", REFERENCE),
+    robot: Robot | None = None,
 ) -> list[BenchRow]:
     """TPIK step time against the number of candidate set tasks |C| (cases ``tpik-candidates-<k>``).
 
@@ -218,8 +231,9 @@ def run_candidate_bench(
         repeats: Timed calls per method and case.
         max_candidates: Largest |C| (≤ 12).
         method_names: Methods timed at every |C| (mink as the reference).
+        robot: The arm (default :data:`robots.DEFAULT_ROBOT`).
     """
-    robot = robots.load("jaco2")
+    robot = robot or robots.load(robots.DEFAULT_ROBOT)
     q = case2_states(robot)[0].q
     solvers = _candidate_methods(robot, method_names)
     rows: list[BenchRow] = []

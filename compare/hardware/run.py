@@ -34,7 +34,7 @@ from compare.config import Config
 from compare.hardware.exceptions import StartRefused
 from compare.hardware.ros_io import RosRobotIO
 from compare.hardware.safety import start_problems
-from compare.loop.closed_loop import CONTROL_POINTS, ObstacleSource, run_loop
+from compare.loop.closed_loop import ObstacleSource, control_points, run_loop
 from compare.methods import make_method
 from tpik.hierarchy import Hierarchy
 from tpik.tasks import ObstacleDistanceTask
@@ -71,6 +71,22 @@ def _signals(io: RosRobotIO, state: Interrupted) -> Iterator[None]:
             signal.signal(sig, old)
 
 
+def hardware_robot(config: Config) -> robots.Robot:
+    """The arm of ``[scenario] robot``, checked against ``[hardware]``: one driver joint per model joint.
+
+    Raises:
+        StartRefused: ``hardware.joint_names`` does not name the robot's joints one to one.
+    """
+    robot = config.load_robot()
+    names = config.hardware.joint_names
+    if len(names) != robot.nq:
+        raise StartRefused(
+            f"hardware.joint_names has {len(names)} names but robot '{robot.name}' has {robot.nq} joints "
+            f"({', '.join(robot.joint_names)}); set hardware.joint_names to the driver's names for this arm"
+        )
+    return robot
+
+
 def make_obstacle_source(config: Config, robot: robots.Robot, io: RosRobotIO) -> ObstacleSource:
     """Depth-space obstacle distance on the live frames: static background, self-filter, distance."""
     from compare.hardware.sensing import HardwareDepthSensing, capture_background, load_background, static_background
@@ -101,7 +117,7 @@ def capture_background_file(config: Config, path: Path, duration_s: float) -> fl
     """
     from compare.hardware.sensing import capture_background, save_background
 
-    robot = robots.load("jaco2")
+    robot = hardware_robot(config)
     hw = config.hardware.model_copy(update={"startup_timeout_s": max(config.hardware.startup_timeout_s, 5.0)})
     io = RosRobotIO(hw, robot.v_max, config.scenario.dt, use_depth=True, dry_run=True)
     try:
@@ -161,7 +177,7 @@ def run_hardware(
     from compare.analysis.results import ResultsWriter
     from compare.run import loop_setup, set_task_infos, write_plots
 
-    robot = robots.load("jaco2")
+    robot = hardware_robot(config)
     sc = config.scenario
     hw = config.hardware
     hierarchy = config.build_hierarchy(robot)
@@ -193,7 +209,7 @@ def run_hardware(
             problems = start_problems(hierarchy, kin)
             if problems:
                 raise StartRefused("arm outside its safety thresholds at start: " + "; ".join(problems))
-            schedule, settings = loop_setup(config, kin.frame_position("end_effector"), duration)
+            schedule, settings = loop_setup(config, kin.frame_position(robot.ee_frame), duration)
             log.info("hardware run: %s, %.1f s%s", method, duration, " (dry run: nothing published)" if dry_run else "")
             io.start_clock()
             out = run_loop(
@@ -221,9 +237,11 @@ def run_hardware(
         wall_time_s=out.wall_time_s,
         sensing="depth" if use_depth else "none",
         set_tasks=set_task_infos(hierarchy),
+        control_points=control_points(hierarchy, robot),
     )
     summary = compute_summary(steps, meta)
-    measured = [steps[f"dist_meas:{cp}"].to_numpy(dtype=float) for cp in CONTROL_POINTS if f"dist_meas:{cp}" in steps]
+    cps = meta.control_points
+    measured = [steps[f"dist_meas:{cp}"].to_numpy(dtype=float) for cp in cps if f"dist_meas:{cp}" in steps]
     summary["min_obstacle_distance_m"] = [_finite_min(d) for d in measured]
     summary["obstacle_distance_source"] = "measured (depth camera; no ground truth on hardware)"
     summary["hardware"] = io.report()

@@ -216,7 +216,7 @@ class StandIn:
         # Like the driver (roscpp, default hints): no TCP_NODELAY requested.
         sub = rospy.Subscriber(self.hw.velocity_topic, ros.JointVelocity, self._on_command, queue_size=10)
         io = self.world.io
-        robot = robots.load("jaco2")
+        robot = self.config.load_robot()
         tick = time.monotonic()
         next_depth_scene_t = 0.0
         last_depth_wall = -math.inf
@@ -335,7 +335,7 @@ def main(argv: list[str] | None = None) -> int:
     except ConfigError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
-    robot = robots.load("jaco2")
+    robot = config.load_robot()
     config = realize(config, robot)
     if args.print_calibration:
         print(json.dumps(camera_calibration()))
