@@ -23,7 +23,15 @@ from robots.exceptions import (
     UnknownRobot,
 )
 from robots.kinematics import Kinematics
-from robots.registry import DEFAULT_ROBOT, available_robots, load, register, registered_robots, spec_of
+from robots.registry import (
+    DEFAULT_ROBOT,
+    available_robots,
+    load,
+    register,
+    registered_robots,
+    spec_of,
+    unregister,
+)
 from robots.robot import Robot
 from robots.spec import RobotSpec
 
@@ -45,4 +53,5 @@ __all__ = [
     "register",
     "registered_robots",
     "spec_of",
+    "unregister",
 ]

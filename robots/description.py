@@ -33,8 +33,8 @@ import numpy as np
 import pinocchio as pin
 
 from robots.exceptions import InvalidDescription, NotInstalled
+from robots.spec import PACKAGE_URI as _PACKAGE
 
-_PACKAGE = "package://"
 _REVOLUTE = {"JointModelRX", "JointModelRY", "JointModelRZ", "JointModelRevoluteUnaligned"}
 AGREEMENT_TOL = 1e-9
 """Largest accepted difference between MuJoCo's and pinocchio's frame poses [m] / [rad]."""

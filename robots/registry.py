@@ -22,7 +22,6 @@ module the user imports).
 
 from __future__ import annotations
 
-import functools
 from pathlib import Path
 
 from robots.description import missing_files
@@ -37,6 +36,7 @@ DEFAULT_ROBOT = "jaco2"
 
 _REGISTRY: dict[str, RobotSpec] = {}
 _ALIASES: dict[str, str] = {}
+_LOADED: dict[str, Robot] = {}  # parsed once per process
 
 
 def register(name: str, spec: RobotSpec, aliases: tuple[str, ...] = (), replace: bool = False) -> None:
@@ -62,7 +62,16 @@ def register(name: str, spec: RobotSpec, aliases: tuple[str, ...] = (), replace:
     _REGISTRY[name] = spec
     for alias in aliases:
         _ALIASES[alias] = name
-    _load_cached.cache_clear()
+    _LOADED.pop(name, None)
+
+
+def unregister(name: str) -> None:
+    """Remove a robot (and its aliases) from the registry; unknown names are ignored."""
+    key = _ALIASES.get(name, name)
+    _REGISTRY.pop(key, None)
+    for alias in [a for a, target in _ALIASES.items() if target == key]:
+        del _ALIASES[alias]
+    _LOADED.pop(key, None)
 
 
 def registered_robots() -> list[str]:
@@ -87,11 +96,6 @@ def spec_of(name: str) -> RobotSpec:
     return _REGISTRY[key]
 
 
-@functools.cache
-def _load_cached(name: str) -> Robot:
-    return Robot(name, _REGISTRY[name])
-
-
 def load(name: str) -> Robot:
     """Load a robot by registry name (``"jaco2"``, ``"panda"``, ``"ur5"``); parsed once per process.
 
@@ -101,11 +105,14 @@ def load(name: str) -> Robot:
         InvalidDescription: its description cannot be used (one line saying why).
     """
     key = _ALIASES.get(name, name)
+    if key in _LOADED:
+        return _LOADED[key]
     spec = spec_of(name)
     problem = missing_files(spec.description, spec.package_dirs)
     if problem is not None:
         raise NotInstalled(f"robot '{key}' is not installed: {problem}")
-    return _load_cached(key)
+    _LOADED[key] = Robot(key, spec)
+    return _LOADED[key]
 
 
 register(

@@ -22,6 +22,8 @@ from pathlib import Path
 
 from robots.exceptions import InvalidSpec
 
+PACKAGE_URI = "package://"
+
 
 @dataclass(frozen=True)
 class RobotSpec:
@@ -30,7 +32,8 @@ class RobotSpec:
     Attributes:
         description: The robot's description file, MJCF (``<mujoco>``) or URDF (``<robot>``): the
             robot alone (no ``<include>``), every joint a revolute arm joint (lock grippers in the
-            file). Frames are its body / link names.
+            file). Frames are its body / link names. A ``package://<name>/...`` URI is resolved
+            like a mesh's (e.g. a file of the ``example-robot-data`` package).
         ee_frame: End-effector frame (default frame of the position, orientation, pose,
             manipulability and wall tasks).
         control_points: Default obstacle control points (frames whose origins are the points),
@@ -66,7 +69,12 @@ class RobotSpec:
     servo_kv: float = 50.0
 
     def __post_init__(self) -> None:
-        object.__setattr__(self, "description", Path(self.description))
+        description = self.description
+        if isinstance(description, str) and description.startswith(PACKAGE_URI):
+            from robots.description import package_search_path, resolve_package_uri
+
+            description = resolve_package_uri(description, package_search_path(self.package_dirs))
+        object.__setattr__(self, "description", Path(description))
         if self.workcell is not None:
             object.__setattr__(self, "workcell", Path(self.workcell))
         object.__setattr__(self, "package_dirs", tuple(Path(p) for p in self.package_dirs))
