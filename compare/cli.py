@@ -62,7 +62,7 @@ class _App(typer.Typer):
 app = _App(
     add_completion=False,
     no_args_is_help=True,
-    help="Set-based task-priority IK vs hierarchical QP vs mink on a Kinova Jaco², side by side.",
+    help="Set-based task-priority IK vs hierarchical QP vs mink on a robot arm ([scenario] robot), side by side.",
 )
 
 EXIT_USAGE = 2
@@ -338,6 +338,10 @@ def bench(
     repeats: Annotated[int, typer.Option(min=10, help="Timed calls per case.")] = 300,
     only: Annotated[str | None, typer.Option(help="solvers | sensing (default both).")] = None,
     methods: MethodsOpt = None,
+    config: Annotated[
+        Path | None,
+        typer.Option("--config", help="Scenario TOML: its robot, levels (case-2 hierarchy) and method settings."),
+    ] = None,
 ) -> None:
     """Solver and sensing micro-benchmarks with medians, p95 and ratios to the reference."""
     from compare.bench.__main__ import main as bench_main
@@ -349,6 +353,8 @@ def bench(
         argv += ["--only", only]
     if methods:
         argv += ["--methods", *methods]
+    if config is not None:
+        argv += ["--config", str(config)]
     code = bench_main(argv)
     if code:
         raise typer.Exit(code)

@@ -43,6 +43,8 @@ class ScenarioConfig(_Strict):
 
     Attributes:
         name: Scenario name written to ``summary.json``.
+        robot: Registry name of the arm (:func:`robots.available_robots`: ``jaco2``, ``panda``,
+            ``ur5``, or one added with :func:`robots.register`).
         kind: ``case1`` / ``case2`` (scripted, the paper), ``random`` (drawn from ``seed``) or
             ``scripted`` (any other fixed scenario, e.g. a random draw frozen as a file).
         duration_s: Simulated time [s], before ``time_scale``.
@@ -59,13 +61,14 @@ class ScenarioConfig(_Strict):
         drive_bandwidth_rad_s: λ of the ``decoupled`` drive [rad/s] (100: a 10 ms lag; at most
             250, i.e. λ·h ≤ 0.5 with the model's 2 ms physics step).
         seed: Seed of every random draw (random scenario, sensor noise).
-        start_q: Start configuration [rad]; default the model's ``home`` keyframe.
+        start_q: Start configuration [rad], one value per joint of ``robot``; default its home pose.
         fallback: What the loop commands when a solver fails: ``zero`` or ``hold_last``
             (the last safe command, decayed to zero over ``fallback_decay_s``).
         fallback_decay_s: Decay time of ``hold_last`` [s].
     """
 
     name: str = "scenario"
+    robot: str = robots.DEFAULT_ROBOT
     kind: Literal["case1", "case2", "random", "scripted"] = "case1"
     duration_s: float = Field(70.0, gt=0.0)
     time_scale: float = Field(1.0, gt=0.0, le=10.0)
@@ -76,7 +79,7 @@ class ScenarioConfig(_Strict):
     drive: Literal["decoupled", "servo"] = "decoupled"
     drive_bandwidth_rad_s: float = Field(100.0, gt=0.0, le=250.0)
     seed: int = Field(0, ge=0)
-    start_q: tuple[float, float, float, float, float, float, float] | None = None
+    start_q: tuple[float, ...] | None = None
     fallback: Literal["zero", "hold_last"] = "zero"
     fallback_decay_s: float = Field(0.2, gt=0.0)
 
@@ -184,8 +187,9 @@ class RandomConfig(_Strict):
         hand_speed_mps: Range of the hand's speed while reaching and withdrawing [m/s].
         near_radius_m: Range of the torso's closest approach to the base axis [m].
         reach_targets: What a visit's hand goes for, drawn uniformly: ``waypoint`` (near an EE
-            waypoint), ``link_4`` / ``link_6`` / ``link_7`` (that control point at the start
-            pose), ``push_ee`` (through the EE position toward the wall on the far side).
+            waypoint), a control point frame (that point at the start pose; ``control_points`` =
+            every control point of the hierarchy's obstacle tasks, in order), ``push_ee``
+            (through the EE position toward the wall on the far side).
         push_depth_m: Range of how far the hand goes past its target, away from the person [m].
         start_near_limit_probability: Per limited joint of a joint-limit task, probability that
             the start value is put just inside a safety threshold.
@@ -210,9 +214,7 @@ class RandomConfig(_Strict):
     dropout: tuple[float, float] = (0.0, 0.05)
     hand_speed_mps: tuple[float, float] = (0.5, 2.0)
     near_radius_m: tuple[float, float] = (0.7, 0.95)
-    reach_targets: list[Literal["waypoint", "link_4", "link_6", "link_7", "push_ee"]] = Field(
-        default_factory=lambda: ["waypoint", "link_4", "link_6", "link_7", "push_ee"], min_length=1
-    )
+    reach_targets: list[str] = Field(default_factory=lambda: ["waypoint", "control_points", "push_ee"], min_length=1)
     push_depth_m: tuple[float, float] = (0.05, 0.25)
     start_near_limit_probability: float = Field(0.3, ge=0.0, le=1.0)
     start_limit_offset_rad: tuple[float, float] = (0.005, 0.08)
@@ -434,7 +436,9 @@ class HardwareConfig(_Strict):
         stop_service: ``kinova_msgs/Stop`` of the driver (stops the arm, erases its trajectory FIFO).
         start_service: ``kinova_msgs/Start`` of the driver (re-enables commands after a stop).
         service_timeout_s: Wait for a service to exist / answer [s].
-        joint_names: Names of the 7 arm joints in the joint state, in model order.
+        joint_names: Names of the arm joints in the joint state, in model order (one per joint of
+            ``scenario.robot``); empty = the robot description's joint names (the kinova-ros
+            driver's own for the Jaco²). :func:`parse_config` fills them in.
         depth_topic: ``sensor_msgs/Image`` depth (16UC1 in mm or 32FC1 in m).
         camera_info_topic: ``sensor_msgs/CameraInfo`` of the depth image.
         connection_type: ``usb`` or ``ethernet``: the driver's ``connection_type``
@@ -476,9 +480,7 @@ class HardwareConfig(_Strict):
     stop_service: str = "/j2s7s300_driver/in/stop"
     start_service: str = "/j2s7s300_driver/in/start"
     service_timeout_s: float = Field(2.0, gt=0.0, le=30.0)
-    joint_names: tuple[str, str, str, str, str, str, str] = tuple(  # type: ignore[assignment]
-        f"j2s7s300_joint_{i}" for i in range(1, 8)
-    )
+    joint_names: tuple[str, ...] = ()
     depth_topic: str = "/kinect2/sd/image_depth_rect"
     camera_info_topic: str = "/kinect2/sd/camera_info"
     connection_type: Literal["usb", "ethernet"] = "usb"
@@ -590,6 +592,10 @@ class Config(_Strict):
         import_extensions(self.extensions.modules)
         return Hierarchy.from_description(self.hierarchy_description(), robot)
 
+    def load_robot(self) -> robots.Robot:
+        """The arm of ``[scenario] robot`` (parsed once per process)."""
+        return robots.load(self.scenario.robot)
+
 
 _EXTENSIONS: dict[str, ModuleType] = {}
 """Extension modules imported in this process, by their ``[extensions]`` entry."""
@@ -653,7 +659,15 @@ def parse_config(data: dict[str, Any], robot: robots.Robot | None = None) -> Con
         config = Config.model_validate(data)
     except ValidationError as exc:
         raise ConfigError(_format_validation_error(exc)) from None
-    robot = robot or robots.load("jaco2")
+    if robot is None:
+        try:
+            robot = config.load_robot()
+        except robots.RobotError as exc:
+            raise ConfigError(f"scenario.robot: {exc}") from None
+    _check_robot_keys(config, robot)
+    if not config.hardware.joint_names:
+        hardware = config.hardware.model_copy(update={"joint_names": tuple(robot.joint_names)})
+        config = config.model_copy(update={"hardware": hardware})
     try:
         config.build_hierarchy(robot)
     except (TpikError, robots.RobotError) as exc:
@@ -661,6 +675,26 @@ def parse_config(data: dict[str, Any], robot: robots.Robot | None = None) -> Con
         raise ConfigError(message if message.startswith("levels") else f"levels: {message}") from None
     _check_methods(config, robot)
     return config
+
+
+def _check_robot_keys(config: Config, robot: robots.Robot) -> None:
+    """Keys whose size or names depend on the arm: start pose, hardware joints, reach targets."""
+    sc = config.scenario
+    if sc.start_q is not None and len(sc.start_q) != robot.nq:
+        raise ConfigError(f"scenario.start_q: {len(sc.start_q)} values for the {robot.nq} joints of '{robot.name}'")
+    names = config.hardware.joint_names
+    if names and len(names) != robot.nq:
+        raise ConfigError(f"hardware.joint_names: {len(names)} names for the {robot.nq} joints of '{robot.name}'")
+    for i, target in enumerate(config.random.reach_targets):
+        if target in ("waypoint", "push_ee", "control_points"):
+            continue
+        try:
+            robot.frame_id(target)
+        except robots.UnknownFrame:
+            raise ConfigError(
+                f"random.reach_targets[{i}]: '{target}' is neither waypoint, push_ee, control_points "
+                f"nor a frame of '{robot.name}'"
+            ) from None
 
 
 def _check_methods(config: Config, robot: robots.Robot) -> None:

@@ -18,7 +18,7 @@ from compare.analysis.results import ResultsWriter
 from compare.campaign.random_scenario import realize
 from compare.config import Config
 from compare.config_hash import config_fingerprint, config_hash, method_settings
-from compare.loop.closed_loop import LoopOutput, LoopSettings, ObstacleSource, run_loop, warm_up_solver
+from compare.loop.closed_loop import LoopOutput, LoopSettings, ObstacleSource, control_points, run_loop, warm_up_solver
 from compare.loop.deadline import guard_solver
 from compare.loop.faults import FaultInjector, unsafe_commands
 from compare.loop.simulation import build_simulation
@@ -42,7 +42,13 @@ def set_task_infos(hierarchy: Hierarchy) -> tuple[SetTaskInfo, ...]:
 
 
 def run_meta(
-    config: Config, method: str, hierarchy: Hierarchy, out: LoopOutput, sensing: str, warmup_steps: int = 0
+    config: Config,
+    method: str,
+    hierarchy: Hierarchy,
+    robot: robots.Robot,
+    out: LoopOutput,
+    sensing: str,
+    warmup_steps: int = 0,
 ) -> RunMeta:
     """What the metrics need besides the per-step table, for a simulated or a hardware run.
 
@@ -50,6 +56,7 @@ def run_meta(
         config: The (realized) scenario.
         method: Method key.
         hierarchy: The hierarchy the run used (its set tasks' groups and thresholds).
+        robot: The arm (the run's control points: :func:`~compare.loop.closed_loop.control_points`).
         out: The loop's output (simulated and wall time).
         sensing: How obstacles were sensed (``depth``, ``geometric``, ``none``).
         warmup_steps: Untimed solves made before the first step (excluded from the timing).
@@ -64,6 +71,7 @@ def run_meta(
         wall_time_s=out.wall_time_s,
         sensing=sensing,
         set_tasks=set_task_infos(hierarchy),
+        control_points=control_points(hierarchy, robot),
         warmup_steps=warmup_steps,
     )
 
@@ -109,7 +117,7 @@ def run_method(config: Config, method: str, robot: robots.Robot, progress: Progr
     sc = config.scenario
     q0 = np.array(sc.start_q) if sc.start_q is not None else robot.home.copy()
     sim = build_simulation(config, robot, q0)
-    schedule, settings = loop_setup(config, robot.frame_position(q0, "end_effector"))
+    schedule, settings = loop_setup(config, robot.frame_position(q0, robot.ee_frame))
     task_id = None
     callback = None
     if progress is not None:
@@ -123,7 +131,7 @@ def run_method(config: Config, method: str, robot: robots.Robot, progress: Progr
     io = injector.wrap_io(sim.io)
     obstacles: ObstacleSource = sim.obstacles
     if sim.pipeline is not None and io is not sim.io:
-        obstacles = sim.pipeline.source(io.read_depth)  # depth mode: the pipeline reads the faulty frames
+        obstacles = sim.pipeline.source(io.read_depth, sim.control_points)  # depth mode: reads the faulty frames
     elif sim.pipeline is None:
         obstacles = injector.wrap_obstacles(obstacles)  # geometric mode: frame faults emulated
     warmup_steps = warm_up_solver(solver, hierarchy, robot, q0, sc.dt)  # before faults and timing
@@ -131,7 +139,8 @@ def run_method(config: Config, method: str, robot: robots.Robot, progress: Progr
     stale_after_s = (
         None if settings.stale_frame_periods is None else settings.stale_frame_periods * settings.sensing_period_s
     )
-    monitor = iso15066.SeparationMonitor(obstacles, stale_after_s) if config.iso15066.enabled else None
+    cps = control_points(hierarchy, robot)
+    monitor = iso15066.SeparationMonitor(obstacles, stale_after_s, cps) if config.iso15066.enabled else None
     try:
         out = run_loop(io, robot, hierarchy, solver, schedule, settings, monitor or obstacles, sim.truth, callback)
     finally:
@@ -141,11 +150,12 @@ def run_method(config: Config, method: str, robot: robots.Robot, progress: Progr
     steps = injector.annotate(out.steps)
     if monitor is not None:
         steps = pd.concat([steps, monitor.margins(steps, robot, config.iso15066)], axis=1)
-    summary = compute_summary(steps, run_meta(config, method, hierarchy, out, sc.sensing, warmup_steps))
+    summary = compute_summary(steps, run_meta(config, method, hierarchy, robot, out, sc.sensing, warmup_steps))
+    summary["robot"] = robot.name
     summary["faults"] = injector.summarize(steps, settings.sensing_period_s)
     summary["unsafe_commands"] = unsafe_commands(steps, robot.v_max)
     if monitor is not None:
-        summary["iso15066"] = iso15066.summarize(steps, sc.dt, config.iso15066)
+        summary["iso15066"] = iso15066.summarize(steps, sc.dt, config.iso15066, cps)
     summary["sensing"] = sc.sensing
     summary["solver_limit"] = solver_limit_entry(config, realtime=False)
     summary["events"] = out.events[:50]
@@ -228,7 +238,7 @@ def run_scenario(
     Raises:
         compare.analysis.exceptions.ResultsError: See :func:`open_results`.
     """
-    robot = robots.load("jaco2")
+    robot = config.load_robot()
     with open_results(config, Path(out_dir), config_text, robot, overwrite, make_plots) as writer:
         config = realize(config, robot)
         columns = (
@@ -258,14 +268,14 @@ def view_scenario(config: Config, method: str) -> None:
     """Run one method in the interactive MuJoCo viewer, in real time."""
     import mujoco.viewer
 
-    robot = robots.load("jaco2")
+    robot = config.load_robot()
     config = realize(config, robot)
     sc = config.scenario
     q0 = np.array(sc.start_q) if sc.start_q is not None else robot.home.copy()
     sim = build_simulation(config, robot, q0)
     hierarchy = config.build_hierarchy(robot)
     solver = guard_solver(make_method(method, robot, config.methods.settings.get(method)), config.solver_limit, sc.dt)
-    schedule, settings = loop_setup(config, robot.frame_position(q0, "end_effector"))
+    schedule, settings = loop_setup(config, robot.frame_position(q0, robot.ee_frame))
     with mujoco.viewer.launch_passive(sim.io.model, sim.io.data) as viewer:
         clock = {"tick": time.perf_counter()}
 

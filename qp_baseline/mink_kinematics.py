@@ -50,9 +50,7 @@ class MinkKinematics(Kinematics):
     def _body(self, name: str) -> int:
         body = self._bodies.get(name)
         if body is None:
-            self.robot.frame_id(name)  # raises UnknownFrame listing the frames
-            prefix = self.robot.spec.prefix
-            full = name if name.startswith(prefix) else prefix + name
+            full = self.robot.mujoco_body(name)  # raises UnknownFrame listing the frames
             body = int(mujoco.mj_name2id(self._model, mujoco.mjtObj.mjOBJ_BODY, full))
             self._bodies[name] = body
         return body

@@ -301,9 +301,7 @@ class MinkSolver(TimeLimited):
         for cls, kind, pos_cost, rot_cost in frame_kinds:
             if isinstance(task, cls):
                 frame = str(task.frame)  # type: ignore[attr-defined]
-                self.robot.frame_id(frame)
-                prefix = self.robot.spec.prefix
-                body = frame if frame.startswith(prefix) else prefix + frame
+                body = self.robot.mujoco_body(frame)
                 frame_task = mink.FrameTask(body, "body", position_cost=pos_cost, orientation_cost=rot_cost)
                 return _Adapter(task, frame_task, kind, body)
         return _Adapter(task, _StateTask(np.full(task.dim, cost)), "state")

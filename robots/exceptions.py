@@ -18,6 +18,21 @@ class UnknownRobot(RobotError):
         self.name = name
 
 
+class InvalidSpec(RobotError):
+    """A :class:`~robots.spec.RobotSpec` field has an impossible value."""
+
+
+class InvalidDescription(RobotError):
+    """A robot's description file cannot be used (unreadable, unsupported joint, missing limits...).
+
+    The message is one line: the robot, the file and the reason.
+    """
+
+
+class NotInstalled(RobotError):
+    """A registered robot's files are not on this machine (e.g. a package it needs is missing)."""
+
+
 class UnknownFrame(RobotError):
     """The frame name does not exist in the model."""
 

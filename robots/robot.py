@@ -1,4 +1,4 @@
-"""A robot model built once from its MJCF file, for MuJoCo and pinocchio alike.
+"""A robot model built once from its description file, for MuJoCo and pinocchio alike.
 
 The arm base frame of the paper is the root of the kinematic tree: every pose and Jacobian
 returned here is expressed in it.
@@ -6,89 +6,64 @@ returned here is expressed in it.
 
 from __future__ import annotations
 
-import functools
 import math
-from dataclasses import dataclass
-from pathlib import Path
 
 import mujoco
 import numpy as np
 import pinocchio as pin
 
-from robots.exceptions import InvalidConfiguration, UnknownFrame, UnknownRobot
+from robots import description as desc
+from robots.exceptions import InvalidConfiguration, InvalidDescription, UnknownFrame
 from robots.kinematics import Kinematics
-
-_HERE = Path(__file__).resolve().parent
-
-
-@dataclass(frozen=True)
-class RobotSpec:
-    """Where a robot's files are and how its frames are named.
-
-    Attributes:
-        model_file: MJCF of the robot alone (the single source of truth).
-        scene_file: MJCF of the robot in its scene (includes ``model_file``).
-        prefix: Prefix of every body/joint name in the MJCF (e.g. ``"j2s7s300_"``).
-        home: Name of the keyframe used as the default configuration.
-    """
-
-    model_file: Path
-    scene_file: Path
-    prefix: str
-    home: str = "home"
-
-
-_REGISTRY: dict[str, RobotSpec] = {
-    "jaco2": RobotSpec(
-        model_file=_HERE / "kinova_j2s7s300" / "j2s7s300.xml",
-        scene_file=_HERE / "kinova_j2s7s300" / "scene.xml",
-        prefix="j2s7s300_",
-    ),
-}
-_ALIASES = {"j2s7s300": "jaco2", "kinova_j2s7s300": "jaco2"}
-
-
-def available_robots() -> list[str]:
-    """Names accepted by :func:`load`."""
-    return sorted(_REGISTRY)
+from robots.spec import RobotSpec
 
 
 class Robot:
-    """Kinematic model of a serial arm with revolute joints.
+    """Kinematic model of a serial arm with revolute joints, from one description file.
 
-    Frame names are the MJCF body names, with or without the robot prefix
-    (``"link_4"`` and ``"j2s7s300_link_4"`` are the same frame). Joint numbers are 1-based,
-    as in the paper and the Kinova documentation.
+    Frame names are the description's body (MJCF) or link (URDF) names, with or without the
+    spec's prefix (``"link_4"`` and ``"j2s7s300_link_4"`` are the same frame). Joint numbers are
+    1-based, as in the paper and the makers' documentation.
 
     Attributes:
         name: Registry name.
-        spec: Files and naming.
+        spec: The robot's :class:`~robots.spec.RobotSpec`.
         nq: Number of joints ``n``.
-        joint_names: MJCF joint names, in chain order.
-        q_lower: Lower joint position limits [rad], ``-inf`` for continuous joints. Shape (n,).
-        q_upper: Upper joint position limits [rad], ``+inf`` for continuous joints. Shape (n,).
-        v_max: Joint velocity limits [rad/s] (the velocity actuators' ``ctrlrange``). Shape (n,).
-        home: The ``home`` keyframe configuration [rad]. Shape (n,).
+        joint_names: The description's joint names, in chain order.
+        q_lower: Lower joint position limits [rad], ``-inf`` for unlimited joints. Shape (n,).
+        q_upper: Upper joint position limits [rad], ``+inf`` for unlimited joints. Shape (n,).
+        v_max: Joint velocity limits [rad/s]: the spec's, else the description's (URDF
+            ``<limit velocity>``); never an actuator's range. Shape (n,).
+        home: Home configuration [rad] (the spec's keyframe or values). Shape (n,).
+        ee_frame: End-effector frame (the spec's).
+        control_points: Default obstacle control point frames (the spec's).
+        base_body: The arm's root body in MuJoCo (the subtree the self-filter removes).
+        frame_names: Every body frame, by its short name.
+
+    Raises:
+        InvalidDescription: the file cannot serve as the robot's single description (module
+            :mod:`robots.description`), or a spec frame / home pose does not fit it.
+        NotInstalled: a file the description needs is missing.
     """
 
     def __init__(self, name: str, spec: RobotSpec) -> None:
         self.name = name
         self.spec = spec
-        self.mj_model = mujoco.MjModel.from_xml_path(str(spec.model_file))
-        self.pin_model = pin.buildModelFromMJCF(str(spec.model_file))
+        path = spec.description
+        self.mj_model = desc.compile_spec(self.mujoco_spec(), path)
+        self.pin_model = desc.pinocchio_model(path)
         self._pin_data = self.pin_model.createData()
         self._generation = 0
+        self.joint_names = desc.check_joints(path, self.mj_model, self.pin_model)
         self.nq = int(self.pin_model.nq)
-        if self.mj_model.nq != self.nq:
-            raise ValueError(f"MuJoCo nq={self.mj_model.nq} != pinocchio nq={self.nq}")
-        self.joint_names = tuple(self.mj_model.joint(i).name for i in range(self.mj_model.njnt))
         limited = self.mj_model.jnt_limited.astype(bool)
         rng = self.mj_model.jnt_range
         self.q_lower = np.where(limited, rng[:, 0], -np.inf)
         self.q_upper = np.where(limited, rng[:, 1], np.inf)
-        self.v_max = self._velocity_limits()
-        key = self.mj_model.keyframe(spec.home)
-        self.home = np.array(key.qpos, dtype=float)
+        self.v_max = desc.velocity_limits(path, self.pin_model, self.joint_names, spec.velocity_limits)
+        self.home = self._home()
+        root = int(self.mj_model.body_rootid[self.mj_model.jnt_bodyid[0]])
+        self.base_body = self.mj_model.body(root).name
         self._frame_ids: dict[str, int] = {}
         self._frame_joint: dict[str, int] = {}
         for frame_id, frame in enumerate(self.pin_model.frames):
@@ -104,19 +79,58 @@ class Robot:
             entry = (fid, self._frame_joint[full])
             self._frame_by_any_name[full] = entry
             self._frame_by_any_name[self._short(full)] = entry
-        for axis in self.pin_model.joints[1:]:
-            if axis.shortname() != "JointModelRZ":
-                raise ValueError(f"only z-axis revolute joints are supported, got {axis.shortname()}")
+        for frame in (spec.ee_frame, *spec.control_points):
+            if frame not in self._frame_by_any_name:
+                raise InvalidDescription(
+                    f"{path}: spec frame '{frame}' is not in the description; frames: {', '.join(self.frame_names)}"
+                )
+        self.ee_frame = spec.ee_frame
+        self.control_points = spec.control_points
+        desc.check_agreement(path, self.mj_model, self.pin_model, self._check_configurations())
 
-    def _velocity_limits(self) -> np.ndarray:
-        v_max = np.full(self.nq, np.inf)
-        for i in range(self.mj_model.nu):
-            joint_id = int(self.mj_model.actuator_trnid[i, 0])
-            lo, hi = self.mj_model.actuator_ctrlrange[i]
-            v_max[joint_id] = min(abs(lo), abs(hi))
-        if not np.all(np.isfinite(v_max)):
-            raise ValueError("every joint needs a velocity actuator whose ctrlrange gives its limit")
-        return v_max
+    def mujoco_spec(self) -> mujoco.MjSpec:
+        """A fresh MuJoCo spec of the description alone (URDF options and meshes resolved)."""
+        return desc.mujoco_spec(self.spec.description, self.spec.package_dirs)
+
+    def workcell_spec(self) -> mujoco.MjSpec:
+        """A fresh spec of the robot's work cell (table, depth camera, person): :mod:`robots.workcell`."""
+        from robots.workcell import workcell_spec
+
+        return workcell_spec(self)
+
+    def workcell_model(self) -> mujoco.MjModel:
+        """The compiled work cell; the arm's joints are its first ``nq`` DoFs."""
+        from robots.workcell import workcell_model
+
+        return workcell_model(self)
+
+    def _home(self) -> np.ndarray:
+        path = self.spec.description
+        home = self.spec.home
+        if isinstance(home, str):
+            key = mujoco.mj_name2id(self.mj_model, mujoco.mjtObj.mjOBJ_KEY, home)
+            if key < 0:
+                keys = [self.mj_model.key(k).name for k in range(self.mj_model.nkey)]
+                raise InvalidDescription(f"{path}: no keyframe '{home}' for the home pose; keyframes: {keys}")
+            q = np.array(self.mj_model.key_qpos[key], dtype=float)
+        else:
+            q = np.array(home, dtype=float)
+            if q.shape != (self.nq,):
+                raise InvalidDescription(f"{path}: home has {q.size} values for {self.nq} joints")
+        outside = (q < self.q_lower - 1e-9) | (q > self.q_upper + 1e-9)
+        if outside.any():
+            j = int(np.flatnonzero(outside)[0])
+            raise InvalidDescription(
+                f"{path}: home q{j + 1} = {q[j]:.4g} rad is outside [{self.q_lower[j]:.4g}, {self.q_upper[j]:.4g}]"
+            )
+        return q
+
+    def _check_configurations(self) -> list[np.ndarray]:
+        """Home, zero (clipped into the limits) and three seeded random configurations."""
+        lo = np.where(np.isfinite(self.q_lower), self.q_lower, -math.pi)
+        hi = np.where(np.isfinite(self.q_upper), self.q_upper, math.pi)
+        rng = np.random.default_rng(0)
+        return [self.home, np.clip(np.zeros(self.nq), lo, hi), *(rng.uniform(lo, hi) for _ in range(3))]
 
     def _short(self, name: str) -> str:
         return name.removeprefix(self.spec.prefix)
@@ -127,6 +141,12 @@ class Robot:
         if entry is None:
             raise UnknownFrame(name, self.frame_names)
         return entry[0]
+
+    def mujoco_body(self, name: str) -> str:
+        """Name of the MuJoCo body of a frame given by full or short name (mink's frame names)."""
+        self.frame_id(name)  # raises UnknownFrame listing the frames
+        prefix = self.spec.prefix
+        return name if name.startswith(prefix) else prefix + name
 
     def frame_joint(self, name: str) -> int:
         """1-based number of the joint whose motion moves the frame's origin last."""
@@ -187,21 +207,4 @@ class Robot:
         return self.kinematics(q).partial_position_jacobian(name, joint)
 
     def __repr__(self) -> str:
-        return f"Robot(name={self.name!r}, nq={self.nq}, file={self.spec.model_file.name!r})"
-
-
-@functools.cache
-def _load_cached(name: str) -> Robot:
-    return Robot(name, _REGISTRY[name])
-
-
-def load(name: str) -> Robot:
-    """Load a robot by registry name (``"jaco2"``); the model is parsed once per process.
-
-    Raises:
-        UnknownRobot: ``name`` is not registered.
-    """
-    key = _ALIASES.get(name, name)
-    if key not in _REGISTRY:
-        raise UnknownRobot(name, available_robots())
-    return _load_cached(key)
+        return f"Robot(name={self.name!r}, nq={self.nq}, file={self.spec.description.name!r})"

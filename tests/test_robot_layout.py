@@ -13,11 +13,11 @@ FOLDER_FILES = ("j2s7s300.xml", "scene.xml", "README.md", "LICENSE", "CHANGELOG.
 
 @pytest.mark.parametrize("filename", FOLDER_FILES)
 def test_model_folder_has_menagerie_files(jaco, filename):
-    assert (jaco.spec.model_file.parent / filename).is_file()
+    assert (jaco.spec.description.parent / filename).is_file()
 
 
 def test_scene_includes_robot_and_steps_without_warnings(jaco):
-    model = mujoco.MjModel.from_xml_path(str(jaco.spec.scene_file))
+    model = mujoco.MjModel.from_xml_path(str(jaco.spec.description.parent / "scene.xml"))
     data = mujoco.MjData(model)
     mujoco.mj_resetDataKeyframe(model, data, model.keyframe("home").id)
     for _ in range(500):
@@ -35,8 +35,8 @@ def test_velocity_limits_and_ranges_match_fact_sheet(jaco):
 
 
 def test_unknown_robot_lists_available():
-    with pytest.raises(robots.UnknownRobot, match="available: jaco2"):
-        robots.load("ur5")
+    with pytest.raises(robots.UnknownRobot, match="available: jaco2, panda, ur5"):
+        robots.load("ur10")
 
 
 def test_unknown_frame_lists_available(jaco):

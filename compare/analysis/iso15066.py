@@ -52,7 +52,7 @@ import numpy as np
 import pandas as pd
 
 from compare.config import Iso15066Config
-from compare.loop.closed_loop import CONTROL_POINTS, DistanceResultLike, ObstacleSource, sensing_problem
+from compare.loop.closed_loop import DistanceResultLike, ObstacleSource, sensing_problem
 from compare.sensing.scene import control_point_positions
 from robots import Kinematics, Robot
 
@@ -176,12 +176,12 @@ class SeparationMonitor:
         source: The obstacle source the loop would use.
         stale_after_s: The loop's stale-frame age [s] (``stale_frame_periods`` × period), so the
             monitor trusts exactly the updates the loop trusts.
-        frames: Control point frames.
+        frames: Control point frames (``compare.loop.closed_loop.control_points``).
     """
 
     source: ObstacleSource
     stale_after_s: float | None = None
-    frames: tuple[str, ...] = CONTROL_POINTS
+    frames: tuple[str, ...] = ()
     updates: list[_Update] = field(default_factory=list)
 
     def update(self, t: float, kin: Kinematics) -> DistanceResultLike:
@@ -294,9 +294,7 @@ class SeparationMonitor:
         return pd.DataFrame(out, index=steps.index)
 
 
-def summarize(
-    steps: pd.DataFrame, dt: float, cfg: Iso15066Config, control_points: Sequence[str] = CONTROL_POINTS
-) -> dict[str, Any]:
+def summarize(steps: pd.DataFrame, dt: float, cfg: Iso15066Config, control_points: Sequence[str]) -> dict[str, Any]:
     """The ``iso15066`` entry of a method in ``summary.json`` from the ``iso_*`` columns.
 
     Returns:

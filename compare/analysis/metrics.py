@@ -74,8 +74,6 @@ Every group, these and any other a set task names (:attr:`tpik.tasks.SetTask.gro
 new safety task's), is also under ``"groups"``: ``summary["groups"][<group>]`` (:func:`task_groups`).
 """
 
-DEFAULT_CONTROL_POINTS: tuple[str, ...] = ("link_4", "link_6", "link_7")
-
 
 class MetricsError(CompareError, ValueError):
     """The per-step table does not match the run description (missing columns, empty table)."""
@@ -146,7 +144,8 @@ class RunMeta:
         wall_time_s: Wall-clock time of the loop [s].
         sensing: ``depth`` or ``geometric``.
         set_tasks: Every scalar set-based task of the hierarchy.
-        control_points: Frames of the obstacle control points (``dist_*:<frame>`` columns).
+        control_points: Frames of the obstacle control points (``dist_*:<frame>`` columns;
+            ``compare.loop.closed_loop.control_points``); none = no distances reported.
         warmup_steps: Untimed solves made before the first control step (not in the table,
             hence not in the solve-time percentiles).
     """
@@ -159,7 +158,7 @@ class RunMeta:
     wall_time_s: float
     sensing: str
     set_tasks: tuple[SetTaskInfo, ...]
-    control_points: tuple[str, ...] = DEFAULT_CONTROL_POINTS
+    control_points: tuple[str, ...] = ()
     warmup_steps: int = 0
 
 

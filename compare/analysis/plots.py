@@ -400,7 +400,9 @@ def plot_run(results_dir: Path) -> list[Path]:
             continue
         paths += _plot_method(steps, name, msum, out)
     if methods:
-        title = f"{summary.get('scenario', '')} (seed {summary.get('seed', '?')}): cost vs safety"
+        robot = next((m["robot"] for m in methods.values() if m.get("robot")), None)  # the config's arm
+        arm = f"{robot}, " if robot else ""
+        title = f"{summary.get('scenario', '')} ({arm}seed {summary.get('seed', '?')}): cost vs safety"
         path = plot_comparison(methods, out / "comparison.png", title)
         if path is not None:
             paths.append(path)

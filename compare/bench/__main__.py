@@ -5,6 +5,7 @@ Examples::
     python -m compare.bench                                   # solvers and sensing
     python -m compare.bench --only solvers --methods tpik mink --repeats 500 --json bench.json
     python -m compare.bench --only sensing
+    python -m compare.bench --only solvers --config configs/panda_case2.toml   # that config's robot and levels
 
 Prints tables (medians, p95, ratio to ``mink-native`` — the same problem written with mink alone
 — measured in the same interleaved run; ``mink`` is the project's adapter, timed beside it) and,
@@ -27,6 +28,7 @@ from rich.table import Table
 from compare.bench.solvers import DEFAULT_METHODS, run_candidate_bench, run_solver_bench
 from compare.bench.timing import BenchRow
 from compare.versions import versions
+from robots import DEFAULT_ROBOT
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -40,6 +42,13 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--repeats", type=int, default=300, help="timed calls per method and case (default 300)")
     p.add_argument("--json", type=Path, default=None, help="write the results as JSON to this file")
     p.add_argument("--only", choices=("solvers", "sensing"), default=None, help="run one group only")
+    p.add_argument(
+        "--config",
+        type=Path,
+        default=None,
+        help="scenario TOML whose robot, levels (the case-2 hierarchy) and method settings are used "
+        "(default: the paper's case 2 on the default robot)",
+    )
     p.add_argument(
         "--max-candidates",
         type=int,
@@ -108,6 +117,16 @@ def main(argv: list[str] | None = None) -> int:
     if not -1 <= args.max_candidates <= 12:
         print("--max-candidates must be in -1..12", file=sys.stderr)
         return 2
+    robot, description, settings = None, None, None
+    if args.config is not None:
+        from compare.config import ConfigError, load_config
+
+        try:
+            config, _ = load_config(args.config)
+        except ConfigError as exc:
+            print(f"error: {exc}", file=sys.stderr)
+            return 2
+        robot, description, settings = config.load_robot(), config.hierarchy_description(), config.methods.settings
     console = Console(width=max(Console().width, 132))
     info = versions()
     console.print(
@@ -116,11 +135,12 @@ def main(argv: list[str] | None = None) -> int:
     )
     rows: list[BenchRow] = []
     if args.only in (None, "solvers"):
-        case2 = run_solver_bench(list(args.methods), args.repeats)
-        console.print(solver_table(case2, "Solvers, case-2 hierarchy: one step incl. kinematics"))
+        case2 = run_solver_bench(list(args.methods), args.repeats, robot, description, settings)
+        where = f"{args.config} ({robot.name})" if robot is not None else "case-2 hierarchy"
+        console.print(solver_table(case2, f"Solvers, {where}: one step incl. kinematics"))
         rows += case2
         if args.max_candidates >= 0:
-            cands = run_candidate_bench(args.repeats, args.max_candidates)
+            cands = run_candidate_bench(args.repeats, args.max_candidates, robot=robot)
             console.print(solver_table(cands, "TPIK vs number of candidate set tasks |C|"))
             rows += cands
     if args.only in (None, "sensing"):
@@ -129,13 +149,14 @@ def main(argv: list[str] | None = None) -> int:
         except ImportError as exc:
             console.print(f"note: sensing benchmark unavailable: {exc}")
         else:
-            sens = sensing.run_sensing_bench(args.repeats)
+            sens = sensing.run_sensing_bench(args.repeats, robot)
             console.print(_generic_table(sens, "Sensing, one 512×424 frame"))
             rows += sens
     if args.json is not None:
         payload = {
             "versions": info,
             "command": "python -m compare.bench " + shlex.join(args_list),
+            "robot": robot.name if robot is not None else DEFAULT_ROBOT,
             "results": [r.to_dict() for r in rows],
         }
         args.json.parent.mkdir(parents=True, exist_ok=True)

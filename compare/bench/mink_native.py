@@ -136,12 +136,11 @@ class MinkCase2:
 
     Args:
         model: The arm's MuJoCo model (``robot.mj_model``).
-        prefix: Name prefix of the model's bodies and joints (``"j2s7s300_"``).
-        v_max: Joint velocity limits by joint name [rad/s].
-        joints: (joint number, safety lower, safety upper) [rad]; default case 2: joints 2, 4, 6,
-            0.1 rad inside the model's range.
-        walls: (normal n, offset d) of each wall, σ = nᵀp − d ≥ 0 for the EE; default the case-2
-            box x, y ∈ [−0.5, 0.5] m, z ∈ [0.2, 0.9] m.
+        v_max: Joint velocity limits by MuJoCo joint name [rad/s].
+        joints: (MuJoCo joint name, safety lower, safety upper) of each joint limit [rad].
+        walls: (normal n, offset d) of each wall, σ = nᵀp − d ≥ 0 for the EE.
+        ee_body: MuJoCo body of the EE (position task and walls).
+        control_bodies: MuJoCo bodies of the obstacle control points, in :meth:`set_scene` order.
         safety_distance: Safety threshold of the obstacle distances [m].
         gains: Gains [1/s] of ``"joint_limits"``, ``"walls"``, ``"obstacles"``, ``"position"``.
         level_cost_ratio: ρ of the soft return (levels above the EE task: ρ, ρ², ρ³).
@@ -152,34 +151,19 @@ class MinkCase2:
     def __init__(
         self,
         model: mujoco.MjModel,
-        prefix: str,
         v_max: Mapping[str, float],
-        joints: Sequence[tuple[int, float, float]] | None = None,
-        walls: Sequence[tuple[np.ndarray, float]] | None = None,
+        joints: Sequence[tuple[str, float, float]],
+        walls: Sequence[tuple[np.ndarray, float]],
+        ee_body: str,
+        control_bodies: Sequence[str],
         safety_distance: float = 0.35,
         gains: Mapping[str, float] | None = None,
         level_cost_ratio: float = 10.0,
     ) -> None:
         self.gains = {"joint_limits": 1.0, "walls": 1.0, "obstacles": 1.0, "position": 1.0, **(gains or {})}
         self.configuration = mink.Configuration(model)
-        if joints is None:
-            ranges = [model.jnt_range[model.joint(f"{prefix}joint_{j}").id] for j in (2, 4, 6)]
-            joints = [(j, lo + 0.1, hi - 0.1) for j, (lo, hi) in zip((2, 4, 6), ranges, strict=True)]
-        if walls is None:
-            walls = []
-            for axis, (lower, upper) in enumerate(((-0.5, 0.5), (-0.5, 0.5), (0.2, 0.9))):
-                n = np.eye(3)[axis]
-                walls += [(n, lower), (-n, -upper)]  # σ = p − lower ≥ 0, σ = upper − p ≥ 0
-        self.rows = _SafetyRows(
-            model,
-            [(f"{prefix}joint_{j}", lo, hi) for j, lo, hi in joints],
-            f"{prefix}end_effector",
-            walls,
-            [f"{prefix}link_{k}" for k in (4, 6, 7)],
-            safety_distance,
-            self.gains,
-        )
-        self.ee_task = mink.FrameTask(f"{prefix}end_effector", "body", position_cost=1.0, orientation_cost=0.0)
+        self.rows = _SafetyRows(model, joints, ee_body, walls, control_bodies, safety_distance, self.gains)
+        self.ee_task = mink.FrameTask(ee_body, "body", position_cost=1.0, orientation_cost=0.0)
         self.safety_return = _SafetyReturn(self.rows, level_cost_ratio)
         self.tasks = [self.ee_task, self.safety_return]
         self.limits = [
@@ -189,7 +173,7 @@ class MinkCase2:
         ]
 
     def set_scene(self, obstacles: Sequence[np.ndarray | None], target: np.ndarray) -> None:
-        """Closest obstacle point per control point (link 4, 6, 7; None = nothing in range) and EE target [m]."""
+        """Closest obstacle point per control point (``control_bodies`` order; None: out of range), EE target [m]."""
         self.rows.obstacles = [None if o is None else np.asarray(o, dtype=float) for o in obstacles]
         self._target = np.asarray(target, dtype=float)
 

@@ -47,14 +47,16 @@ CASE = "512x424-rho0.5"
 RHO_M = 0.5
 
 
-def _bench_scene() -> tuple[mujoco.MjModel, mujoco.MjData, dict[str, np.ndarray], np.ndarray]:
+def _bench_scene(
+    robot: robots.Robot,
+) -> tuple[mujoco.MjModel, mujoco.MjData, dict[str, np.ndarray], np.ndarray]:
     """Work cell at ``home``, the person 0.7 m from the base reaching past the hand (all 3 points in range)."""
-    model = load_workcell()
+    model = load_workcell(robot.name)
     data = make_data(model)
-    jaco = robots.load("jaco2")
-    q = np.array(data.qpos[: jaco.nq])
-    points = control_point_positions(jaco.kinematics(q))
-    rx, ry, rz = (float(v) for v in points["link_7"] + np.array([0.05, 0.25, 0.0]))
+    q = np.array(data.qpos[: robot.nq])
+    points = control_point_positions(robot.kinematics(q), robot.control_points)
+    hand = robot.control_points[-1]
+    rx, ry, rz = (float(v) for v in points[hand] + np.array([0.05, 0.25, 0.0]))
     reach = (rx, ry, rz)
     person = Person(model, [PersonKeyframe(0.0, (0.05, 0.7), yaw=-math.pi / 2, right_hand=reach)])
     person.apply(0.0, data)
@@ -62,18 +64,19 @@ def _bench_scene() -> tuple[mujoco.MjModel, mujoco.MjData, dict[str, np.ndarray]
     return model, data, points, q
 
 
-def run_sensing_bench(repeats: int = 200) -> list[BenchRow]:
+def run_sensing_bench(repeats: int = 200, robot: robots.Robot | None = None) -> list[BenchRow]:
     """Time the sensing stages on the case ``512x424-rho0.5`` (module docstring).
 
     Args:
         repeats: Timed calls per stage (after warm-up).
+        robot: The arm in the work cell (default :data:`robots.DEFAULT_ROBOT`).
 
     Returns:
         Rows ``depth-render``, ``self-filter``, ``depth-distance``, ``depth-kdtree-baseline``,
         ``geometric-distance``; ``extra`` holds pixel counts, the speed-up of the depth-space
         distance over the baseline and the whole pipeline's median per frame.
     """
-    model, data, points, q = _bench_scene()
+    model, data, points, q = _bench_scene(robot or robots.load(robots.DEFAULT_ROBOT))
     pipe = DepthPipeline(model, DepthSensingSettings(rho_m=RHO_M))
     try:
         frame = pipe.render(data)

@@ -29,7 +29,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 import robots
-from compare.bench.solver_cases import CONTROL_POINTS, apply_state, case2_hierarchy, case2_states
+from compare.bench.solver_cases import apply_state, case2_hierarchy, case2_states
 from compare.bench.timing import BenchRow, summarize, time_calls
 from robots import Robot
 from tpik.hierarchy import Hierarchy, Level
@@ -115,7 +115,8 @@ def native_for(robot: Robot, hierarchy: Hierarchy) -> MinkCase2:
     safety_distance, target = 0.35, None
     for task in hierarchy.tasks:
         if isinstance(task, JointLimitTask):
-            joints.append((task.joint, task.thresholds.safety_lower, task.thresholds.safety_upper))
+            th = task.thresholds
+            joints.append((robot.joint_names[task.joint - 1], th.safety_lower, th.safety_upper))
             gains["joint_limits"] = task.gain
         elif isinstance(task, VirtualWallTask):
             walls.append((task.normal, task.offset))
@@ -128,8 +129,11 @@ def native_for(robot: Robot, hierarchy: Hierarchy) -> MinkCase2:
             target = task.target
             gains["position"] = task.gain
     velocities = {name: float(v) for name, v in zip(robot.joint_names, robot.v_max, strict=True)}
-    native = MinkCase2(robot.mj_model, robot.spec.prefix, velocities, joints, walls, safety_distance, gains)
-    native.set_scene([obstacles.get(cp) for cp in CONTROL_POINTS], target if target is not None else np.zeros(3))
+    bodies = [robot.mujoco_body(frame) for frame in obstacles]
+    native = MinkCase2(
+        robot.mj_model, velocities, joints, walls, robot.mujoco_body(robot.ee_frame), bodies, safety_distance, gains
+    )
+    native.set_scene(list(obstacles.values()), target if target is not None else np.zeros(3))
     return native
 
 
@@ -172,27 +176,37 @@ def _with_ratios(rows: list[BenchRow]) -> list[BenchRow]:
     return out
 
 
-def run_solver_bench(method_names: list[str], repeats: int) -> list[BenchRow]:
+def run_solver_bench(
+    method_names: list[str],
+    repeats: int,
+    robot: Robot | None = None,
+    description: Sequence[Mapping[str, Any]] | None = None,
+    settings: Mapping[str, Mapping[str, Any]] | None = None,
+) -> list[BenchRow]:
     """Time one control step of each method on the case-2 states (``case2-active0/1/3``).
 
     Args:
         method_names: Names for :func:`compare.methods.make_method` (``tpik``, ``mink``, ...);
             a method whose import or construction fails is skipped with a printed note.
         repeats: Timed calls per method and case.
+        robot: The arm (default :data:`robots.DEFAULT_ROBOT`).
+        description: The case-2 levels (a config's); default the robot's
+            :func:`~compare.bench.solver_cases.case2_description`.
+        settings: Per-method settings (a config's ``[methods.settings]``).
 
     Returns:
         One row per (method, case), ``mink-native`` first: median and p95 [µs], ``extra`` with
         the build/solve split reported by the solver (``build_us``, ``solve_us``), the active set
         size, and ``ratio_to_mink`` (to ``mink-native``, timed in the same interleaved run).
     """
-    robot = robots.load("jaco2")
-    solvers = build_methods(method_names, robot)
-    hierarchies = {name: case2_hierarchy(robot) for name in solvers}  # one per method: solvers may cache
+    robot = robot or robots.load(robots.DEFAULT_ROBOT)
+    solvers = build_methods(method_names, robot, settings)
+    hierarchies = {name: case2_hierarchy(robot, description) for name in solvers}  # one per method: solvers may cache
     rows: list[BenchRow] = []
-    for state in case2_states(robot):
+    for state in case2_states(robot, description=description):
         for h in hierarchies.values():
             apply_state(h, state)
-        reference = case2_hierarchy(robot)
+        reference = case2_hierarchy(robot, description)
         apply_state(reference, state)
         native = native_for(robot, reference)
         rows += _rows_for(robot, solvers, hierarchies, state.q, state.name, repeats, native)
@@ -210,9 +224,9 @@ def candidate_hierarchy(robot: Robot, q: np.ndarray, k: int) -> Hierarchy:
     if not 0 <= k <= 12:
         raise ValueError(f"k must be in 0..12, got {k}")
     kin = robot.kinematics(q)
-    ee = kin.frame_position("end_effector")
+    ee = kin.frame_position(robot.ee_frame)
     obstacles: list[Task] = []
-    for i, frame in enumerate(CONTROL_POINTS):
+    for i, frame in enumerate(robot.control_points[:3]):
         task = ObstacleDistanceTask(f"obstacle_{frame}", frame, Thresholds(0.1, 0.35, math.inf, math.inf, 0.05))
         offset = 0.37 if i < k else 1.5
         task.set_obstacle(kin.frame_position(frame) + offset * np.array([0.0, 0.6, 0.8]))
@@ -226,7 +240,7 @@ def candidate_hierarchy(robot: Robot, q: np.ndarray, k: int) -> Hierarchy:
         walls.append(
             VirtualWallTask(
                 f"wall_{'xyz'[axis]}_{'min' if sign > 0 else 'max'}",
-                "end_effector",
+                robot.ee_frame,
                 normal,
                 sign * ee[axis] - gap,
                 wall_th,
@@ -238,7 +252,7 @@ def candidate_hierarchy(robot: Robot, q: np.ndarray, k: int) -> Hierarchy:
         above = 0.02 if 9 + i < k else 1.0
         th = Thresholds(qj - 2.0, qj - 1.0, qj + above, qj + above + 0.1, 0.05)
         limits.append(JointLimitTask(f"joint_limit_{joint}", joint, robot.nq, th))
-    target = PositionTask("position_end_effector", target=ee + np.array([0.05, -0.05, 0.05]))
+    target = PositionTask(f"position_{robot.ee_frame}", robot.ee_frame, target=ee + np.array([0.05, -0.05, 0.05]))
     return Hierarchy(
         [
             Level("joint_limits", tuple(limits)),
@@ -250,7 +264,10 @@ def candidate_hierarchy(robot: Robot, q: np.ndarray, k: int) -> Hierarchy:
 
 
 def run_candidate_bench(
-    repeats: int, max_candidates: int = 8, method_names: Sequence[str] = ("tpik", "tpik-ss")
+    repeats: int,
+    max_candidates: int = 8,
+    method_names: Sequence[str] = ("tpik", "tpik-ss"),
+    robot: Robot | None = None,
 ) -> list[BenchRow]:
     """TPIK step time against the number of candidate set tasks |C| (cases ``tpik-candidates-<k>``).
 
@@ -262,8 +279,9 @@ def run_candidate_bench(
         max_candidates: Largest |C| (≤ 12).
         method_names: Methods timed at every |C| (``mink-native`` on the same hierarchy is the
             reference).
+        robot: The arm (default :data:`robots.DEFAULT_ROBOT`).
     """
-    robot = robots.load("jaco2")
+    robot = robot or robots.load(robots.DEFAULT_ROBOT)
     q = case2_states(robot)[0].q
     solvers = _candidate_methods(robot, method_names)
     rows: list[BenchRow] = []

@@ -26,8 +26,9 @@ The ranges are in ``[random]`` (:class:`compare.config.RandomConfig`); the defau
   short of its target, moves it through the target and ``push_depth_m`` beyond (away from the
   person) at a hand speed drawn from ``hand_speed_mps`` (up to 2.0 m/s), holds, withdraws at the
   same speed and walks away. The target is drawn from ``reach_targets``: near a waypoint, a
-  control point (``link_4``, ``link_6``, ``link_7``) at the start pose, or the EE (``push_ee``:
-  pushing it toward the far wall).
+  control point at the start pose (``control_points`` stands for every control point of the
+  obstacle tasks, in order: for the Jaco² ``link_4``, ``link_6``, ``link_7``), or the EE
+  (``push_ee``: pushing it toward the far wall).
 """
 
 from __future__ import annotations
@@ -39,6 +40,7 @@ import numpy as np
 
 import robots
 from compare.config import Config, PersonKeyframe, RandomConfig
+from compare.loop.closed_loop import control_points
 from tpik.tasks import JointLimitTask, ObstacleDistanceTask, SetTask, VirtualWallTask
 
 # Where the person stands when not visiting: this far from the base [m].
@@ -53,17 +55,21 @@ def realize(config: Config, robot: robots.Robot | None = None) -> Config:
     """Return a concrete scenario for ``config.scenario.seed`` (identity for scripted kinds)."""
     if config.scenario.kind != "random":
         return config
-    robot = robot or robots.load("jaco2")
+    robot = robot or config.load_robot()
     rng = np.random.default_rng(config.scenario.seed)
     rc = config.random
-    set_tasks = config.build_hierarchy(robot).set_tasks
+    hierarchy = config.build_hierarchy(robot)
+    set_tasks = hierarchy.set_tasks
+    cps = control_points(hierarchy, robot)
 
-    start_q = _start_pose(rng, robot, rc, set_tasks)
-    waypoints = _waypoints(rng, rc, set_tasks, config.waypoints.tolerance_m)
+    start_q = _start_pose(rng, robot, rc, set_tasks, cps)
+    waypoints = _waypoints(rng, rc, set_tasks, config.waypoints.tolerance_m, robot.ee_frame)
     kin = robot.kinematics(start_q)
-    targets = {name: kin.frame_position(name) for name in ("link_4", "link_6", "link_7", "end_effector")}
+    reach = reach_target_kinds(rc.reach_targets, cps)
+    targets = {kind: kin.frame_position(kind) for kind in reach if kind not in ("waypoint", "push_ee")}
+    targets["push_ee"] = kin.frame_position(robot.ee_frame)
     duration = config.scenario.duration_s
-    keyframes = _person_path(rng, duration, rc, waypoints, targets)
+    keyframes = _person_path(rng, duration, rc, waypoints, targets, reach)
 
     sensor = config.sensor.model_copy(
         update={"noise_std_m": float(rng.uniform(*rc.noise_std_m)), "dropout": float(rng.uniform(*rc.dropout))}
@@ -76,8 +82,20 @@ def realize(config: Config, robot: robots.Robot | None = None) -> Config:
     )
 
 
+def reach_target_kinds(reach_targets: list[str], cps: tuple[str, ...]) -> list[str]:
+    """``[random] reach_targets`` with ``control_points`` expanded to the control point frames."""
+    out: list[str] = []
+    for kind in reach_targets:
+        out.extend(cps if kind == "control_points" else [kind])
+    return out
+
+
 def _start_pose(
-    rng: np.random.Generator, robot: robots.Robot, rc: RandomConfig, set_tasks: tuple[SetTask, ...]
+    rng: np.random.Generator,
+    robot: robots.Robot,
+    rc: RandomConfig,
+    set_tasks: tuple[SetTask, ...],
+    cps: tuple[str, ...],
 ) -> np.ndarray:
     """A start pose inside every set task's safety thresholds, some joints near their limits."""
     lo = np.where(np.isfinite(robot.q_lower), robot.q_lower + 0.2, -np.inf)
@@ -92,27 +110,27 @@ def _start_pose(
                 th = task.thresholds
                 inset = float(rng.uniform(*rc.start_limit_offset_rad))
                 q[task.joint - 1] = th.safety_lower + inset if rng.uniform() < 0.5 else th.safety_upper - inset
-        if _inside_safety(robot, q, checked):
+        if _inside_safety(robot, q, checked, cps):
             return q
     return plain
 
 
-def _inside_safety(robot: robots.Robot, q: np.ndarray, tasks: list[SetTask]) -> bool:
+def _inside_safety(robot: robots.Robot, q: np.ndarray, tasks: list[SetTask], cps: tuple[str, ...]) -> bool:
     kin = robot.kinematics(q)
     for task in tasks:
         sigma = task.compute_value_and_jacobian(kin)[0]
         th = task.thresholds
         if not th.safety_lower <= sigma <= th.safety_upper:
             return False
-    return all(kin.frame_position(f)[2] > 0.05 for f in ("link_4", "link_6", "link_7", "end_effector"))
+    return all(kin.frame_position(f)[2] > 0.05 for f in (*cps, robot.ee_frame))
 
 
-def _wall_box(set_tasks: tuple[SetTask, ...]) -> tuple[np.ndarray, np.ndarray] | None:
+def _wall_box(set_tasks: tuple[SetTask, ...], ee_frame: str) -> tuple[np.ndarray, np.ndarray] | None:
     """Lower and upper wall positions (x, y, z) of axis-aligned EE walls; None if there are none."""
     lower = np.full(3, np.nan)
     upper = np.full(3, np.nan)
     for task in set_tasks:
-        if not isinstance(task, VirtualWallTask) or task.frame != "end_effector":
+        if not isinstance(task, VirtualWallTask) or task.frame != ee_frame:
             continue
         axis = int(np.argmax(np.abs(task.normal)))
         if abs(abs(task.normal[axis]) - 1.0) > 1e-9:
@@ -128,10 +146,10 @@ def _wall_box(set_tasks: tuple[SetTask, ...]) -> tuple[np.ndarray, np.ndarray] |
 
 
 def _waypoints(
-    rng: np.random.Generator, rc: RandomConfig, set_tasks: tuple[SetTask, ...], tolerance_m: float
+    rng: np.random.Generator, rc: RandomConfig, set_tasks: tuple[SetTask, ...], tolerance_m: float, ee_frame: str
 ) -> list[tuple[float, float, float]]:
     wl, wu = np.array(rc.workspace_lower), np.array(rc.workspace_upper)
-    walls = _wall_box(set_tasks)
+    walls = _wall_box(set_tasks, ee_frame)
     out = []
     for _ in range(rc.waypoints):
         p = rng.uniform(wl, wu)
@@ -153,6 +171,7 @@ def _person_path(
     rc: RandomConfig,
     waypoints: list[tuple[float, float, float]],
     targets: dict[str, np.ndarray],
+    reach: list[str],
 ) -> list[PersonKeyframe]:
     """Keyframes of ``rc.person_visits`` visits (module docstring)."""
     first_side = rng.uniform(-math.pi, math.pi)
@@ -167,7 +186,7 @@ def _person_path(
         hand_speed = float(rng.uniform(*rc.hand_speed_mps))
         side = float(rng.uniform(-math.pi, math.pi))
         near = float(rng.uniform(*rc.near_radius_m))
-        kind = rc.reach_targets[int(rng.integers(len(rc.reach_targets)))]
+        kind = reach[int(rng.integers(len(reach)))]
         push = float(rng.uniform(*rc.push_depth_m))
         planned = k * slot + float(rng.uniform(0.05, 0.3)) * slot
         hold = float(rng.uniform(0.1, 0.3)) * slot
@@ -218,9 +237,7 @@ def _reach_target(
 ) -> np.ndarray:
     if kind == "waypoint":
         return np.array(waypoints[int(rng.integers(len(waypoints)))], dtype=float)
-    if kind == "push_ee":
-        return np.array(targets["end_effector"], dtype=float)
-    return np.array(targets[kind], dtype=float)
+    return np.array(targets[kind], dtype=float)  # "push_ee" is the EE's position
 
 
 def _clip_hand(p: np.ndarray) -> np.ndarray:

@@ -33,7 +33,6 @@ from typing import Any
 
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
 
-import robots
 from compare.analysis.atomic_files import remove_stale_temporaries, write_text_atomic
 from compare.analysis.exceptions import ResultsConflict
 from compare.analysis.preflight import check_output_dir
@@ -183,7 +182,7 @@ def run_sweep(
         if pairs:
             from compare.run import expected_run_bytes
 
-            per_pair = expected_run_bytes(config, robots.load("jaco2"), 1, plots=False)
+            per_pair = expected_run_bytes(config, config.load_robot(), 1, plots=False)
             check_output_dir(out_dir, pairs * per_pair, f"{pairs} (run, method) pairs")
         write_manifest(out_dir, manifest)
         if not (out_dir / CONFIG_FILE).exists():

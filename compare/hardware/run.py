@@ -37,7 +37,7 @@ from compare.hardware.exceptions import StartRefused
 from compare.hardware.replay import open_recording
 from compare.hardware.ros_io import RosRobotIO
 from compare.hardware.safety import start_problems
-from compare.loop.closed_loop import CONTROL_POINTS, ObstacleSource, run_loop
+from compare.loop.closed_loop import ObstacleSource, control_points, run_loop
 from compare.methods import make_method
 from tpik.hierarchy import Hierarchy
 from tpik.tasks import ObstacleDistanceTask
@@ -74,6 +74,22 @@ def _signals(io: RosRobotIO, state: Interrupted) -> Iterator[None]:
             signal.signal(sig, old)
 
 
+def hardware_robot(config: Config) -> robots.Robot:
+    """The arm of ``[scenario] robot``, checked against ``[hardware]``: one driver joint per model joint.
+
+    Raises:
+        StartRefused: ``hardware.joint_names`` does not name the robot's joints one to one.
+    """
+    robot = config.load_robot()
+    names = config.hardware.joint_names
+    if len(names) != robot.nq:
+        raise StartRefused(
+            f"hardware.joint_names has {len(names)} names but robot '{robot.name}' has {robot.nq} joints "
+            f"({', '.join(robot.joint_names)}); set hardware.joint_names to the driver's names for this arm"
+        )
+    return robot
+
+
 def make_obstacle_source(config: Config, robot: robots.Robot, io: RosRobotIO) -> ObstacleSource:
     """Depth-space obstacle distance on the live frames: static background, self-filter, distance."""
     from compare.hardware.sensing import HardwareDepthSensing, capture_background, load_background, static_background
@@ -104,7 +120,7 @@ def capture_background_file(config: Config, path: Path, duration_s: float) -> fl
     """
     from compare.hardware.sensing import capture_background, save_background
 
-    robot = robots.load("jaco2")
+    robot = hardware_robot(config)
     hw = config.hardware.model_copy(update={"startup_timeout_s": max(config.hardware.startup_timeout_s, 5.0)})
     io = RosRobotIO(hw, robot.v_max, config.scenario.dt, use_depth=True, dry_run=True)
     try:
@@ -169,7 +185,7 @@ def check_camera(config: Config, replay: Path | None = None, frames: int = 5) ->
         MasterUnreachable: no ROS master (live).
         ReplayError: bad recording.
     """
-    robot = robots.load("jaco2")
+    robot = config.load_robot()
     recording = open_recording(replay) if replay is not None else None
     io = RosRobotIO(config.hardware, robot.v_max, config.scenario.dt, use_depth=True, dry_run=True, replay=recording)
     try:
@@ -250,7 +266,7 @@ def run_hardware(
     from compare.loop.deadline import guard_solver
     from compare.run import loop_setup, open_results, run_meta, solver_limit_entry, write_plots
 
-    robot = robots.load("jaco2")
+    robot = hardware_robot(config)
     sc = config.scenario
     hw = config.hardware
     hierarchy = config.build_hierarchy(robot)
@@ -299,7 +315,7 @@ def run_hardware(
                 if duration < 10 * sc.dt:
                     raise StartRefused(f"the recording ends {remaining:.1f} s after the start checks: nothing to run")
             io.start_driver()
-            schedule, settings = loop_setup(config, kin.frame_position("end_effector"), duration)
+            schedule, settings = loop_setup(config, kin.frame_position(robot.ee_frame), duration)
             mode = " (replay: nothing published)" if recording else " (dry run: nothing published)" if dry_run else ""
             log.info("hardware run: %s, %.1f s%s", method, duration, mode)
             io.start_clock()
@@ -323,8 +339,9 @@ def run_hardware(
             getattr(solver, "close", lambda: None)()
 
     steps = out.steps.drop(columns=[c for c in out.steps.columns if c.startswith(("truth:", "dist_true:"))])
-    summary = compute_summary(steps, run_meta(config, method, hierarchy, out, "depth" if use_depth else "none"))
-    measured = [steps[f"dist_meas:{cp}"].to_numpy(dtype=float) for cp in CONTROL_POINTS if f"dist_meas:{cp}" in steps]
+    summary = compute_summary(steps, run_meta(config, method, hierarchy, robot, out, "depth" if use_depth else "none"))
+    cps = control_points(hierarchy, robot)
+    measured = [steps[f"dist_meas:{cp}"].to_numpy(dtype=float) for cp in cps if f"dist_meas:{cp}" in steps]
     summary["min_obstacle_distance_m"] = [_finite_min(d) for d in measured]
     summary["obstacle_distance_source"] = "measured (depth camera; no ground truth on hardware)"
     summary["hardware"] = io.report()

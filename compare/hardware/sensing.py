@@ -28,12 +28,13 @@ import numpy as np
 
 from compare.config import Config
 from compare.hardware.exceptions import HardwareError
+from compare.loop.closed_loop import control_points
 from compare.loop.robot_io import CameraModel, DepthFrame
 from compare.sensing.camera import valid_fraction
 from compare.sensing.depth_distance import DepthDistance
 from compare.sensing.pipeline import DepthSensingSettings
 from compare.sensing.results import DistanceResult, ObstacleReading
-from compare.sensing.scene import CONTROL_POINTS, control_point_positions
+from compare.sensing.scene import control_point_positions
 from compare.sensing.self_filter import SelfFilter, StaticBackground
 from robots import Kinematics, Robot
 
@@ -53,7 +54,7 @@ def make_self_filter(robot: Robot, camera: CameraModel, settings: DepthSensingSe
         margin_m=settings.self_filter_margin_m,
         noise=settings.noise,
         noise_allowance=settings.noise_allowance,
-        root_body=settings.robot_root_body,
+        root_body=settings.robot_root_body or robot.base_body,
     )
 
 
@@ -80,6 +81,7 @@ class HardwareDepthSensing:
     ) -> None:
         s = self.settings = sensing_settings(config)
         self.self_filter = make_self_filter(robot, camera, s)
+        self.control_points = control_points(config.build_hierarchy(robot), robot)
         self.distance = DepthDistance(camera, s.rho_m, s.blind_fraction, s.min_support)
         self.background = background
         self.camera = camera
@@ -93,7 +95,7 @@ class HardwareDepthSensing:
         """Closest obstacle of every control point at loop time ``t`` [s] with the arm at ``kin.q``."""
         frame = self._frames()
         if frame is None or t - frame.stamp_s > self.max_age_s:
-            return DistanceResult({n: ObstacleReading.nothing() for n in CONTROL_POINTS}, 0.0, True, t)
+            return DistanceResult({n: ObstacleReading.nothing() for n in self.control_points}, 0.0, True, t)
         if self._last is not None and self._last[0] is frame:
             filtered, vf = self._last[1], self._last[2]
         else:
@@ -107,7 +109,7 @@ class HardwareDepthSensing:
             filtered = DepthFrame(depth, frame.stamp_s, frame.camera)
             self._last = (frame, filtered, vf)
             self.filter_time_s = time.perf_counter() - start
-        return self.distance.compute(filtered, control_point_positions(kin, CONTROL_POINTS), vf)
+        return self.distance.compute(filtered, control_point_positions(kin, self.control_points), vf)
 
 
 def capture_background(

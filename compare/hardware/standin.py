@@ -184,7 +184,7 @@ class StandIn:
         self.depth_period_s = 1.0 / config.scenario.sensing_rate_hz
         prefix = self.hw.joint_names[0].rsplit("joint_", 1)[0]
         self.names = list(self.hw.joint_names) + [prefix + n for n in FINGER_NAMES + FINGER_TIP_NAMES]
-        self._robot = robots.load("jaco2")
+        self._robot = config.load_robot()
         self._sim_lock = threading.Lock()  # the simulation (stepped by the controller cycle, copied by the camera)
         self._model_lock = threading.Lock()  # the driver model (fed by rospy threads, run by the driver thread)
         self._wake = threading.Event()
@@ -453,7 +453,7 @@ def main(argv: list[str] | None = None) -> int:
     except ConfigError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
-    robot = robots.load("jaco2")
+    robot = config.load_robot()
     config = realize(config, robot)
     if args.print_calibration:
         print(json.dumps(camera_calibration()))

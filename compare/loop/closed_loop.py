@@ -55,7 +55,15 @@ from tpik.tasks import ObstacleDistanceTask, PositionTask, SetTask
 
 log = logging.getLogger(__name__)
 
-CONTROL_POINTS = ("link_4", "link_6", "link_7")
+
+def control_points(hierarchy: Hierarchy, robot: Robot) -> tuple[str, ...]:
+    """The control points of a run: the frames of the hierarchy's obstacle tasks, in order.
+
+    A hierarchy without obstacle tasks still records the true distance of the robot's default
+    control points (``robot.control_points``), so every run reports its closest approach.
+    """
+    frames = [t.frame for t in hierarchy.set_tasks if isinstance(t, ObstacleDistanceTask)]
+    return tuple(dict.fromkeys(frames)) or tuple(robot.control_points)
 
 
 def _solver_errors() -> tuple[type[Exception], ...]:
@@ -152,7 +160,9 @@ class LoopOutput:
 class _Recorder:
     """Preallocated per-step columns, turned into a DataFrame at the end."""
 
-    def __init__(self, n_steps: int, nq: int, set_tasks: tuple[SetTask, ...], obstacle_tasks: list[str]) -> None:
+    def __init__(
+        self, n_steps: int, nq: int, set_tasks: tuple[SetTask, ...], obstacle_tasks: list[str], cps: tuple[str, ...]
+    ) -> None:
         self.n = 0
         self.cols: dict[str, np.ndarray] = {}
         f = self._float
@@ -166,7 +176,7 @@ class _Recorder:
             self.cols[f"active:{task.name}"] = np.zeros(n_steps, dtype=bool)
         for name in obstacle_tasks:
             f(f"truth:{name}", n_steps)
-        for cp in CONTROL_POINTS:
+        for cp in cps:
             f(f"dist_meas:{cp}", n_steps)
             f(f"dist_true:{cp}", n_steps)
         self.cols["waypoint"] = np.zeros(n_steps, dtype=np.int32)
@@ -227,6 +237,12 @@ WARMUP_SOLVES = 3
 """Untimed solves at the start state before the first control step (:func:`warm_up_solver`)."""
 
 
+def ee_position_tasks(hierarchy: Hierarchy, robot: Robot) -> list[PositionTask]:
+    """The position tasks of the robot's EE frame (either spelling of its name): the waypoints move them."""
+    ee_id = robot.frame_id(robot.ee_frame)
+    return [t for t in hierarchy.tasks if isinstance(t, PositionTask) and robot.frame_id(t.frame) == ee_id]
+
+
 def warm_up_solver(
     solver: IkSolver, hierarchy: Hierarchy, robot: Robot, q: np.ndarray, dt: float, solves: int = WARMUP_SOLVES
 ) -> int:
@@ -241,9 +257,8 @@ def warm_up_solver(
         The number of warm-up solves made.
     """
     kin = robot.kinematics(q)
-    for task in hierarchy.tasks:
-        if isinstance(task, PositionTask) and task.frame == "end_effector":
-            task.set_target(kin.frame_position("end_effector"))
+    for task in ee_position_tasks(hierarchy, robot):
+        task.set_target(kin.frame_position(robot.ee_frame))
     done = 0
     for _ in range(solves):
         try:
@@ -291,13 +306,15 @@ def run_loop(
     n_steps = max(1, round(settings.duration_s / dt))
     set_tasks = hierarchy.set_tasks
     obstacle_tasks = [t for t in set_tasks if isinstance(t, ObstacleDistanceTask)]
-    position_tasks = [t for t in hierarchy.tasks if isinstance(t, PositionTask) and t.frame == "end_effector"]
-    rec = _Recorder(n_steps, robot.nq, set_tasks, [t.name for t in obstacle_tasks])
+    ee_frame = robot.ee_frame
+    position_tasks = ee_position_tasks(hierarchy, robot)
+    cps = control_points(hierarchy, robot)
+    rec = _Recorder(n_steps, robot.nq, set_tasks, [t.name for t in obstacle_tasks], cps)
     cols = rec.cols
     # Column arrays and σ functions looked up once (recording is a noticeable share of a fast run).
     # σ alone (SetTask.compute_value): the solver already formed the Jacobians it needed.
     sigma_record = [(cols[f"sigma:{t.name}"], cols[f"active:{t.name}"], t.name, t.compute_value) for t in set_tasks]
-    dist_record = [(cols[f"dist_meas:{cp}"], cols[f"dist_true:{cp}"], cp) for cp in CONTROL_POINTS]
+    dist_record = [(cols[f"dist_meas:{cp}"], cols[f"dist_true:{cp}"], cp) for cp in cps]
     truth_record = [(cols[f"truth:{t.name}"], t.frame) for t in obstacle_tasks]
     c_t, c_ee_x, c_ee_y, c_ee_z = cols["t"], cols["ee_x"], cols["ee_y"], cols["ee_z"]
     c_tx, c_ty, c_tz, c_err = cols["target_x"], cols["target_y"], cols["target_z"], cols["ee_error_m"]
@@ -322,7 +339,7 @@ def run_loop(
     next_sense_t = -math.inf
     last_good_sense_t = -math.inf
     blind = obstacles is not None and bool(obstacle_tasks)
-    measured = dict.fromkeys(CONTROL_POINTS, math.inf)
+    measured = dict.fromkeys(cps, math.inf)
     was_blind = False
     fallback_since: float | None = None  # start of the current fallback episode [s]
     sensing_reason: str | None = None  # why the latest update was not usable (None: it was)
@@ -361,7 +378,7 @@ def run_loop(
                     for task in obstacle_tasks:
                         r = result.readings.get(task.frame)
                         task.set_obstacle(r.closest_point if r is not None and r.in_range else None)
-                    for cp in CONTROL_POINTS:
+                    for cp in cps:
                         r = result.readings.get(cp)
                         measured[cp] = r.distance_m if r is not None and r.in_range else math.inf
             if obstacles is not None and obstacle_tasks:
@@ -379,7 +396,7 @@ def run_loop(
                     was_blind = blind
                 blind_reason = reason_now
 
-            ee = kin.frame_position("end_effector")
+            ee = kin.frame_position(ee_frame)
             target = waypoints.update(t, ee)
             for task in position_tasks:
                 task.set_target(target)

@@ -13,7 +13,7 @@ import numpy as np
 
 import robots
 from compare.config import Config
-from compare.loop.closed_loop import ObstacleSource
+from compare.loop.closed_loop import ObstacleSource, control_points
 from compare.loop.sim_io import SimRobotIO
 from compare.sensing.geometric_distance import GeometricDistance
 from compare.sensing.person import Person
@@ -36,6 +36,7 @@ class Simulation:
         truth: Ground-truth distance per control point [m], from the person's capsules.
         person: The scripted person.
         pipeline: The depth pipeline (None in geometric mode).
+        control_points: The control point frames sensed (``compare.loop.closed_loop.control_points``).
     """
 
     io: SimRobotIO
@@ -43,6 +44,7 @@ class Simulation:
     truth: Callable[[robots.Kinematics], Mapping[str, float]]
     person: Person
     pipeline: DepthPipeline | None = None
+    control_points: tuple[str, ...] = ()
 
     def close(self) -> None:
         """Free rendering resources."""
@@ -54,11 +56,12 @@ def build_simulation(config: Config, robot: robots.Robot, q0: np.ndarray) -> Sim
     """Build the work cell for ``config`` (already realized) with the arm at ``q0`` [rad]."""
     sc = config.scenario
     model: mujoco.MjModel = load_workcell(robot.name)
+    cps = control_points(config.build_hierarchy(robot), robot)
     person = Person(model, config.person.keyframes, time_scale=sc.time_scale)
     pipeline: DepthPipeline | None = None
     depth_camera = None
     if sc.sensing == "depth":
-        settings = DepthSensingSettings.from_sensor_config(config.sensor, seed=sc.seed)
+        settings = DepthSensingSettings.from_sensor_config(config.sensor, seed=sc.seed, robot_root_body=robot.base_body)
         pipeline = DepthPipeline(model, settings)
         depth_camera = pipeline.render
     io = SimRobotIO(
@@ -75,7 +78,7 @@ def build_simulation(config: Config, robot: robots.Robot, q0: np.ndarray) -> Sim
     )
     obstacles: ObstacleSource
     if pipeline is not None:
-        obstacles = pipeline.source(io.read_depth)
+        obstacles = pipeline.source(io.read_depth, cps)
     else:
-        obstacles = GeometricObstacleSource(GeometricDistance(model, rho_m=config.sensor.rho_m), io.data)
-    return Simulation(io, obstacles, truth_function(model, io.data), person, pipeline)
+        obstacles = GeometricObstacleSource(GeometricDistance(model, rho_m=config.sensor.rho_m), io.data, cps)
+    return Simulation(io, obstacles, truth_function(model, io.data, cps), person, pipeline, cps)

@@ -1,7 +1,7 @@
 """Simulated depth sensing and obstacle distance (paper sec. III; DESIGN §4).
 
-Scene: ``robots/kinova_j2s7s300/scene_workcell.xml`` (arm on its table, Kinect-v2-like depth
-camera, capsule person on mocap bodies). Two sensing modes with one result type
+Scene: the robot's work cell (``robots/workcell/``: arm on its table, Kinect-v2-like depth
+camera, capsule person on mocap bodies; :meth:`robots.Robot.workcell_model`). Two sensing modes with one result type
 (:class:`DistanceResult` holding an :class:`ObstacleReading` per control point):
 
 * **depth**: :class:`DepthPipeline` renders a :class:`~compare.loop.robot_io.DepthFrame`
@@ -17,14 +17,15 @@ Example (headless: ``MUJOCO_GL=egl``)::
     from compare.sensing import (DepthPipeline, GeometricDistance, Person, PersonKeyframe,
                                  control_point_positions, load_workcell, make_data)
 
-    model = load_workcell()
+    arm = robots.load(robots.DEFAULT_ROBOT)       # any name of robots.available_robots()
+    model = load_workcell(arm.name)
     data = make_data(model)                       # arm at "home"
     person = Person(model, [PersonKeyframe(0.0, (0.0, 1.35), yaw=-1.5708),
                             PersonKeyframe(2.0, (0.05, 0.95), yaw=-1.5708, right_hand=(0, 0.62, 0.75))])
     person.apply(t=1.0, data=data)                # mocap poses at t = 1 s
     mujoco.mj_forward(model, data)
-    kin = robots.load("jaco2").kinematics(data.qpos[:7])
-    points = control_point_positions(kin)         # {"link_4": ..., "link_6": ..., "link_7": ...}
+    kin = arm.kinematics(data.qpos[: arm.nq])
+    points = control_point_positions(kin, arm.control_points)   # {frame: position [m]}
     depth = DepthPipeline(model)                  # default DepthSensingSettings (rho 0.5 m)
     result = depth.sense(data, points)            # render + filter + distance
     exact = GeometricDistance(model).compute(data, points)
@@ -61,7 +62,6 @@ from compare.sensing.pipeline import (
 from compare.sensing.renderer import PERSON_GROUP, ROBOT_VISUAL_GROUP, STATIC_GROUP, DepthCamera
 from compare.sensing.results import DistanceResult, ObstacleReading
 from compare.sensing.scene import (
-    CONTROL_POINTS,
     arm_qpos_addresses,
     control_point_positions,
     load_workcell,
@@ -72,7 +72,6 @@ from compare.sensing.scene import (
 from compare.sensing.self_filter import SelfFilter, StaticBackground
 
 __all__ = [
-    "CONTROL_POINTS",
     "PERSON_GROUP",
     "ROBOT_VISUAL_GROUP",
     "STATIC_GROUP",

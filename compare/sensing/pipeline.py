@@ -20,7 +20,7 @@ from compare.sensing.depth_distance import DepthDistance
 from compare.sensing.geometric_distance import GeometricDistance
 from compare.sensing.renderer import DepthCamera
 from compare.sensing.results import DistanceResult, ObstacleReading
-from compare.sensing.scene import CONTROL_POINTS, control_point_positions
+from compare.sensing.scene import control_point_positions
 from compare.sensing.self_filter import SelfFilter, StaticBackground
 from robots import Kinematics
 
@@ -41,7 +41,8 @@ class DepthSensingSettings:
         noise_allowance: Filters widen their margins by this many σ(d).
         seed: Seed of the noise.
         camera: Camera name in the scene.
-        robot_root_body: Root body of the arm (self-filter).
+        robot_root_body: Root body of the arm (self-filter); None = the work cell's arm
+            (``robots.Robot.base_body``, found from the model's first joint).
     """
 
     rho_m: float = 0.5
@@ -55,7 +56,7 @@ class DepthSensingSettings:
     noise_allowance: float = 5.0
     seed: int = 0
     camera: str = "depth_camera"
-    robot_root_body: str = "j2s7s300_link_base"
+    robot_root_body: str | None = None
 
     @classmethod
     def from_sensor_config(cls, sensor: Any, seed: int = 0, **overrides: Any) -> DepthSensingSettings:
@@ -142,9 +143,7 @@ class DepthPipeline:
         """Render ``data`` and process the frame (the arm's pose taken from ``data``)."""
         return self.process(self.render(data), control_points, data=data)
 
-    def source(
-        self, read_frame: Callable[[], DepthFrame | None], frames: Iterable[str] = CONTROL_POINTS
-    ) -> DepthObstacleSource:
+    def source(self, read_frame: Callable[[], DepthFrame | None], frames: Iterable[str]) -> DepthObstacleSource:
         """An ``update(t, kin)`` obstacle source reading frames from ``read_frame`` (e.g. ``io.read_depth``)."""
         return DepthObstacleSource(self, read_frame, frames)
 
@@ -175,7 +174,7 @@ class DepthObstacleSource:
         self,
         pipeline: DepthPipeline,
         read_frame: Callable[[], DepthFrame | None],
-        frames: Iterable[str] = CONTROL_POINTS,
+        frames: Iterable[str],
     ) -> None:
         self.pipeline = pipeline
         self.read_frame = read_frame
@@ -205,9 +204,7 @@ class GeometricObstacleSource:
         frames: Control point frame names.
     """
 
-    def __init__(
-        self, distance: GeometricDistance, data: mujoco.MjData, frames: Iterable[str] = CONTROL_POINTS
-    ) -> None:
+    def __init__(self, distance: GeometricDistance, data: mujoco.MjData, frames: Iterable[str]) -> None:
         self.distance = distance
         self.data = data
         self.frames = tuple(frames)
@@ -218,7 +215,7 @@ class GeometricObstacleSource:
 
 
 def truth_function(
-    model: mujoco.MjModel, data: mujoco.MjData, frames: Iterable[str] = CONTROL_POINTS
+    model: mujoco.MjModel, data: mujoco.MjData, frames: Iterable[str]
 ) -> Callable[[Kinematics], dict[str, float]]:
     """``truth(kin)`` for ``compare.loop.closed_loop.run_loop``: true distance per control point [m] (no ρ cut)."""
     geometric = GeometricDistance(model, rho_m=math.inf)

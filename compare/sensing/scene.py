@@ -1,7 +1,9 @@
 """The work-cell scene: where it is, how to load it, and the control points.
 
-``robots/kinova_j2s7s300/scene_workcell.xml`` = the arm on its table (``scene.xml``) + the
-Kinect-like depth camera + the capsule person (mocap bodies). World frame = arm base frame.
+The robot's work cell (:meth:`robots.Robot.workcell_model`): the arm on its table + the
+Kinect-like depth camera + the capsule person (mocap bodies), ``robots/workcell/``. World frame =
+arm base frame. The control points are the frames of a hierarchy's obstacle tasks
+(``compare.loop.closed_loop.control_points``), by default the robot's (``robot.control_points``).
 """
 
 from __future__ import annotations
@@ -15,20 +17,15 @@ import numpy as np
 import robots
 from robots import Kinematics
 
-CONTROL_POINTS = ("link_4", "link_6", "link_7")
-"""Control point frames of the paper (origins of joints 4, 6, 7: elbow, wrist, hand)."""
 
-WORKCELL_FILE = "scene_workcell.xml"
-
-
-def workcell_path(robot: str = "jaco2") -> Path:
-    """Path of the work-cell MJCF next to the robot's model file."""
-    return robots.load(robot).spec.model_file.parent / WORKCELL_FILE
+def workcell_path(robot: str = robots.DEFAULT_ROBOT) -> Path | None:
+    """The robot's own work-cell MJCF, or None when it is composed from ``robots/workcell/``."""
+    return robots.load(robot).spec.workcell
 
 
-def load_workcell(robot: str = "jaco2") -> mujoco.MjModel:
+def load_workcell(robot: str = robots.DEFAULT_ROBOT) -> mujoco.MjModel:
     """Compile the work-cell scene (arm, table, depth camera, person)."""
-    return mujoco.MjModel.from_xml_path(str(workcell_path(robot)))
+    return robots.load(robot).workcell_model()
 
 
 def make_data(model: mujoco.MjModel, q: np.ndarray | None = None, keyframe: str = "home") -> mujoco.MjData:
@@ -41,9 +38,19 @@ def make_data(model: mujoco.MjModel, q: np.ndarray | None = None, keyframe: str 
     return data
 
 
-def arm_qpos_addresses(model: mujoco.MjModel, prefix: str = "j2s7s300_joint_") -> np.ndarray:
-    """Addresses in ``qpos`` of the arm joints, in joint order."""
-    joints = [j for j in range(model.njnt) if model.joint(j).name.startswith(prefix)]
+def arm_qpos_addresses(model: mujoco.MjModel, prefix: str | None = None) -> np.ndarray:
+    """Addresses in ``qpos`` of the arm joints, in joint order.
+
+    Args:
+        model: The work cell.
+        prefix: Joint name prefix of the arm; None = the joints of the subtree holding the
+            model's first joint (the arm: the person has none).
+    """
+    if prefix is None:
+        arm = model.body_rootid[model.jnt_bodyid[0]]
+        joints = [j for j in range(model.njnt) if model.body_rootid[model.jnt_bodyid[j]] == arm]
+    else:
+        joints = [j for j in range(model.njnt) if model.joint(j).name.startswith(prefix)]
     return model.jnt_qposadr[joints]
 
 
@@ -52,6 +59,6 @@ def set_arm_configuration(model: mujoco.MjModel, data: mujoco.MjData, q: np.ndar
     data.qpos[arm_qpos_addresses(model)] = q
 
 
-def control_point_positions(kin: Kinematics, frames: Iterable[str] = CONTROL_POINTS) -> dict[str, np.ndarray]:
+def control_point_positions(kin: Kinematics, frames: Iterable[str]) -> dict[str, np.ndarray]:
     """Control point positions [m] in the base frame, by frame name."""
     return {name: kin.frame_position(name) for name in frames}

@@ -61,7 +61,8 @@ class SelfFilter:
         margin_m: Inflation :math:`m` of the arm's geoms [m] (paper: inflated boxes).
         noise: Sensor noise, widening the margin by ``noise_allowance`` σ(d).
         noise_allowance: :math:`k`.
-        root_body: Root body of the arm (its subtree is the arm).
+        root_body: Root body of the arm (its subtree is the arm); None = the subtree holding the
+            model's first joint (the arm of a work cell: the person has no joints).
         geom_group: Group of the arm geoms that the camera sees (the visual ones).
     """
 
@@ -72,14 +73,16 @@ class SelfFilter:
         margin_m: float = 0.03,
         noise: DepthNoise | None = None,
         noise_allowance: float = 5.0,
-        root_body: str = "j2s7s300_link_base",
+        root_body: str | None = None,
         geom_group: int = ROBOT_VISUAL_GROUP,
     ) -> None:
         if not margin_m >= 0.0:
             raise SensingError(f"self-filter margin must be >= 0, got {margin_m}")
-        root = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, root_body)
+        if root_body is None and model.njnt > 0:
+            root_body = model.body(int(model.body_rootid[model.jnt_bodyid[0]])).name
+        root = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, root_body or "")
         if root < 0:
-            raise UnknownSceneElement("body", root_body, [model.body(i).name for i in range(model.nbody)])
+            raise UnknownSceneElement("body", str(root_body), [model.body(i).name for i in range(model.nbody)])
         bodies = subtree_bodies(model, root)
         mask = np.isin(model.geom_bodyid, bodies) & (model.geom_group == geom_group)
         self.geom_ids = np.flatnonzero(mask)

@@ -25,7 +25,7 @@ def _set(data: dict, dotted: str, value: object) -> dict:
     node = data
     *parents, leaf = dotted.split(".")
     for key in parents:
-        node = node[int(key)] if key.isdigit() else node[key]
+        node = node[int(key)] if key.isdigit() else node.setdefault(key, {})
     node[leaf] = value
     return data
 
@@ -64,6 +64,14 @@ BAD_CONFIGS = [
         [{"type": "joint_limit", "joints": [2], "safety_margn": 0.1}],
         r"levels\[0\]\.tasks\[0\]: unknown key 'safety_margn' for task type joint_limit",
     ),
+    ("levels.0.tasks", [{"type": "joint_limit", "joints": [1]}], r"levels: .*joint 1 is continuous"),
+    ("levels.2.tasks", [{"type": "position", "frame": "elbow"}], r"levels: .*unknown frame 'elbow'"),
+    ("levels.0.tasks", [{"type": "joint_limit", "joints": [2], "safety_margn": 0.1}], r"unknown key 'safety_margn'"),
+    ("scenario.robot", "ur10", r"scenario\.robot: unknown robot 'ur10'; available: jaco2, panda, ur5"),
+    ("scenario.robot", "panda", r"levels: .*unknown frame 'link_4'"),  # the Jaco²'s frames on a Panda
+    ("scenario.start_q", [0.0] * 6, r"scenario\.start_q: 6 values for the 7 joints of 'jaco2'"),
+    ("random.reach_targets", ["waypoint", "elbow"], r"random\.reach_targets\[1\]: 'elbow' is neither"),
+    ("hardware.joint_names", ["a", "b"], r"hardware\.joint_names: 2 names for the 7 joints of 'jaco2'"),
 ]
 
 
@@ -144,3 +152,45 @@ def test_cli_scenario_option_is_applied_recorded_and_checked(tmp_path, option, v
 def test_a_drive_bandwidth_the_physics_step_cannot_integrate_is_a_config_error(tmp_path):
     with pytest.raises(ConfigError, match="drive_bandwidth_rad_s"):
         load_config(CONFIGS / "random.toml", {"scenario.drive_bandwidth_rad_s": 1000.0})
+
+
+@pytest.mark.parametrize(
+    ("name", "robot", "ee", "cps"),
+    [
+        ("case1.toml", "jaco2", "end_effector", ["link_4", "link_6", "link_7"]),
+        ("panda_case1.toml", "panda", "panda_hand_tcp", ["panda_link4", "panda_link6", "panda_link7"]),
+        ("panda_case2.toml", "panda", "panda_hand_tcp", ["panda_link4", "panda_link6", "panda_link7"]),
+        ("panda_random.toml", "panda", "panda_hand_tcp", ["panda_link4", "panda_link6", "panda_link7"]),
+        ("ur5_case2.toml", "ur5", "tool0", ["forearm_link", "wrist_2_link", "wrist_3_link"]),
+    ],
+)
+def test_each_robot_config_builds_its_hierarchy_on_its_robot(name, robot, ee, cps):
+    from compare.loop.closed_loop import control_points
+
+    config, _ = load_config(CONFIGS / name)
+    arm = config.load_robot()
+    assert arm.name == robot and arm.ee_frame == ee
+    hierarchy = config.build_hierarchy(arm)
+    assert list(control_points(hierarchy, arm)) == cps
+    assert config.hardware.joint_names == arm.joint_names  # default: the description's joints
+    if config.scenario.start_q is not None:
+        assert len(config.scenario.start_q) == arm.nq
+
+
+def test_tasks_without_frames_use_the_robot_s_ee_and_control_points():
+    from tpik.tasks import ObstacleDistanceTask, PositionTask
+
+    data = _case1()
+    data["scenario"]["robot"] = "ur5"
+    data["levels"] = [
+        {"name": "obstacles", "tasks": [{"type": "obstacle_distance"}]},
+        {"name": "operational", "tasks": [{"type": "position"}]},
+    ]
+    config = parse_config(data)
+    hierarchy = config.build_hierarchy(config.load_robot())
+    assert [t.frame for t in hierarchy.tasks_of_type(ObstacleDistanceTask)] == [
+        "forearm_link",
+        "wrist_2_link",
+        "wrist_3_link",
+    ]
+    assert [t.frame for t in hierarchy.tasks_of_type(PositionTask)] == ["tool0"]

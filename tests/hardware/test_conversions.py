@@ -7,6 +7,7 @@ import math
 import numpy as np
 import pytest
 
+import robots
 from compare.config import HardwareConfig
 from compare.hardware.conversions import (
     camera_model_from_info,
@@ -31,13 +32,13 @@ def test_velocity_goes_out_in_degrees_per_second():
 
 def test_arm_joints_are_picked_by_name_whatever_the_order():
     names = ["j2s7s300_joint_finger_1", *[f"j2s7s300_joint_{i}" for i in (7, 6, 5, 4, 3, 2, 1)]]
-    idx = joint_indices(names, HardwareConfig().joint_names)
+    idx = joint_indices(names, robots.load("jaco2").joint_names)  # hardware.joint_names default
     assert idx.tolist() == [7, 6, 5, 4, 3, 2, 1]
 
 
 def test_missing_joint_is_named():
     with pytest.raises(HardwareError, match="j2s7s300_joint_7"):
-        joint_indices([f"j2s7s300_joint_{i}" for i in range(1, 7)], HardwareConfig().joint_names)
+        joint_indices([f"j2s7s300_joint_{i}" for i in range(1, 7)], robots.load("jaco2").joint_names)
 
 
 @pytest.mark.parametrize("encoding", ["16UC1", "32FC1"])

@@ -66,7 +66,7 @@ def test_hardware_sensing_matches_the_simulation_pipeline(scene, jaco):
 
     config, pipeline, data, q, empty, person = scene
     kin = jaco.kinematics(q)
-    sim = pipeline.process(person, control_point_positions(kin), data=data)
+    sim = pipeline.process(person, control_point_positions(kin, jaco.control_points), data=data)
     depth = capture_background(_stream(empty), lambda t: q, jaco, config, duration_s=0.05)
     assert depth is not None
     background = static_background(depth, config)

@@ -1,17 +1,25 @@
-"""Forward kinematics against MuJoCo, the fact sheet's reference poses, and finite differences."""
+"""Jaco² forward kinematics against its facts, MuJoCo and finite differences.
+
+The reference poses are those of ``robots/kinova_j2s7s300/README.md`` ("Kinematic facts", from
+kinova-ros 924781d3); :func:`test_reference_poses_are_the_model_readme_s` keeps the two equal.
+"""
 
 from __future__ import annotations
+
+from pathlib import Path
 
 import mujoco
 import numpy as np
 import pytest
 
+import robots
 from tests.conftest import random_configuration
 
 PI = np.pi
 FRAMES = ("link_4", "link_6", "link_7", "end_effector")
+README = Path(robots.__file__).parent / "kinova_j2s7s300" / "README.md"
 
-# Reference poses of ../shared/robots/j2s7s300_kinematics.md (computed from the URDF).
+# Reference poses of robots/kinova_j2s7s300/README.md (forward kinematics of the kinova-ros URDF).
 REFERENCE = [
     (
         np.zeros(7),
@@ -24,6 +32,19 @@ REFERENCE = [
     (np.array([0, PI / 2, PI, PI, PI, PI, PI]), {"end_effector": (0.9848, 0.013, 0.2755)}),
     (np.array([4.71, 2.84, 0, 0.75, 4.62, 4.48, 4.88]), {"end_effector": (0.2659, -0.2121, 0.5031)}),
 ]
+
+
+def _readme_number(value: float) -> str:
+    text = f"{value:g}"
+    return text.replace("-", "−")
+
+
+@pytest.mark.parametrize(("q", "expected"), REFERENCE)
+def test_reference_poses_are_the_model_readme_s(q, expected):
+    readme = README.read_text(encoding="utf-8")
+    for position in expected.values():
+        cell = "(" + ", ".join(_readme_number(v) for v in position) + ")"
+        assert cell in readme, f"{cell} not in {README.name}"
 
 
 @pytest.mark.parametrize(("q", "expected"), REFERENCE)

@@ -80,7 +80,7 @@ class ObstacleDistanceTask(SetTask):
 
 
 OBSTACLE_DISTANCE_KEYS: tuple[TaskKey, ...] = (
-    TaskKey("frame", "control point frame (or give `frames`)", None),
+    TaskKey("frame", "control point frame (or give `frames`; neither: the robot's default control points)", None),
     TaskKey("frames", "control point frames, one task each (or give `frame`)", None),
     TaskKey("safety_distance", "σ_{s,l}: distance held from the closest obstacle point", 0.35, "m"),
     TaskKey("physical_distance", "σ_m: distance below which the arm touches (< safety_distance)", 0.1, "m"),
@@ -94,8 +94,10 @@ OBSTACLE_DISTANCE_KEYS: tuple[TaskKey, ...] = (
 
 def build_obstacle_distances(spec: TaskSpec, robot: Robot) -> list[Task]:
     """``obstacle_distance``: one :class:`ObstacleDistanceTask` per control point."""
-    key = spec.one_or_many("frame", "frames")
-    frames = spec.frames(key)
+    if spec.given("frame") or spec.given("frames"):
+        frames = spec.frames(spec.one_or_many("frame", "frames"))
+    else:  # the robot's default control points
+        frames = list(robot.control_points)
     safety = spec.number("safety_distance", positive=True)
     physical = spec.number("physical_distance")
     eps = spec.number("activation_margin", positive=True)

@@ -68,7 +68,7 @@ class TaskKey:
 
 NAME_KEY = TaskKey("name", "task name, unique in the hierarchy (default from the type and frame)", None)
 GAIN_KEY = TaskKey("gain", "closed-loop gain K of the task (paper eq. 2)", 1.0, "1/s")
-FRAME_KEY = TaskKey("frame", "robot frame the task acts on", "end_effector")
+FRAME_KEY = TaskKey("frame", "robot frame the task acts on (default: the robot's end-effector frame)", None)
 GROUP_KEY = TaskKey(
     "group", "metrics group its violations are counted under in summary.json (default: the task's own)", None
 )
@@ -292,8 +292,10 @@ class TaskSpec:
         return list(names)
 
     def frame(self, key: str = "frame") -> str:
-        """One frame name of the robot."""
+        """One frame name of the robot; a key left at default ``None``: the robot's end-effector frame."""
         value = self.value(key)
+        if value is None:
+            return self.robot.ee_frame
         if not isinstance(value, str):
             raise self.error(key, f"must be one frame name, got {value!r}")
         return self.frames(key)[0]

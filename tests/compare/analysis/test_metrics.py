@@ -95,6 +95,7 @@ def make_meta(n: int = 1000, tasks: tuple[SetTaskInfo, ...] = ALL_TASKS, wall_ti
         wall_time_s=wall_time_s,
         sensing="geometric",
         set_tasks=tasks,
+        control_points=CONTROL_POINTS,
     )
 
 

@@ -7,7 +7,8 @@ import numpy as np
 import pytest
 
 from compare.bench.mink_native import MinkCase2
-from compare.bench.solver_cases import CONTROL_POINTS, BenchState, apply_state, case2_hierarchy, case2_states
+from compare.bench.solver_cases import BenchState, apply_state, case2_hierarchy, case2_states
+from compare.bench.solvers import native_for
 from qp_baseline.mink_peer import MinkSolver
 
 DT = 0.01
@@ -15,7 +16,7 @@ DT = 0.01
 
 @pytest.fixture(scope="module")
 def native(jaco) -> MinkCase2:
-    return MinkCase2(jaco.mj_model, jaco.spec.prefix, dict(zip(jaco.joint_names, map(float, jaco.v_max), strict=True)))
+    return native_for(jaco, case2_hierarchy(jaco))  # the case-2 thresholds and gains, mink alone from here
 
 
 def _problems(jaco, native: MinkCase2, peer: MinkSolver, state: BenchState):
@@ -23,7 +24,7 @@ def _problems(jaco, native: MinkCase2, peer: MinkSolver, state: BenchState):
     apply_state(hierarchy, state)
     result = peer.solve(hierarchy, jaco.kinematics(state.q), DT)
     ours = mink.build_ik(peer.configuration, peer._tasks, DT, peer.settings.damping, peer._limits)
-    native.set_scene([state.obstacles.get(cp) for cp in CONTROL_POINTS], state.target)
+    native.set_scene([state.obstacles.get(cp) for cp in jaco.control_points], state.target)
     qdot = native.step(state.q, DT)
     theirs = mink.build_ik(native.configuration, native.tasks, DT, 1e-12, native.limits)
     return ours, theirs, result, qdot
@@ -54,11 +55,11 @@ def test_random_states_pose_the_same_qp_with_tasks_past_their_thresholds(jaco, n
         q = rng.uniform(lo, hi)
         kin = jaco.kinematics(q)
         obstacles = {}
-        for cp in CONTROL_POINTS:
+        for cp in jaco.control_points:
             direction = rng.normal(size=3)
             if rng.random() < 0.7:
                 obstacles[cp] = kin.frame_position(cp) + rng.uniform(0.2, 0.5) * direction / np.linalg.norm(direction)
-        target = kin.frame_position("end_effector") + 0.1 * rng.normal(size=3)
+        target = kin.frame_position(jaco.ee_frame) + 0.1 * rng.normal(size=3)
         ours, theirs, result, _ = _problems(jaco, native, peer, BenchState("random", q, obstacles, target))
         returning += bool(result.extras["returning"])
         np.testing.assert_allclose(ours.P, theirs.P, rtol=1e-10, atol=1e-12)

@@ -58,7 +58,7 @@ def test_hard_scenarios_start_inside_every_safety_threshold(hard):
 
 def test_hard_scenarios_put_waypoints_on_the_walls(hard):
     robot = robots.load("jaco2")
-    lower, upper = _wall_box(hard[0].build_hierarchy(robot).set_tasks)
+    lower, upper = _wall_box(hard[0].build_hierarchy(robot).set_tasks, robot.ee_frame)
     tol = hard[0].waypoints.tolerance_m
     on_wall = 0
     for cfg in hard:

@@ -32,7 +32,7 @@ def test_torque_is_the_inverse_dynamics_law_computed_by_pinocchio(jaco: robots.R
 
     Velocities small enough that no torque limit is reached.
     """
-    model = mujoco.MjModel.from_xml_path(str(jaco.spec.model_file))
+    model = mujoco.MjModel.from_xml_path(str(jaco.spec.description))
     drive = DecoupledVelocityDrive(model, jaco.nq, 100.0)
     data = mujoco.MjData(model)
     pm, pd = jaco.pin_model, jaco.pin_model.createData()
@@ -56,7 +56,7 @@ def test_torque_is_the_inverse_dynamics_law_computed_by_pinocchio(jaco: robots.R
 
 def test_at_a_torque_limit_the_acceleration_is_scaled_for_all_joints(jaco: robots.Robot) -> None:
     """τ = M s a + c + D q̇ with one s: the joint at its limit gets exactly its limit, the others the same s."""
-    model = mujoco.MjModel.from_xml_path(str(jaco.spec.model_file))
+    model = mujoco.MjModel.from_xml_path(str(jaco.spec.description))
     drive = DecoupledVelocityDrive(model, jaco.nq, 250.0)
     data = mujoco.MjData(model)
     limit = np.abs(model.jnt_actfrcrange[: jaco.nq, 1])
@@ -64,7 +64,7 @@ def test_at_a_torque_limit_the_acceleration_is_scaled_for_all_joints(jaco: robot
     data.qpos[:] = jaco.home
     data.qvel[:] = -cmd  # a reversal
     mujoco.mj_step1(model, data)
-    unlimited = DecoupledVelocityDrive(mujoco.MjModel.from_xml_path(str(jaco.spec.model_file)), jaco.nq, 250.0)
+    unlimited = DecoupledVelocityDrive(mujoco.MjModel.from_xml_path(str(jaco.spec.description)), jaco.nq, 250.0)
     unlimited._tau_max = np.full(jaco.nq, np.inf)
     tau, free = drive.torque(model, data, cmd), unlimited.torque(model, data, cmd)
     assert np.any(np.abs(free) > limit), "the command must saturate a joint for this test"

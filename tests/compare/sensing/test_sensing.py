@@ -10,7 +10,6 @@ import pytest
 
 from compare.loop.robot_io import DepthFrame
 from compare.sensing import (
-    CONTROL_POINTS,
     PERSON_GROUP,
     STATIC_GROUP,
     DepthCamera,
@@ -36,6 +35,7 @@ from compare.sensing.camera import base_to_sensor
 from tests.conftest import random_configuration
 
 RHO = 0.5
+CONTROL_POINTS = ("link_4", "link_6", "link_7")  # the Jaco²'s (robots.load("jaco2").control_points)
 
 
 @pytest.fixture(scope="module")
@@ -101,8 +101,8 @@ def test_geometric_mode_reports_range_and_truth_ignores_it(jaco, model):
     Person(model, [PersonKeyframe(0.0, (0.0, 0.9), -math.pi / 2, right_hand=(0.0, 0.35, 0.7))]).apply(0.0, data)
     mujoco.mj_forward(model, data)
     kin = jaco.kinematics(data.qpos[: jaco.nq])
-    result = GeometricObstacleSource(GeometricDistance(model, rho_m=RHO), data).update(1.5, kin)
-    truth = truth_function(model, data)(kin)
+    result = GeometricObstacleSource(GeometricDistance(model, rho_m=RHO), data, CONTROL_POINTS).update(1.5, kin)
+    truth = truth_function(model, data, CONTROL_POINTS)(kin)
     assert set(result.readings) == set(CONTROL_POINTS) and not result.blind and result.stamp_s == 1.5
     for name, reading in result.readings.items():
         assert reading.in_range == (truth[name] <= RHO)
@@ -251,7 +251,7 @@ def _near_table_configurations(jaco, rng, count):
     while len(out) < count:
         q = random_configuration(jaco, rng)
         kin = jaco.kinematics(q)
-        heights = [kin.frame_position(f)[2] for f in (*CONTROL_POINTS, "end_effector")]
+        heights = [kin.frame_position(f)[2] for f in (*CONTROL_POINTS, jaco.ee_frame)]
         if 0.02 < min(heights) < 0.15:
             out.append(q)
     return out
@@ -266,7 +266,7 @@ def test_arm_alone_is_never_an_obstacle_even_near_the_table(jaco, model, pipelin
     for q in poses:
         set_arm_configuration(model, data, q)
         mujoco.mj_forward(model, data)
-        result = pipeline.sense(data, control_point_positions(jaco.kinematics(q)))
+        result = pipeline.sense(data, control_point_positions(jaco.kinematics(q), jaco.control_points))
         assert not result.blind
         assert all(not r.in_range for r in result.readings.values()), (q, result.distances())
         # nothing at all survives the filters: no arm pixel, no table or floor pixel
@@ -283,7 +283,7 @@ def test_arm_alone_with_noise_and_dropout_is_still_not_an_obstacle(jaco, model):
         for q in [random_configuration(jaco, rng) for _ in range(8)] + _near_table_configurations(jaco, rng, 4):
             set_arm_configuration(model, data, q)
             mujoco.mj_forward(model, data)
-            result = pipe.sense(data, control_point_positions(jaco.kinematics(q)))
+            result = pipe.sense(data, control_point_positions(jaco.kinematics(q), jaco.control_points))
             assert all(not r.in_range for r in result.readings.values()), result.distances()
     finally:
         pipe.close()
@@ -293,7 +293,7 @@ def test_arm_alone_with_noise_and_dropout_is_still_not_an_obstacle(jaco, model):
 def test_person_touching_the_arm_survives_the_self_filter(jaco, model, pipeline):
     data = make_data(model)
     kin = jaco.kinematics(data.qpos[: jaco.nq])
-    points = control_point_positions(kin)
+    points = control_point_positions(kin, CONTROL_POINTS)
     hand = points["link_4"] + np.array([0.0, 0.1, 0.06])  # the hand 2.3 cm off the elbow link
     Person(model, [PersonKeyframe(0.0, (0.0, 0.72), -math.pi / 2, right_hand=tuple(hand))]).apply(0.0, data)
     mujoco.mj_forward(model, data)
@@ -317,7 +317,7 @@ def test_person_touching_the_arm_survives_the_self_filter(jaco, model, pipeline)
 def test_pipeline_matches_geometry_when_the_person_reaches_past_the_hand(jaco, model, pipeline):
     data = make_data(model)
     kin = jaco.kinematics(data.qpos[: jaco.nq])
-    points = control_point_positions(kin)
+    points = control_point_positions(kin, CONTROL_POINTS)
     reach = tuple(points["link_7"] + np.array([0.05, 0.25, 0.0]))
     Person(model, [PersonKeyframe(0.0, (0.05, 0.7), -math.pi / 2, right_hand=reach)]).apply(0.0, data)
     mujoco.mj_forward(model, data)
@@ -339,7 +339,7 @@ def test_obstacle_source_filters_a_frame_once_and_tracks_the_control_points(jaco
     mujoco.mj_forward(model, data)
     frame = pipeline.render(data)
     frames = [None, frame, frame]
-    source = pipeline.source(lambda: frames.pop(0))
+    source = pipeline.source(lambda: frames.pop(0), CONTROL_POINTS)
     kin = jaco.kinematics(data.qpos[: jaco.nq])
     assert source.update(0.0, kin).blind  # no frame yet
     first = source.update(0.0, kin)

@@ -8,7 +8,6 @@ import numpy as np
 import pytest
 
 from compare.sensing import (
-    CONTROL_POINTS,
     DepthPipeline,
     GeometricDistance,
     GeometricObstacleSource,
@@ -37,9 +36,10 @@ def test_person_steps_in_and_out_of_range_through_sim_io(jaco):
     )
     pipeline = DepthPipeline(model)
     io = SimRobotIO(model, jaco.nq, 0.01, jaco.home, scene_update=person.apply, depth_camera=pipeline.render)
-    depth_source = pipeline.source(io.read_depth)
-    geometric_source = GeometricObstacleSource(GeometricDistance(model), io.data)
-    truth = truth_function(model, io.data)
+    cps = jaco.control_points
+    depth_source = pipeline.source(io.read_depth, cps)
+    geometric_source = GeometricObstacleSource(GeometricDistance(model), io.data, cps)
+    truth = truth_function(model, io.data, cps)
     near = {"depth": [], "geometric": [], "truth": []}
     try:
         for _ in range(120):
@@ -63,7 +63,7 @@ def test_person_steps_in_and_out_of_range_through_sim_io(jaco):
     # the depth estimate (one frame per 1/30 s, held in between) tracks the geometry
     assert np.all(np.abs(near["depth"][inside] - near["truth"][inside]) < 0.03)
     assert np.all(np.isinf(near["depth"][t > 1.15]))
-    assert set(depth.readings) == set(CONTROL_POINTS)
+    assert set(depth.readings) == set(cps)
 
 
 @pytest.mark.rendering
