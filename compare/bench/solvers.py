@@ -22,6 +22,7 @@ every method alike and the ratios to the reference stay meaningful.
 
 from __future__ import annotations
 
+import contextlib
 import math
 from collections.abc import Callable, Mapping, Sequence
 from typing import TYPE_CHECKING, Any
@@ -32,6 +33,7 @@ import robots
 from compare.bench.solver_cases import apply_state, case2_hierarchy, case2_states
 from compare.bench.timing import BenchRow, summarize, time_calls
 from robots import Robot
+from tpik.exceptions import TargetNotSet
 from tpik.hierarchy import Hierarchy, Level
 from tpik.step_result import IkSolver
 from tpik.tasks import JointLimitTask, ObstacleDistanceTask, PositionTask, Task, Thresholds, VirtualWallTask
@@ -126,7 +128,8 @@ def native_for(robot: Robot, hierarchy: Hierarchy) -> MinkCase2:
             obstacles[task.frame] = task.obstacle
             gains["obstacles"] = task.gain
         elif isinstance(task, PositionTask):
-            target = task.target
+            with contextlib.suppress(TargetNotSet):  # no target yet: set_scene gives it
+                target = task.target
             gains["position"] = task.gain
     velocities = {name: float(v) for name, v in zip(robot.joint_names, robot.v_max, strict=True)}
     bodies = [robot.mujoco_body(frame) for frame in obstacles]
