@@ -102,7 +102,7 @@ def run_method(config: Config, method: str, robot: robots.Robot, progress: Progr
     io = injector.wrap_io(sim.io)
     obstacles: ObstacleSource = sim.obstacles
     if sim.pipeline is not None and io is not sim.io:
-        obstacles = sim.pipeline.source(io.read_depth)  # depth mode: the pipeline reads the faulty frames
+        obstacles = sim.depth_source(io)  # depth mode: the pipeline reads the faulty frames
     elif sim.pipeline is None:
         obstacles = injector.wrap_obstacles(obstacles)  # geometric mode: frame faults emulated
     solver = injector.wrap_solver(solver)

@@ -49,17 +49,21 @@ from compare.sensing.camera import (
 )
 from compare.sensing.depth_distance import DepthDistance
 from compare.sensing.exceptions import SensingError, UnknownSceneElement
+from compare.sensing.fusion import DepthFusion, FusionSettings
 from compare.sensing.geometric_distance import GeometricDistance, closest_on_capsules
 from compare.sensing.person import Person, PersonKeyframe, PersonPose
 from compare.sensing.pipeline import (
     DepthObstacleSource,
     DepthPipeline,
+    DepthRig,
     DepthSensingSettings,
     GeometricObstacleSource,
+    RigObstacleSource,
     truth_function,
 )
 from compare.sensing.renderer import PERSON_GROUP, ROBOT_VISUAL_GROUP, STATIC_GROUP, DepthCamera
 from compare.sensing.results import DistanceResult, ObstacleReading
+from compare.sensing.rig import load_rig_workcell
 from compare.sensing.scene import (
     CONTROL_POINTS,
     arm_qpos_addresses,
@@ -78,17 +82,21 @@ __all__ = [
     "STATIC_GROUP",
     "DepthCamera",
     "DepthDistance",
+    "DepthFusion",
     "DepthNoise",
     "DepthObstacleSource",
     "DepthPipeline",
+    "DepthRig",
     "DepthSensingSettings",
     "DistanceResult",
+    "FusionSettings",
     "GeometricDistance",
     "GeometricObstacleSource",
     "ObstacleReading",
     "Person",
     "PersonKeyframe",
     "PersonPose",
+    "RigObstacleSource",
     "SelfFilter",
     "SensingError",
     "StaticBackground",
@@ -98,6 +106,7 @@ __all__ = [
     "closest_on_capsules",
     "control_point_positions",
     "deproject",
+    "load_rig_workcell",
     "load_workcell",
     "make_data",
     "point_cloud",

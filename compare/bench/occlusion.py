@@ -1,0 +1,416 @@
+r"""Occlusion bench: depth-space distance with one and two cameras against the MuJoCo geometry.
+
+Random held-out scenes (arm pose, person pose and hands reaching near the control points, all
+from a seed) are rendered by every camera of a rig; each control point's reading is compared
+with the truth **from MuJoCo itself**, not from the project's capsule distance:
+
+* true distance and closest person point: ``mujoco.mj_geomDistance`` between a probe sphere at
+  the control point and each person geom;
+* visibility of that point from each camera: ``mujoco.mj_ray`` from the optical centre (the
+  first geom hit: the person point itself = *visible*, else hidden by the arm, the person or
+  the static scene);
+* self-filter blind zone: ``mj_geomDistance`` from the point to the arm's visual geoms below
+  the camera's self-filter margin (+ 5 mm): such a point is removed with the arm by design.
+
+Per control point with the person within ρ the bench counts, for one camera (the scene's
+``depth_camera``, today's pipeline) and for the rig (:mod:`compare.sensing.fusion`):
+
+* **false far (visible)**: the truth's closest point is visible to some camera of the setup
+  (and outside every seeing camera's self-filter margin) but the reading exceeds the truth by
+  more than 1.5 pixel footprints (or says nothing in range);
+* **false far (hidden)**: the same for points no camera sees (by cause);
+* **false near**: the reading is more than ``near_tolerance_m`` below the truth (also for a
+  control point with nobody within ρ); **shadow false near**: those whose reading is
+  ``occluded``, i.e. assumed from hidden space;
+* **visible error**: reading − truth where the closest point is visible (median, p95, max).
+
+Run (prints a Markdown table, writes JSON)::
+
+    MUJOCO_GL=egl python -m compare.bench.occlusion --scenes 150 --seed 1000 --json occlusion.json
+
+Seeds 0–99 were used while choosing the fusion's defaults (step 1 cm, tolerance 5 mm) and the
+second camera's pose; the documented measurement uses seeds from 1000 on.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import os
+import sys
+import tomllib
+from collections.abc import Sequence
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any
+
+os.environ.setdefault("MUJOCO_GL", "egl")
+
+import mujoco  # noqa: E402
+import numpy as np  # noqa: E402
+
+import robots  # noqa: E402
+from compare.sensing import (  # noqa: E402
+    CONTROL_POINTS,
+    PERSON_GROUP,
+    ROBOT_VISUAL_GROUP,
+    STATIC_GROUP,
+    DepthPipeline,
+    DepthRig,
+    DepthSensingSettings,
+    Person,
+    PersonKeyframe,
+    control_point_positions,
+    set_arm_configuration,
+)
+from compare.sensing.camera import camera_model_from_mujoco, project  # noqa: E402
+from compare.sensing.fusion import FusionSettings  # noqa: E402
+from compare.sensing.rig import add_cameras  # noqa: E402
+from compare.sensing.scene import workcell_path  # noqa: E402
+from compare.versions import versions  # noqa: E402
+
+DEFAULT_CONFIG = Path(__file__).resolve().parents[2] / "configs" / "case1_two_cameras.toml"
+"""The rig measured by default: the cameras of the two-camera case-1 config."""
+
+PROBE = "occlusion_probe"
+_PROBE_RADIUS_M = 1e-3
+_PROBE_GROUP = 5  # never rendered (cameras draw groups 0-2)
+
+
+@dataclass(frozen=True)
+class CameraSpec:
+    """A camera of the measured rig (the fields of ``[[sensor.cameras]]`` the rig needs)."""
+
+    name: str
+    position_m: tuple[float, float, float] | None = None
+    look_at_m: tuple[float, float, float] | None = None
+    quaternion_xyzw: tuple[float, float, float, float] | None = None
+    resolution: tuple[int, int] | None = None
+    focal_px: tuple[float, float] | None = None
+    principal_px: tuple[float, float] | None = None
+    range_m: tuple[float, float] | None = None
+
+
+def cameras_from_config(path: Path) -> list[CameraSpec]:
+    """The ``[[sensor.cameras]]`` of a scenario file."""
+    data = tomllib.loads(Path(path).read_text(encoding="utf-8"))
+    fields = set(CameraSpec.__dataclass_fields__)
+    out = []
+    for cam in data.get("sensor", {}).get("cameras", []):
+        out.append(CameraSpec(**{k: tuple(v) if isinstance(v, list) else v for k, v in cam.items() if k in fields}))
+    return out
+
+
+def bench_model(cameras: Sequence[CameraSpec], robot: str = "jaco2") -> mujoco.MjModel:
+    """The work cell with the rig's cameras and an unrendered probe sphere (a mocap body)."""
+    spec = mujoco.MjSpec.from_file(str(workcell_path(robot)))
+    add_cameras(spec, cameras)
+    body = spec.worldbody.add_body(name=PROBE, mocap=True, pos=[0.0, 0.0, -5.0])
+    body.add_geom(
+        name=PROBE,
+        type=mujoco.mjtGeom.mjGEOM_SPHERE,
+        size=[_PROBE_RADIUS_M, 0, 0],
+        group=_PROBE_GROUP,
+        contype=0,
+        conaffinity=0,
+    )
+    return spec.compile()
+
+
+@dataclass
+class Scene:
+    """One random scene: arm configuration and person keyframe."""
+
+    q: np.ndarray
+    person: PersonKeyframe
+
+
+def random_scene(rng: np.random.Generator, robot: robots.Robot) -> Scene:
+    """Arm anywhere in its limits with the control points above the table; a person around it.
+
+    The person stands 0.55–1.25 m from the base on any side, facing it within ±0.6 rad; each hand
+    reaches (probability 0.85) for a point 5–45 cm from a random control point, else hangs.
+    """
+    lo = np.where(np.isfinite(robot.q_lower), robot.q_lower + 0.05, -np.pi)
+    hi = np.where(np.isfinite(robot.q_upper), robot.q_upper - 0.05, np.pi)
+    while True:
+        q = rng.uniform(lo, hi)
+        kin = robot.kinematics(q)
+        points = [kin.frame_position(cp) for cp in CONTROL_POINTS]
+        if min(p[2] for p in points) > 0.08 and max(np.hypot(p[0], p[1]) for p in points) < 0.8:
+            break
+    angle = rng.uniform(-math.pi, math.pi)
+    radius = rng.uniform(0.55, 1.25)
+    pos = (radius * math.cos(angle), radius * math.sin(angle))
+    yaw = angle + math.pi + rng.uniform(-0.6, 0.6)
+    hands: list[tuple[float, float, float] | None] = []
+    for _ in range(2):
+        if rng.random() < 0.85:
+            target = points[int(rng.integers(len(points)))]
+            direction = rng.normal(size=3)
+            direction /= np.linalg.norm(direction)
+            hands.append(tuple(float(v) for v in target + direction * rng.uniform(0.05, 0.45)))
+        else:
+            hands.append(None)
+    return Scene(q, PersonKeyframe(0.0, pos, yaw, right_hand=hands[0], left_hand=hands[1]))
+
+
+@dataclass
+class PointRecord:
+    """One control point of one scene: truth, visibility and the readings."""
+
+    scene: int
+    control_point: str
+    truth_m: float
+    depth_m: float
+    visible_to: list[str]
+    hidden_by: dict[str, str]
+    one_m: float
+    one_occluded: bool
+    two_m: float
+    two_occluded: bool
+    two_camera: str | None
+
+
+@dataclass
+class Truth:
+    """MuJoCo's answer for one control point."""
+
+    distance_m: float
+    closest: np.ndarray
+    depth_m: float = math.nan  # largest depth of the closest point in the cameras that see it
+    hidden_by: dict[str, str] = field(default_factory=dict)  # camera → visible|arm|person|static|out_of_view|margin
+
+
+class GroundTruth:
+    """Distances, closest points and visibility from MuJoCo's collision and ray functions (module docstring)."""
+
+    def __init__(self, model: mujoco.MjModel, cameras: Sequence[str], margins_m: Sequence[float]) -> None:
+        self.model = model
+        self.probe = model.geom(PROBE).id
+        self.probe_mocap = int(model.body_mocapid[model.body(PROBE).id])
+        self.person_geoms = [int(g) for g in np.flatnonzero(model.geom_group == PERSON_GROUP)]
+        self.arm_geoms = [int(g) for g in np.flatnonzero(model.geom_group == ROBOT_VISUAL_GROUP)]
+        self.cameras = [camera_model_from_mujoco(model, c) for c in cameras]
+        self.names = list(cameras)
+        self.margins = list(margins_m)
+        self._groups = np.zeros(6, dtype=np.uint8)
+        self._groups[[STATIC_GROUP, PERSON_GROUP, ROBOT_VISUAL_GROUP]] = 1
+
+    def _probe_at(self, data: mujoco.MjData, point: np.ndarray) -> None:
+        data.mocap_pos[self.probe_mocap] = point
+        mujoco.mj_kinematics(self.model, data)
+
+    def _distance(self, data: mujoco.MjData, geoms: list[int], distmax: float) -> tuple[float, np.ndarray | None]:
+        best, closest = math.inf, None
+        fromto = np.zeros(6)
+        for g in geoms:
+            d = mujoco.mj_geomDistance(self.model, data, self.probe, g, distmax, fromto)
+            if d < best:
+                best, closest = d, fromto[3:].copy()
+        return best + _PROBE_RADIUS_M, closest
+
+    def measure(self, data: mujoco.MjData, point: np.ndarray, distmax: float) -> Truth:
+        """Truth for a control point at ``point`` (data after ``mj_kinematics``; the probe is moved)."""
+        self._probe_at(data, point)
+        dist, closest = self._distance(data, self.person_geoms, distmax)
+        if closest is None or not math.isfinite(dist):
+            return Truth(math.inf, np.full(3, np.nan))
+        truth = Truth(max(dist, 0.0), closest)
+        self._probe_at(data, closest)
+        arm_gap, _ = self._distance(data, self.arm_geoms, 1.0)
+        for cam, name, margin in zip(self.cameras, self.names, self.margins, strict=True):
+            truth.hidden_by[name] = self._visibility(data, cam, closest, arm_gap, margin)
+            if truth.hidden_by[name] == "visible":
+                truth.depth_m = max(np.nan_to_num(truth.depth_m), float(project(cam, closest[None, :])[1][0]))
+        return truth
+
+    def _visibility(self, data: mujoco.MjData, cam: Any, point: np.ndarray, arm_gap: float, margin: float) -> str:
+        uv, depth = project(cam, point[None, :])
+        u, v = uv[0]
+        if not (
+            cam.min_range_m <= depth[0] <= cam.max_range_m
+            and -0.5 <= u < cam.width - 0.5
+            and -0.5 <= v < cam.height - 0.5
+        ):
+            return "out_of_view"
+        origin = cam.transform_base_to_camera[:3, 3]
+        ray = point - origin
+        length = float(np.linalg.norm(ray))
+        geom = np.array([-1], dtype=np.int32)
+        hit = mujoco.mj_ray(self.model, data, origin, ray / length, self._groups, 1, -1, geom)
+        if hit >= 0 and hit < length - 3e-3:
+            group = int(self.model.geom_group[int(geom[0])])
+            if group == PERSON_GROUP:
+                # A person surface within the self-filter margin is removed with the arm: its shadow
+                # counts as the arm's (free), as with one camera.
+                self._probe_at(data, origin + ray / length * hit)
+                gap, _ = self._distance(data, self.arm_geoms, 1.0)
+                self._probe_at(data, point)
+                return "margin_shadow" if gap < margin + 5e-3 else "person"
+            return "arm" if group == ROBOT_VISUAL_GROUP else "static"
+        if arm_gap < margin + 5e-3:
+            return "margin"
+        return "visible"
+
+
+def run_scenes(
+    n_scenes: int,
+    seed: int,
+    config: Path = DEFAULT_CONFIG,
+    rho_m: float = 0.5,
+    noise_std_m: float = 0.0,
+    dropout: float = 0.0,
+    fusion: FusionSettings | None = None,
+) -> tuple[list[PointRecord], dict[str, float]]:
+    """Render ``n_scenes`` scenes from ``seed`` on; one-camera and rig readings with MuJoCo's truth.
+
+    Returns:
+        The records (one per scene and control point) and the mean wall times [ms] of the
+        one-camera and two-camera distance steps (filter + distance, fused).
+    """
+    import time
+
+    robot = robots.load("jaco2")
+    cams = cameras_from_config(config)
+    if len(cams) < 2:
+        raise ValueError(f"{config}: needs two or more [[sensor.cameras]]")
+    model = bench_model(cams, robot.name)
+    base = DepthSensingSettings(rho_m=rho_m, noise_std_m=noise_std_m, dropout=dropout, seed=seed)
+    settings = [
+        DepthSensingSettings(**{**asdict(base), "camera": c.name, "seed": seed + 7919 * i}) for i, c in enumerate(cams)
+    ]
+    rig = DepthRig(model, settings, fusion)
+    one: DepthPipeline = rig.pipelines[0]
+    truth = GroundTruth(model, [c.name for c in cams], [s.self_filter_margin_m for s in settings])
+    data = mujoco.MjData(model)
+    mujoco.mj_resetDataKeyframe(model, data, model.keyframe("home").id)
+    rng = np.random.default_rng(seed)
+    records: list[PointRecord] = []
+    wall = {"one_ms": 0.0, "two_ms": 0.0}
+    try:
+        for i in range(n_scenes):
+            scene = random_scene(rng, robot)
+            set_arm_configuration(model, data, scene.q)
+            Person(model, [scene.person]).apply(0.0, data)
+            mujoco.mj_forward(model, data)
+            points = control_point_positions(robot.kinematics(scene.q))
+            frames = rig.render(data)
+            t0 = time.perf_counter()
+            r1 = one.process(frames[0], points, data=data)
+            t1 = time.perf_counter()
+            r2 = rig.process(frames, points, data=data)
+            t2 = time.perf_counter()
+            wall["one_ms"] += (t1 - t0) * 1e3 / n_scenes
+            wall["two_ms"] += (t2 - t1) * 1e3 / n_scenes
+            for cp, p in points.items():
+                tr = truth.measure(data, p, distmax=rho_m + 1.0)
+                a, b = r1.readings[cp], r2.readings[cp]
+                records.append(
+                    PointRecord(
+                        scene=i,
+                        control_point=cp,
+                        truth_m=tr.distance_m,
+                        depth_m=tr.depth_m,
+                        visible_to=[c for c, h in tr.hidden_by.items() if h == "visible"],
+                        hidden_by=tr.hidden_by,
+                        one_m=a.distance_m,
+                        one_occluded=a.occluded,
+                        two_m=b.distance_m,
+                        two_occluded=b.occluded,
+                        two_camera=b.camera,
+                    )
+                )
+    finally:
+        rig.close()
+    return records, wall
+
+
+def footprint_m(depth_m: float, f_px: float = 365.5) -> float:
+    """1.5 pixel footprints at depth ``depth_m`` [m] (the tolerance of a visible reading) plus 1 mm."""
+    return 1.5 * depth_m / f_px + 1e-3
+
+
+def summarize(records: Sequence[PointRecord], rho_m: float = 0.5, near_tolerance_m: float = 0.05) -> dict[str, Any]:
+    """Counts and errors for the one-camera setup and the rig (module docstring)."""
+    out: dict[str, Any] = {}
+    for setup, attr, occ_attr in (("one", "one_m", "one_occluded"), ("two", "two_m", "two_occluded")):
+        far_vis = far_hidden = near = shadow_near = 0
+        errors: list[float] = []
+        over_hidden: dict[str, list[float]] = {}
+        in_range = 0
+        for r in records:
+            reading = getattr(r, attr)
+            occluded = getattr(r, occ_attr)
+            # The one-camera setup is judged on what its own camera (the first) sees.
+            causes = r.hidden_by if setup == "two" else dict(list(r.hidden_by.items())[:1])
+            if r.truth_m <= rho_m - 0.01:
+                in_range += 1
+                tol = footprint_m(r.depth_m if math.isfinite(r.depth_m) else 2.5)
+                if "visible" in causes.values():
+                    errors.append(reading - r.truth_m if math.isfinite(reading) else math.inf)
+                    if not reading <= r.truth_m + tol:
+                        far_vis += 1
+                else:
+                    cause = "+".join(sorted(set(causes.values())))
+                    over_hidden.setdefault(cause, []).append(
+                        reading - r.truth_m if math.isfinite(reading) else math.inf
+                    )
+                    if not reading <= r.truth_m + tol:
+                        far_hidden += 1
+            if reading < min(r.truth_m, rho_m) - near_tolerance_m:
+                near += 1
+                shadow_near += bool(occluded)
+        e = np.array([x for x in errors if math.isfinite(x)])
+        out[setup] = {
+            "points_within_rho": in_range,
+            "visible_points": len(errors),
+            "false_far_visible": far_vis,
+            "false_far_hidden": far_hidden,
+            "false_near": near,
+            "shadow_false_near": shadow_near,
+            "visible_error_median_m": float(np.median(np.abs(e))) if e.size else None,
+            "visible_error_p95_m": float(np.percentile(np.abs(e), 95)) if e.size else None,
+            "visible_error_max_m": float(np.max(e)) if e.size else None,
+            "hidden_over_estimate_max_m": {
+                k: (float(max(v)) if all(math.isfinite(x) for x in v) else None) for k, v in sorted(over_hidden.items())
+            },
+            "hidden_points": {k: len(v) for k, v in sorted(over_hidden.items())},
+        }
+    return out
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Run the bench (``--help``)."""
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--scenes", type=int, default=150)
+    parser.add_argument("--seed", type=int, default=1000)
+    parser.add_argument("--config", type=Path, default=DEFAULT_CONFIG)
+    parser.add_argument("--noise", type=float, default=0.0, help="depth noise std [m]")
+    parser.add_argument("--dropout", type=float, default=0.0)
+    parser.add_argument("--tolerance", type=float, default=None, help="fusion tolerance [m]")
+    parser.add_argument("--step", type=float, default=None, help="fusion step [m]")
+    parser.add_argument("--json", type=Path, default=None)
+    args = parser.parse_args(argv)
+    fusion = FusionSettings(
+        **{k: v for k, v in (("tolerance_m", args.tolerance), ("step_m", args.step)) if v is not None}
+    )
+    records, wall = run_scenes(
+        args.scenes, args.seed, args.config, noise_std_m=args.noise, dropout=args.dropout, fusion=fusion
+    )
+    summary = summarize(records)
+    summary["wall_ms"] = wall
+    info = versions()
+    print(
+        f"{args.scenes} scenes from seed {args.seed}, {args.config.name}; "
+        f"mujoco {info.get('mujoco')}, cpu {info.get('cpu')}"
+    )
+    print(json.dumps(summary, indent=2))
+    if args.json is not None:
+        args.json.write_text(json.dumps({"summary": summary, "records": [asdict(r) for r in records]}, default=float))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
