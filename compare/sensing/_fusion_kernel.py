@@ -209,7 +209,7 @@ def not_free_bounds(
 
     That space is what lies behind the camera's obstacle pixels (from :math:`f - \tau(f)`, at
     nearest-pixel resolution) and what is out of its view or range. Within ``radius`` of a
-    control point it is at least :math:`\delta - 1.2\,\tau(z) - 0.8\,z / f_{min}` away
+    control point it is at least :math:`\delta - 1.5\,\tau(z) - 0.8\,z / f_{min}` away
     (:math:`\delta` the depth-space kernel's half-line distance, :math:`z` the farthest depth of
     interest), and at least as far as the view's border planes and range limits.
 
@@ -238,6 +238,6 @@ def not_free_bounds(
             bound = min(bound, sign * (coord - alpha * z) / np.sqrt(1.0 + alpha * alpha))
         z_far = max(z + radius[k], 0.0)
         allowance = tau[0] + tau[1] * (z_far if tau[2] > 0.0 else 1.0)
-        bound = min(bound, distance[k] - 1.2 * allowance - 0.8 * z_far / min(fx, fy))
+        bound = min(bound, distance[k] - 1.5 * allowance - 0.8 * z_far / min(fx, fy))
         out[k] = max(bound, 0.0)
     return out

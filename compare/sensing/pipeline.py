@@ -315,12 +315,14 @@ class RigObstacleSource:
 
     def update(self, t: float, kin: Kinematics) -> DistanceResult:
         """Sense at time ``t`` [s] with the arm at ``kin.q``."""
-        raw = list(self.read_frames())
-        if len(raw) != len(self.rig.pipelines) or any(f is None for f in raw):
+        latest = tuple(self.read_frames())
+        if len(latest) != len(self.rig.pipelines):
+            raise SensingError(f"the rig has {len(self.rig.pipelines)} cameras but {len(latest)} frames came in")
+        raw = [f for f in latest if f is not None]
+        if len(raw) != len(latest):  # a camera without a frame yet: blind
             return _blind(self.frames, t)
         filtered, fractions = [], []
         for c, frame in enumerate(raw):
-            assert frame is not None
             last = self._last[c]
             if last is None or last[0] is not frame:
                 last = (frame, self.rig.pipelines[c].filter(frame, q=kin.q), valid_fraction(frame))
