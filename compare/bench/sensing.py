@@ -11,6 +11,19 @@ timed on the same frame:
   base-frame point, ``scipy.spatial.cKDTree`` build and 3 nearest-point queries;
 * ``geometric-distance``: the no-render mode (capsule geometry), for sweeps.
 
+Case ``2x512x424-rho0.5``: the same scene seen by the two cameras of
+``configs/case1_two_cameras.toml`` (the second on the opposite side of the cell, behind the
+person: every control point lies in that camera's shadow of the person, so the fusion has work
+to do). Each row is timed interleaved with its one-camera counterpart on the same frames
+(``ratio_vs_one_camera``):
+
+* ``depth-distance``: per-camera distances of the 3 control points and their fusion
+  (:mod:`compare.sensing.fusion`), on filtered frames;
+* ``depth-sensing-step``: what the loop's sensing update costs per frame: both filters and the
+  fused distance (case ``512x424-rho0.5``: one camera's filter and distance);
+* ``depth-frame``: a whole frame, render included, against the 33 ms frame budget of a 30 Hz
+  camera (``frame_budget_ms``).
+
 Run: ``MUJOCO_GL=egl .venv/bin/python -m compare.bench.sensing [repeats]``.
 """
 
@@ -20,6 +33,7 @@ import math
 import os
 import sys
 from collections.abc import Callable
+from pathlib import Path
 
 os.environ.setdefault("MUJOCO_GL", "egl")
 
@@ -31,11 +45,13 @@ import robots  # noqa: E402
 from compare.bench.timing import BenchRow, summarize, time_calls  # noqa: E402
 from compare.sensing import (  # noqa: E402
     DepthPipeline,
+    DepthRig,
     DepthSensingSettings,
     GeometricDistance,
     Person,
     PersonKeyframe,
     control_point_positions,
+    load_rig_workcell,
     load_workcell,
     make_data,
     point_cloud,
@@ -44,12 +60,17 @@ from compare.sensing import (  # noqa: E402
 from compare.versions import versions  # noqa: E402
 
 CASE = "512x424-rho0.5"
+CASE_TWO = "2x512x424-rho0.5"
 RHO_M = 0.5
+FRAME_BUDGET_MS = 1e3 / 30.0
+TWO_CAMERA_CONFIG = Path(__file__).resolve().parents[2] / "configs" / "case1_two_cameras.toml"
 
 
-def _bench_scene() -> tuple[mujoco.MjModel, mujoco.MjData, dict[str, np.ndarray], np.ndarray]:
+def _bench_scene(
+    model: mujoco.MjModel | None = None,
+) -> tuple[mujoco.MjModel, mujoco.MjData, dict[str, np.ndarray], np.ndarray]:
     """Work cell at ``home``, the person 0.7 m from the base reaching past the hand (all 3 points in range)."""
-    model = load_workcell()
+    model = load_workcell() if model is None else model
     data = make_data(model)
     jaco = robots.load("jaco2")
     q = np.array(data.qpos[: jaco.nq])
@@ -124,7 +145,69 @@ def run_sensing_bench(repeats: int = 200) -> list[BenchRow]:
         ),
         summarize("geometric-distance", CASE, geometric_us, control_points=float(len(points))),
     ]
-    return rows
+    return rows + run_two_camera_bench(repeats)
+
+
+def run_two_camera_bench(repeats: int = 200) -> list[BenchRow]:
+    """Time one camera against the two of ``configs/case1_two_cameras.toml`` on the same scene (module docstring).
+
+    Returns:
+        Rows ``depth-distance`` (case ``2x512x424-rho0.5``), ``depth-sensing-step`` and
+        ``depth-frame`` (both cases), each with ``ratio_vs_one_camera`` from the same run.
+    """
+    from compare.bench.occlusion import cameras_from_config
+
+    cameras = cameras_from_config(TWO_CAMERA_CONFIG)
+    model, data, points, q = _bench_scene(load_rig_workcell("jaco2", cameras))
+    settings = [DepthSensingSettings(rho_m=RHO_M, camera=c.name, seed=i) for i, c in enumerate(cameras)]
+    rig = DepthRig(model, settings)
+    one = rig.pipelines[0]
+    try:
+        frames = rig.render(data)
+        vfs = [valid_fraction(f) for f in frames]
+        filtered = rig.filter(frames, q=q)
+        fused = rig.fusion.compute(filtered, points, vfs)
+        samples = rig.fusion.last_samples
+        d1, d2 = _interleaved(
+            lambda: one.distance.compute(filtered[0], points, vfs[0]),
+            lambda: rig.fusion.compute(filtered, points, vfs),
+            repeats,
+        )
+        s1, s2 = _interleaved(
+            lambda: one.distance.compute(one.filter(frames[0], q=q), points, vfs[0]),
+            lambda: rig.fusion.compute(rig.filter(frames, q=q), points, vfs),
+            max(20, repeats // 4),
+        )
+        f1, f2 = _interleaved(
+            lambda: one.process(one.render(data), points, q=q),
+            lambda: rig.process(rig.render(data), points, q=q),
+            max(20, repeats // 10),
+        )
+    finally:
+        rig.close()
+    truth = GeometricDistance(model, rho_m=RHO_M).compute(data, points)
+    error = max(abs(fused.readings[n].distance_m - truth.readings[n].distance_m) for n in points)
+
+    def ratio(a: np.ndarray, b: np.ndarray) -> float:
+        return float(np.median(b) / np.median(a))
+
+    budget = {"frame_budget_ms": FRAME_BUDGET_MS}
+    return [
+        summarize(
+            "depth-distance",
+            CASE_TWO,
+            d2,
+            ratio_vs_one_camera=ratio(d1, d2),
+            one_camera_median_us=float(np.median(d1)),
+            fusion_samples=float(samples),
+            occluded_readings=float(sum(r.occluded for r in fused.readings.values())),
+            max_error_vs_geometry_m=float(error),
+        ),
+        summarize("depth-sensing-step", CASE, s1),
+        summarize("depth-sensing-step", CASE_TWO, s2, ratio_vs_one_camera=ratio(s1, s2)),
+        summarize("depth-frame", CASE, f1, **budget),
+        summarize("depth-frame", CASE_TWO, f2, ratio_vs_one_camera=ratio(f1, f2), **budget),
+    ]
 
 
 def _interleaved(fn_a: Callable[[], object], fn_b: Callable[[], object], repeats: int) -> tuple[np.ndarray, np.ndarray]:

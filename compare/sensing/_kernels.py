@@ -115,7 +115,9 @@ def closest_in_boxes(
                 a = xn[u]
                 b = yn[v]
                 d = work_d[i]
-                s = max((a * px + b * py + pz) * inv_rr[v, u], d)
+                ir = inv_rr[v, u]
+                s0 = (a * px + b * py + pz) * ir
+                s = max(s0, d)
                 dx = a * s - px
                 dy = b * s - py
                 dz = s - pz
@@ -123,12 +125,10 @@ def closest_in_boxes(
                 if d2 < m:
                     m, ma, mb, ms, md = d2, a, b, s, d
                 if measured:
-                    dx = a * d - px
-                    dy = b * d - py
-                    dz = d - pz
-                    d2 = dx * dx + dy * dy + dz * dz
-                    if d2 < e:
-                        e, ea, eb, ed = d2, a, b, d
+                    # Surface point: the same point when s = d, else |r|² (s0 − d)² farther (squared).
+                    e2 = d2 if s0 <= d else d2 + (s0 - d) * (s0 - d) / ir
+                    if e2 < e:
+                        e, ea, eb, ed = e2, a, b, d
             count[k] = c
             out_d2[k], out_a[k], out_b[k], out_s[k], out_hidden[k] = m, ma, mb, ms, ms > md
             out_e2[k], out_ea[k], out_eb[k], out_ed[k] = e, ea, eb, ed

@@ -189,24 +189,37 @@ class DepthDistance:
         Returns:
             The :class:`CameraEvaluation` (distances not cut at ρ).
         """
-        self._check_shape(frame)
-        depth = frame.depth_m
         p = base_to_sensor(self.camera, np.atleast_2d(points_base))  # (K, 3)
-        boxes = self.surveillance_boxes(p)
-        lo, hi = self.camera.min_range_m, self.camera.max_range_m
-        if self.backend == "numba":
-            img = depth if depth.flags.c_contiguous else np.ascontiguousarray(depth)
-            d2, a, b, s, hidden, counts, e2, ea, eb, ed = closest_in_boxes(
-                img, boxes, self._xn64, self._yn64, self._inv_rr, p, self.min_support, lo, hi, *self._work, measured
-            )
-        else:
-            d2, a, b, s, hidden, counts, e2, ea, eb, ed = self._closest_numpy(depth, boxes, p, measured)
+        boxes, (d2, a, b, s, hidden, counts, e2, ea, eb, ed) = self.scan(frame, p, measured)
         # Closest points (a s, b s, s) in the sensor frame, distances re-evaluated in float64.
         o = np.stack([a * s, b * s, s], axis=1)
         dist = np.where(np.isfinite(d2), np.linalg.norm(o - p, axis=1), np.inf)
         m = np.stack([ea * ed, eb * ed, ed], axis=1)
         mdist = np.where(np.isfinite(e2), np.linalg.norm(m - p, axis=1), np.inf)
         return CameraEvaluation(p, boxes, boxes[:, 0] < boxes[:, 1], dist, o, hidden, counts, mdist, m)
+
+    def scan(
+        self, frame: DepthFrame, p_sensor: np.ndarray, measured: bool = False
+    ) -> tuple[np.ndarray, tuple[np.ndarray, ...]]:
+        """The surveillance boxes of sensor-frame points and the kernel's raw per-point arrays.
+
+        Returns:
+            Boxes (K, 4) and ``(d², a, b, s, hidden, count, e², a_e, b_e, d_e)`` as
+            :func:`compare.sensing._kernels.closest_in_boxes` returns them (either backend).
+        """
+        self._check_shape(frame)
+        depth = frame.depth_m
+        boxes = self.surveillance_boxes(p_sensor)
+        lo, hi = self.camera.min_range_m, self.camera.max_range_m
+        if self.backend == "numba":
+            img = depth if depth.flags.c_contiguous else np.ascontiguousarray(depth)
+            out = closest_in_boxes(
+                img, boxes, self._xn64, self._yn64, self._inv_rr, p_sensor, self.min_support, lo, hi, *self._work,
+                measured,
+            )  # fmt: skip
+        else:
+            out = self._closest_numpy(depth, boxes, p_sensor, measured)
+        return boxes, out
 
     def _closest_numpy(
         self, depth: np.ndarray, boxes: np.ndarray, p: np.ndarray, measured: bool = False

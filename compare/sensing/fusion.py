@@ -72,8 +72,8 @@ import numpy as np
 
 from compare.loop.robot_io import CameraModel, DepthFrame
 from compare.sensing._fusion_kernel import not_free_bounds, occluded_search
-from compare.sensing.camera import DepthNoise, sensor_to_base, valid_fraction
-from compare.sensing.depth_distance import DepthDistance
+from compare.sensing.camera import DepthNoise, base_to_sensor, sensor_to_base, valid_fraction
+from compare.sensing.depth_distance import CameraEvaluation, DepthDistance
 from compare.sensing.exceptions import SensingError
 from compare.sensing.results import DistanceResult, ObstacleReading
 
@@ -199,9 +199,7 @@ class DepthFusion:
         fractions = [
             valid_fraction(f) if valid_fractions is None else float(valid_fractions[c]) for c, f in enumerate(frames)
         ]
-        evals = [
-            dist.evaluate(frame, p_base, measured=True) for dist, frame in zip(self.distances, frames, strict=True)
-        ]
+        evals = [self._evaluate(dist, frame, p_base) for dist, frame in zip(self.distances, frames, strict=True)]
         rho = self.rho_m
         # Measured: the closest surface point over all cameras (never dropped).
         measured = np.array([ev.measured_m for ev in evals]).reshape(len(evals), k_points)
@@ -283,6 +281,23 @@ class DepthFusion:
             pixels_visited=int(sum(ev.counts.sum() for ev in evals)),
             out_of_view=tuple(n for k, n in enumerate(names) if not seen[k]),
             cameras=cameras,
+        )
+
+    @staticmethod
+    def _evaluate(dist: DepthDistance, frame: DepthFrame, p_base: np.ndarray) -> CameraEvaluation:
+        """One camera's evaluation with the closest measured point (distances from the kernel's squares)."""
+        p = base_to_sensor(dist.camera, p_base)
+        boxes, (d2, a, b, s, hidden, counts, e2, ea, eb, ed) = dist.scan(frame, p, measured=True)
+        return CameraEvaluation(
+            p_sensor=p,
+            boxes=boxes,
+            seen=boxes[:, 0] < boxes[:, 1],
+            distance_m=np.sqrt(d2),
+            point_sensor=np.stack([a * s, b * s, s], axis=1),
+            hidden=hidden,
+            counts=counts,
+            measured_m=np.sqrt(e2),
+            measured_point_sensor=np.stack([ea * ed, eb * ed, ed], axis=1),
         )
 
 

@@ -186,27 +186,31 @@ def test_occluded_search_finds_the_closest_hidden_point_no_other_camera_sees_fre
         assert not exhausted
         if math.isfinite(found):
             assert np.linalg.norm(np.array([x, y, z]) - ev.p_sensor[0]) == pytest.approx(found)
-        # Brute force: every obstacle pixel's hidden half-line sampled every 1 mm, b's rule in numpy.
+        # Brute force: every obstacle pixel's hidden half-line near P sampled every 2 mm in
+        # depth, b's rule in numpy.
         v0, v1, u0, u1 = ev.boxes[0]
         vs, us = np.nonzero(frame_a.depth_m[v0:v1, u0:u1] > 0)
         vs, us = vs + v0, us + u0
         d = frame_a.depth_m[vs, us].astype(float)
         rays = np.stack([(us - CAM_A.cx) / F, (vs - CAM_A.cy) / F, np.ones_like(d)], -1)
-        best = math.inf
-        for s_off in np.arange(0.0005, 1.2, 0.001):
-            pts_sensor = rays * (d + s_off)[:, None]
-            dist = np.linalg.norm(pts_sensor - ev.p_sensor[0], axis=1)
-            near = dist < min(best, RHO)
-            if not near.any():
-                continue
-            R, t = CAM_A.transform_base_to_camera[:3, :3], CAM_A.transform_base_to_camera[:3, 3]
-            hidden = ~_seen_free_reference(CAM_B, frame_b.depth_m, pts_sensor[near] @ R.T + t, 0.002)
-            if hidden.any():
-                best = min(best, float(dist[near][hidden].min()))
+        ps = ev.p_sensor[0]
+        rr = np.einsum("ki,ki->k", rays, rays)
+        s0 = rays @ ps / rr
+        line2 = np.einsum("ki,ki->k", rays * s0[:, None] - ps, rays * s0[:, None] - ps)
+        e = float(ev.measured_m[0])  # only what is nearer than the measured point matters
+        half = np.sqrt(np.maximum(min(RHO, e) ** 2 - line2, 0.0) / rr)
+        lo, hi = np.maximum(d + 5e-4, s0 - half), s0 + half
+        counts = np.maximum(np.ceil((hi - lo) / 0.002).astype(int), 0)
+        line = np.repeat(np.arange(d.size), counts)
+        depth = lo[line] + 0.002 * (np.arange(line.size) - np.repeat(np.cumsum(counts) - counts, counts))
+        pts_sensor = rays[line] * depth[:, None]
+        dist = np.linalg.norm(pts_sensor - ps, axis=1)
+        R, t = CAM_A.transform_base_to_camera[:3, :3], CAM_A.transform_base_to_camera[:3, 3]
+        hidden = ~_seen_free_reference(CAM_B, frame_b.depth_m, pts_sensor @ R.T + t, 0.002) & (dist < RHO)
+        best = float(dist[hidden].min()) if hidden.any() else math.inf
         # The kernel leaves out what the measured point already covers (lines whose closest point is
-        # their surface point); compare both with it. Sampling every 5 mm: exact to about one step.
-        e = float(ev.measured_m[0])
-        assert min(best, e) - 1e-3 <= min(found, e) <= min(best, e) + 0.0055 + 1e-3, (seed, found, best, e)
+        # their surface point); compare both with it. Kernel every 5 mm, reference every 2 mm.
+        assert min(best, e) - 2e-3 <= min(found, e) <= min(best, e) + 0.0055 + 1e-3, (seed, found, best, e)
         beaten += found < e - 0.01
     assert beaten >= 3  # the hidden space mattered in several scenes
 
