@@ -27,6 +27,13 @@ which is never larger than Flacco's value (his point at :math:`d_p` lies on the 
 when :math:`d_o < d_p`) and equals the measured point's distance when the obstacle is behind
 :math:`P`. The returned closest point is :math:`s^\* r`, mapped to the base frame.
 
+**What a reading is.** The same pass finds the closest *measured* point :math:`e` (the pixels'
+surface points :math:`d_o\,r`). A reading is ``occluded`` (assumed from hidden space, not
+measured) when its closest point lies behind the surface (:math:`s^* > d_o`) and is nearer than
+:math:`e` by more than ``occluded_margin_m`` (1 cm): a point just behind a visible surface is
+that surface, to the resolution. The distance itself is Flacco's, whatever the flag. Several
+cameras: :mod:`compare.sensing.fusion`.
+
 Pixels with no return (0, NaN, ±inf, outside the camera's range) are skipped: they never create
 an obstacle.
 A frame whose valid fraction is below ``blind_fraction`` is flagged ``blind`` so that the
@@ -60,6 +67,9 @@ class DepthDistance:
         backend: ``"numba"`` (compiled single pass, default) or ``"numpy"`` (vectorised
             reference); both give the same result.
         name: Camera name written into the readings (``ObstacleReading.camera``).
+        occluded_margin_m: A reading is ``occluded`` (assumed from hidden space) when its closest
+            point lies behind the measured surface and is nearer than every measured point by
+            more than this [m] (the fusion's ``fusion_step_m``: one resolution for both).
     """
 
     BACKENDS = ("numba", "numpy")
@@ -72,6 +82,7 @@ class DepthDistance:
         min_support: int = 1,
         backend: str = "numba",
         name: str | None = None,
+        occluded_margin_m: float = 0.01,
     ) -> None:
         if not (math.isfinite(rho_m) and rho_m > 0.0):
             raise SensingError(f"rho_m must be > 0, got {rho_m}")
@@ -87,6 +98,9 @@ class DepthDistance:
         self.min_support = int(min_support)
         self.backend = backend
         self.name = name
+        if not (math.isfinite(occluded_margin_m) and occluded_margin_m >= 0.0):
+            raise SensingError(f"occluded_margin_m must be >= 0, got {occluded_margin_m}")
+        self.occluded_margin_m = float(occluded_margin_m)
         xn, yn = normalized_coordinates(camera)
         self._xn64 = xn
         self._yn64 = yn
@@ -133,7 +147,8 @@ class DepthDistance:
             self._check_shape(frame)
             vf = valid_fraction(frame) if valid_fraction_raw is None else float(valid_fraction_raw)
             return DistanceResult({}, vf, vf < self.blind_fraction, frame.stamp_s)
-        ev = self.evaluate(frame, np.array([np.asarray(control_points[n], dtype=float).reshape(3) for n in names]))
+        points = np.array([np.asarray(control_points[n], dtype=float).reshape(3) for n in names])
+        ev = self.evaluate(frame, points, measured=True)
         return self.result(frame, names, ev, valid_fraction_raw)
 
     def result(
@@ -156,9 +171,12 @@ class DepthDistance:
         vf = valid_fraction(frame) if valid_fraction_raw is None else float(valid_fraction_raw)
         threshold = self.blind_fraction if blind_fraction is None else blind_fraction
         found = ev.seen & (ev.distance_m <= self.rho_m)
+        # Assumed from hidden space: behind a measured surface and nearer than every measured point
+        # by more than the resolution (a point just behind a visible surface counts as measured).
+        occluded = ev.hidden & (ev.distance_m < ev.measured_m - self.occluded_margin_m)
         o_base = sensor_to_base(self.camera, ev.point_sensor)
         readings = {
-            name: ObstacleReading(float(ev.distance_m[i]), o_base[i], True, bool(ev.hidden[i]), self.name)
+            name: ObstacleReading(float(ev.distance_m[i]), o_base[i], True, bool(occluded[i]), self.name)
             if found[i]
             else ObstacleReading.nothing()
             for i, name in enumerate(names)

@@ -44,6 +44,8 @@ class DepthSensingSettings:
         seed: Seed of the noise.
         camera: Camera name in the scene.
         robot_root_body: Root body of the arm (self-filter).
+        occluded_margin_m: A reading nearer than every measured point by more than this is
+            ``occluded`` (``DepthDistance``; ``[sensor] fusion_step_m``).
     """
 
     rho_m: float = 0.5
@@ -58,6 +60,7 @@ class DepthSensingSettings:
     seed: int = 0
     camera: str = "depth_camera"
     robot_root_body: str = "j2s7s300_link_base"
+    occluded_margin_m: float = 0.01
 
     @classmethod
     def from_sensor_config(cls, sensor: Any, seed: int = 0, **overrides: Any) -> DepthSensingSettings:
@@ -69,6 +72,7 @@ class DepthSensingSettings:
             "dropout": sensor.dropout,
             "blind_fraction": sensor.blind_fraction,
             "seed": seed,
+            "occluded_margin_m": sensor.fusion_step_m,
         }
         values.update(overrides)
         return cls(**values)
@@ -132,7 +136,9 @@ class DepthPipeline:
             noise_allowance=s.noise_allowance,
             root_body=s.robot_root_body,
         )
-        self.distance = DepthDistance(self.camera, s.rho_m, s.blind_fraction, s.min_support, name=s.camera)
+        self.distance = DepthDistance(
+            self.camera, s.rho_m, s.blind_fraction, s.min_support, name=s.camera, occluded_margin_m=s.occluded_margin_m
+        )
 
     def render(self, data: mujoco.MjData, stamp_s: float | None = None) -> DepthFrame:
         """A raw (noisy) depth frame of ``data``; usable as ``SimRobotIO(depth_camera=...)``."""

@@ -74,6 +74,16 @@ FRONT = (0.4 * np.array([0.0, -2.0, 1.0]) / math.sqrt(5.0), 0.1)
 BEHIND = (0.4 * np.array([0.0, 2.0, 1.0]) / math.sqrt(5.0), 0.1)
 
 
+def test_one_camera_says_whether_a_reading_was_measured_or_assumed():
+    distance = DepthDistance(CAM_A, RHO, name="a")
+    shadow = distance.compute(_render(CAM_A, [FRONT]), {"p": P}).readings["p"]
+    assert shadow.occluded and shadow.camera == "a" and shadow.distance_m < 0.05
+    side = (np.array([0.25, 0.0, 0.0]), 0.1)  # beside P, in full view: measured, to a pixel footprint
+    seen = distance.compute(_render(CAM_A, [side]), {"p": P}).readings["p"]
+    assert not seen.occluded and seen.distance_m == pytest.approx(0.15, abs=0.01)
+    assert DepthDistance(CAM_A, RHO).compute(_render(CAM_A, []), {"p": P}).readings["p"].camera is None
+
+
 def test_a_shadow_another_camera_sees_free_is_dropped():
     scene = [FRONT]
     alone = DepthDistance(CAM_A, RHO, name="a").compute(_render(CAM_A, scene), {"p": P}).readings["p"]
