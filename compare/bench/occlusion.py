@@ -459,6 +459,35 @@ def format_markdown(summary: dict[str, Any], causes: dict[str, dict[str, Any]]) 
     return "\n".join(lines)
 
 
+def plot_records(records: Sequence[PointRecord], path: Path, rho_m: float = 0.5) -> Path:
+    """Reading against truth per control point, one camera and two, measured vs assumed (occluded)."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    fig = Figure(figsize=(10.0, 4.6), layout="constrained")
+    FigureCanvasAgg(fig)
+    axes = fig.subplots(1, 2, sharex=True, sharey=True)
+    truth = np.array([min(r.truth_m, rho_m + 0.05) for r in records])
+    for ax, setup, title in ((axes[0], "one", "one camera"), (axes[1], "two", "two cameras, fused")):
+        reading = np.array([min(getattr(r, f"{setup}_m"), rho_m + 0.05) for r in records])
+        occluded = np.array([getattr(r, f"{setup}_occluded") for r in records])
+        near = reading < np.minimum(truth, rho_m) - 0.05
+        ax.fill_between([0, rho_m + 0.05], [-0.05, rho_m], [0.05, rho_m + 0.1], color="0.9", label="±5 cm")
+        ax.plot([0, rho_m + 0.05], [0, rho_m + 0.05], color="0.5", linewidth=0.8)
+        ax.plot(truth[~occluded], reading[~occluded], ".", color="tab:blue", markersize=4, label="measured")
+        ax.plot(truth[occluded], reading[occluded], ".", color="tab:purple", markersize=4, label="assumed (occluded)")
+        ax.set(title=f"{title}: {int(near.sum())} false near", xlabel="true distance [m] (MuJoCo geometry)")
+        ax.set_xlim(0, rho_m + 0.06)
+        ax.set_ylim(0, rho_m + 0.06)
+        ax.grid(alpha=0.3)
+    axes[0].set_ylabel(f"reading [m] (nothing within ρ: plotted at {rho_m + 0.05:g})")
+    axes[1].legend(loc="lower right", fontsize=8)
+    fig.suptitle(f"{len({r.scene for r in records})} held-out scenes, control points with reading or truth within ρ")
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=110)
+    return path
+
+
 def main(argv: list[str] | None = None) -> int:
     """Run the bench (``--help``)."""
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
@@ -470,6 +499,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--tolerance", type=float, default=None, help="fusion tolerance [m]")
     parser.add_argument("--step", type=float, default=None, help="fusion step [m]")
     parser.add_argument("--json", type=Path, default=None)
+    parser.add_argument("--plot", type=Path, default=None, help="write the reading-vs-truth figure (PNG)")
     args = parser.parse_args(argv)
     fusion = FusionSettings(
         **{k: v for k, v in (("tolerance_m", args.tolerance), ("step_m", args.step)) if v is not None}
@@ -486,6 +516,9 @@ def main(argv: list[str] | None = None) -> int:
         f"mujoco {info.get('mujoco')}, cpu {info.get('cpu')}"
     )
     print(format_markdown(summary, causes))
+    if args.plot is not None:
+        shown = [r for r in records if min(r.truth_m, r.one_m, r.two_m) <= 0.5]
+        print(f"figure: {plot_records(shown, args.plot)}")
     if args.json is not None:
         args.json.write_text(json.dumps({"summary": summary, "records": [asdict(r) for r in records]}, default=float))
     return 0

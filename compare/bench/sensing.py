@@ -172,16 +172,19 @@ def run_two_camera_bench(repeats: int = 200) -> list[BenchRow]:
             lambda: one.distance.compute(filtered[0], points, vfs[0]),
             lambda: rig.fusion.compute(filtered, points, vfs),
             repeats,
+            block=1,
         )
         s1, s2 = _interleaved(
             lambda: one.distance.compute(one.filter(frames[0], q=q), points, vfs[0]),
             lambda: rig.fusion.compute(rig.filter(frames, q=q), points, vfs),
             max(20, repeats // 4),
+            block=1,
         )
         f1, f2 = _interleaved(
             lambda: one.process(one.render(data), points, q=q),
             lambda: rig.process(rig.render(data), points, q=q),
             max(20, repeats // 10),
+            block=1,
         )
     finally:
         rig.close()
@@ -210,9 +213,10 @@ def run_two_camera_bench(repeats: int = 200) -> list[BenchRow]:
     ]
 
 
-def _interleaved(fn_a: Callable[[], object], fn_b: Callable[[], object], repeats: int) -> tuple[np.ndarray, np.ndarray]:
-    """Time two functions in alternating blocks of 10 calls, so both see the same machine load."""
-    block = 10
+def _interleaved(
+    fn_a: Callable[[], object], fn_b: Callable[[], object], repeats: int, block: int = 10
+) -> tuple[np.ndarray, np.ndarray]:
+    """Time two functions in alternating blocks of ``block`` calls, so both see the same machine load."""
     time_calls(fn_a, 1, warmup=20)
     time_calls(fn_b, 1, warmup=20)
     a, b = [], []

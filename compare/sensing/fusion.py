@@ -199,43 +199,44 @@ class DepthFusion:
         fractions = [
             valid_fraction(f) if valid_fractions is None else float(valid_fractions[c]) for c, f in enumerate(frames)
         ]
-        evals = [self._evaluate(dist, frame, p_base) for dist, frame in zip(self.distances, frames, strict=True)]
+        dists = self.distances
+        p_sensor = [base_to_sensor(d.camera, p_base) for d in dists]
+        scans = [d.scan(f, p, measured=True) for d, f, p in zip(dists, frames, p_sensor, strict=True)]
+        boxes = [box for box, _ in scans]
+        delta = np.sqrt(np.array([raw[0] for _, raw in scans]))  # (N, K) hidden half-lines
+        measured = np.sqrt(np.array([raw[6] for _, raw in scans]))  # (N, K) surface points
+        seen = np.array([box[:, 0] < box[:, 1] for box in boxes])
         rho = self.rho_m
         # Measured: the closest surface point over all cameras (never dropped).
-        measured = np.array([ev.measured_m for ev in evals]).reshape(len(evals), k_points)
         best_cam = np.argmin(measured, axis=0)
         best = measured[best_cam, np.arange(k_points)]
-        best_sensor = [evals[c].measured_point_sensor[k] for k, c in enumerate(best_cam)]
-        occluded = np.zeros(k_points, dtype=bool)
+        hidden_points: dict[int, np.ndarray] = {}
         radius = np.minimum(best, rho)
         # A hidden point replaces a measured one only if nearer by more than the search's resolution.
         margin = np.where(best <= rho, self.settings.step_m, 0.0)
+        need = seen & (delta < radius - margin)
         samples = 0
-        for c, ev in enumerate(evals):
-            need = ev.seen & (ev.distance_m < radius - margin)
-            if not need.any():
-                continue
+        for c in np.flatnonzero(need.any(axis=1)):
             others, rot, trans, intr, tau = self._others[c]
             bounds = np.zeros(k_points)
             for j, m in enumerate(others):
-                b = not_free_bounds(evals[m].p_sensor, evals[m].distance_m, radius, intr[j], tau[j])
-                np.maximum(bounds, b, out=bounds)
-            todo = np.flatnonzero(need & (bounds < radius - margin))
+                np.maximum(bounds, not_free_bounds(p_sensor[m], delta[m], radius, intr[j], tau[j]), out=bounds)
+            todo = np.flatnonzero(seen[c] & (delta[c] < radius - margin) & (bounds < radius - margin))
             if todo.size == 0:
                 continue
-            owner = self.distances[c]
+            owner = dists[c]
             depth = _contiguous(frames[c].depth_m)
             other_depths = tuple(_contiguous(frames[m].depth_m) for m in others)
             for k in todo:
                 found, x, y, z, n, _ = occluded_search(
                     depth,
-                    ev.boxes[k],
+                    boxes[c][k],
                     owner._xn64,
                     owner._yn64,
                     owner._inv_rr,
                     owner.camera.min_range_m,
                     owner.camera.max_range_m,
-                    ev.p_sensor[k],
+                    p_sensor[c][k],
                     float(bounds[k]),
                     float(radius[k] - margin[k]),
                     self.settings.step_m,
@@ -252,53 +253,54 @@ class DepthFusion:
                     radius[k] = best[k] = found
                     margin[k] = 0.0
                     best_cam[k] = c
-                    occluded[k] = True
-                    best_sensor[k] = np.array([x, y, z])
+                    hidden_points[int(k)] = np.array([x, y, z])
         self.last_samples = samples
         readings = {}
         for k, name in enumerate(names):
-            if best[k] <= rho:
-                c = int(best_cam[k])
-                point = sensor_to_base(self.distances[c].camera, best_sensor[k])
-                readings[name] = ObstacleReading(float(best[k]), point, True, bool(occluded[k]), self.names[c])
-            else:
+            if not best[k] <= rho:
                 readings[name] = ObstacleReading.nothing()
-        seen = np.any([ev.seen for ev in evals], axis=0)
-        blind = [vf < d.blind_fraction for vf, d in zip(fractions, self.distances, strict=True)]
-        cameras = (
-            tuple(
-                d.result(f, names, ev, vf)
-                for d, f, ev, vf in zip(self.distances, frames, evals, fractions, strict=True)
+                continue
+            c = int(best_cam[k])
+            hidden = hidden_points.get(k)
+            if hidden is None:
+                raw = scans[c][1]
+                ed = raw[9][k]
+                hidden_or_surface = np.array([raw[7][k] * ed, raw[8][k] * ed, ed])
+            else:
+                hidden_or_surface = hidden
+            point = sensor_to_base(dists[c].camera, hidden_or_surface)
+            readings[name] = ObstacleReading(float(best[k]), point, True, hidden is not None, self.names[c])
+        cameras: tuple[DistanceResult, ...] = ()
+        if per_camera:
+            cameras = tuple(
+                d.result(f, names, _evaluation(p, box, raw), vf)
+                for d, f, p, (box, raw), vf in zip(dists, frames, p_sensor, scans, fractions, strict=True)
             )
-            if per_camera
-            else ()
-        )
         return DistanceResult(
             readings=readings,
             valid_fraction=min(fractions),
-            blind=any(blind),
+            blind=any(vf < d.blind_fraction for vf, d in zip(fractions, dists, strict=True)),
             stamp_s=min(f.stamp_s for f in frames),
-            pixels_visited=int(sum(ev.counts.sum() for ev in evals)),
-            out_of_view=tuple(n for k, n in enumerate(names) if not seen[k]),
+            pixels_visited=int(sum(raw[5].sum() for _, raw in scans)),
+            out_of_view=tuple(n for k, n in enumerate(names) if not seen[:, k].any()),
             cameras=cameras,
         )
 
-    @staticmethod
-    def _evaluate(dist: DepthDistance, frame: DepthFrame, p_base: np.ndarray) -> CameraEvaluation:
-        """One camera's evaluation with the closest measured point (distances from the kernel's squares)."""
-        p = base_to_sensor(dist.camera, p_base)
-        boxes, (d2, a, b, s, hidden, counts, e2, ea, eb, ed) = dist.scan(frame, p, measured=True)
-        return CameraEvaluation(
-            p_sensor=p,
-            boxes=boxes,
-            seen=boxes[:, 0] < boxes[:, 1],
-            distance_m=np.sqrt(d2),
-            point_sensor=np.stack([a * s, b * s, s], axis=1),
-            hidden=hidden,
-            counts=counts,
-            measured_m=np.sqrt(e2),
-            measured_point_sensor=np.stack([ea * ed, eb * ed, ed], axis=1),
-        )
+
+def _evaluation(p: np.ndarray, boxes: np.ndarray, raw: tuple[np.ndarray, ...]) -> CameraEvaluation:
+    """A :class:`CameraEvaluation` from :meth:`DepthDistance.scan`'s raw arrays (distances from their squares)."""
+    d2, a, b, s, hidden, counts, e2, ea, eb, ed = raw
+    return CameraEvaluation(
+        p_sensor=p,
+        boxes=boxes,
+        seen=boxes[:, 0] < boxes[:, 1],
+        distance_m=np.sqrt(d2),
+        point_sensor=np.stack([a * s, b * s, s], axis=1),
+        hidden=hidden,
+        counts=counts,
+        measured_m=np.sqrt(e2),
+        measured_point_sensor=np.stack([ea * ed, eb * ed, ed], axis=1),
+    )
 
 
 def _contiguous(depth: np.ndarray) -> np.ndarray:
