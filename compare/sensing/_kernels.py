@@ -56,8 +56,9 @@ def closest_in_boxes(
         work_v: Scratch, int32 (H·W,).
         work_u: Scratch, int32 (H·W,).
         work_d: Scratch, float64 (H·W,).
-        measured: Also find the closest *measured* point (the pixels' surface points
-            ``(a d, b d, d)``, plain minimum), for the fusion of several cameras.
+        measured: Also find the closest *measured* point: the surface point ``(a d, b d, d)`` of
+            the nearest pixel that has a neighbour within ``SUPPORT_DEPTH_M`` in depth (a flying
+            pixel is not a measurement; its hidden half-line still counts).
 
     Returns:
         Per control point (arrays of length K): squared distance [m²] (``inf`` when fewer than
@@ -103,7 +104,7 @@ def closest_in_boxes(
     for k in range(k_points):
         v0, v1, u0, u1 = boxes[k, 0], boxes[k, 1], boxes[k, 2], boxes[k, 3]
         px, py, pz = points[k, 0], points[k, 1], points[k, 2]
-        e, ea, eb, ed = np.inf, 0.0, 0.0, 0.0
+        e, ea, eb, ed, ei = np.inf, 0.0, 0.0, 0.0, -1
         if support == 1:  # plain minimum in registers: the common case, ~3x faster
             m, ma, mb, ms, md, c = np.inf, 0.0, 0.0, 0.0, 0.0, 0
             for i in range(n):
@@ -128,9 +129,13 @@ def closest_in_boxes(
                     # Surface point: the same point when s = d, else |r|² (s0 − d)² farther (squared).
                     e2 = d2 if s0 <= d else d2 + (s0 - d) * (s0 - d) / ir
                     if e2 < e:
-                        e, ea, eb, ed = e2, a, b, d
+                        e, ea, eb, ed, ei = e2, a, b, d, i
             count[k] = c
             out_d2[k], out_a[k], out_b[k], out_s[k], out_hidden[k] = m, ma, mb, ms, ms > md
+            if measured and ei >= 0 and not _supported(depth, work_v[ei], work_u[ei], work_d[ei], min_range, max_range):
+                e, ea, eb, ed = _closest_supported(
+                    depth, work_v, work_u, work_d, n, v0, v1, u0, u1, xn, yn, px, py, pz, min_range, max_range
+                )
             out_e2[k], out_ea[k], out_eb[k], out_ed[k] = e, ea, eb, ed
             continue
         best[:] = np.inf
@@ -172,7 +177,11 @@ def closest_in_boxes(
                 dz = d - pz
                 d2 = dx * dx + dy * dy + dz * dz
                 if d2 < e:
-                    e, ea, eb, ed = d2, a, b, d
+                    e, ea, eb, ed, ei = d2, a, b, d, i
+        if measured and ei >= 0 and not _supported(depth, work_v[ei], work_u[ei], work_d[ei], min_range, max_range):
+            e, ea, eb, ed = _closest_supported(
+                depth, work_v, work_u, work_d, n, v0, v1, u0, u1, xn, yn, px, py, pz, min_range, max_range
+            )
         count[k] = c
         out_d2[k] = best[last]
         out_a[k] = best_a[last]
@@ -181,6 +190,68 @@ def closest_in_boxes(
         out_hidden[k] = best_s[last] > best_d[last]
         out_e2[k], out_ea[k], out_eb[k], out_ed[k] = e, ea, eb, ed
     return out_d2, out_a, out_b, out_s, out_hidden, count, out_e2, out_ea, out_eb, out_ed
+
+
+SUPPORT_DEPTH_M = 0.05
+"""A measured point needs a neighbouring pixel whose depth is within this [m] (:func:`_supported`)."""
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _supported(depth: np.ndarray, v: int, u: int, d: float, min_range: float, max_range: float) -> bool:
+    """Whether one of the 8 neighbours of pixel (v, u) is valid and within ``SUPPORT_DEPTH_M`` of its depth ``d``.
+
+    A lone pixel far from all its neighbours in depth is a flying pixel (a real sensor's at depth
+    edges; the rasteriser's at faces seen edge-on), not a surface: it does not count as measured.
+    """
+    height, width = depth.shape
+    for dv in (-1, 0, 1):
+        for du in (-1, 0, 1):
+            if dv == 0 and du == 0:
+                continue
+            vv, uu = v + dv, u + du
+            if 0 <= vv < height and 0 <= uu < width:
+                f = depth[vv, uu]
+                if min_range <= f <= max_range and abs(f - d) <= SUPPORT_DEPTH_M:
+                    return True
+    return False
+
+
+@numba.njit(cache=True, nogil=True)
+def _closest_supported(
+    depth: np.ndarray,
+    work_v: np.ndarray,
+    work_u: np.ndarray,
+    work_d: np.ndarray,
+    n: int,
+    v0: int,
+    v1: int,
+    u0: int,
+    u1: int,
+    xn: np.ndarray,
+    yn: np.ndarray,
+    px: float,
+    py: float,
+    pz: float,
+    min_range: float,
+    max_range: float,
+) -> tuple[float, float, float, float]:
+    """The closest measured point among the supported pixels of a box (the rare second pass)."""
+    e, ea, eb, ed = np.inf, 0.0, 0.0, 0.0
+    for i in range(n):
+        v = work_v[i]
+        u = work_u[i]
+        if v < v0 or v >= v1 or u < u0 or u >= u1:
+            continue
+        a = xn[u]
+        b = yn[v]
+        d = work_d[i]
+        dx = a * d - px
+        dy = b * d - py
+        dz = d - pz
+        d2 = dx * dx + dy * dy + dz * dz
+        if d2 < e and _supported(depth, v, u, d, min_range, max_range):
+            e, ea, eb, ed = d2, a, b, d
+    return e, ea, eb, ed
 
 
 @numba.njit(cache=True, nogil=True)

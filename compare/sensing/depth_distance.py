@@ -49,7 +49,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from compare.loop.robot_io import CameraModel, DepthFrame
-from compare.sensing._kernels import closest_in_boxes, surveillance_boxes
+from compare.sensing._kernels import SUPPORT_DEPTH_M, closest_in_boxes, surveillance_boxes
 from compare.sensing.camera import base_to_sensor, normalized_coordinates, sensor_to_base, valid_fraction
 from compare.sensing.exceptions import SensingError
 from compare.sensing.results import DistanceResult, ObstacleReading
@@ -239,6 +239,14 @@ class DepthDistance:
             out = self._closest_numpy(depth, boxes, p_sensor, measured)
         return boxes, out
 
+    def _supported(self, depth: np.ndarray, v: int, u: int, d: float) -> bool:
+        """Numpy twin of the kernel's support test: a valid neighbour within ``SUPPORT_DEPTH_M`` in depth."""
+        crop = depth[max(v - 1, 0) : v + 2, max(u - 1, 0) : u + 2].astype(float)
+        with np.errstate(invalid="ignore"):
+            near = (crop >= self.camera.min_range_m) & (crop <= self.camera.max_range_m)
+            near &= np.abs(crop - d) <= SUPPORT_DEPTH_M
+        return int(np.count_nonzero(near)) > 1  # the centre always counts itself
+
     def _closest_numpy(
         self, depth: np.ndarray, boxes: np.ndarray, p: np.ndarray, measured: bool = False
     ) -> tuple[np.ndarray, ...]:
@@ -287,8 +295,10 @@ class DepthDistance:
         surface = None
         if measured:
             e2 = (a * d - p[0]) ** 2 + (b * d - p[1]) ** 2 + (d - p[2]) ** 2
-            j = int(np.argmin(e2))
-            surface = (float(e2[j]), float(a[j]), float(b[j]), float(d[j]))
+            for j in np.argsort(e2, kind="stable"):  # nearest first; a flying pixel does not count
+                if self._supported(depth, v0 + int(rows[j]), u0 + int(cols[j]), float(d[j])):
+                    surface = (float(e2[j]), float(a[j]), float(b[j]), float(d[j]))
+                    break
         if n < self.min_support:
             return None, n, False, surface
         # Depth of the ray's closest approach to P, never in front of the measured surface.
