@@ -14,8 +14,9 @@ timed on the same frame:
 Case ``2x512x424-rho0.5``: the same scene seen by the two cameras of
 ``configs/case1_two_cameras.toml`` (the second on the opposite side of the cell, behind the
 person: every control point lies in that camera's shadow of the person, so the fusion has work
-to do). Each row is timed interleaved with its one-camera counterpart on the same frames
-(``ratio_vs_one_camera``):
+to do). Each row is timed alternating call by call with its one-camera counterpart on the same
+frames, by wall clock and by process CPU time (``ratio_vs_one_camera``,
+``cpu_ratio_vs_one_camera``, ``cpu_median_us``):
 
 * ``depth-distance``: per-camera distances of the 3 control points and their fusion
   (:mod:`compare.sensing.fusion`), on filtered frames;
@@ -32,7 +33,9 @@ from __future__ import annotations
 import math
 import os
 import sys
+import time
 from collections.abc import Callable
+from dataclasses import dataclass
 from pathlib import Path
 
 os.environ.setdefault("MUJOCO_GL", "egl")
@@ -153,7 +156,9 @@ def run_two_camera_bench(repeats: int = 200) -> list[BenchRow]:
 
     Returns:
         Rows ``depth-distance`` (case ``2x512x424-rho0.5``), ``depth-sensing-step`` and
-        ``depth-frame`` (both cases), each with ``ratio_vs_one_camera`` from the same run.
+        ``depth-frame`` (both cases); the two-camera rows carry ``ratio_vs_one_camera`` (wall
+        medians) and ``cpu_ratio_vs_one_camera`` (process CPU time: the one that holds on a
+        shared machine), from calls alternating with the one-camera counterpart.
     """
     from compare.bench.occlusion import cameras_from_config
 
@@ -168,49 +173,89 @@ def run_two_camera_bench(repeats: int = 200) -> list[BenchRow]:
         filtered = rig.filter(frames, q=q)
         fused = rig.fusion.compute(filtered, points, vfs)
         samples = rig.fusion.last_samples
-        d1, d2 = _interleaved(
+        dist = _paired(
             lambda: one.distance.compute(filtered[0], points, vfs[0]),
             lambda: rig.fusion.compute(filtered, points, vfs),
             repeats,
-            block=1,
         )
-        s1, s2 = _interleaved(
+        step = _paired(
             lambda: one.distance.compute(one.filter(frames[0], q=q), points, vfs[0]),
             lambda: rig.fusion.compute(rig.filter(frames, q=q), points, vfs),
             max(20, repeats // 4),
-            block=1,
         )
-        f1, f2 = _interleaved(
+        frame = _paired(
             lambda: one.process(one.render(data), points, q=q),
             lambda: rig.process(rig.render(data), points, q=q),
             max(20, repeats // 10),
-            block=1,
         )
     finally:
         rig.close()
     truth = GeometricDistance(model, rho_m=RHO_M).compute(data, points)
     error = max(abs(fused.readings[n].distance_m - truth.readings[n].distance_m) for n in points)
-
-    def ratio(a: np.ndarray, b: np.ndarray) -> float:
-        return float(np.median(b) / np.median(a))
-
     budget = {"frame_budget_ms": FRAME_BUDGET_MS}
     return [
         summarize(
             "depth-distance",
             CASE_TWO,
-            d2,
-            ratio_vs_one_camera=ratio(d1, d2),
-            one_camera_median_us=float(np.median(d1)),
+            dist.wall_b,
+            **dist.ratios(),
+            one_camera_median_us=float(np.median(dist.wall_a)),
             fusion_samples=float(samples),
             occluded_readings=float(sum(r.occluded for r in fused.readings.values())),
             max_error_vs_geometry_m=float(error),
         ),
-        summarize("depth-sensing-step", CASE, s1),
-        summarize("depth-sensing-step", CASE_TWO, s2, ratio_vs_one_camera=ratio(s1, s2)),
-        summarize("depth-frame", CASE, f1, **budget),
-        summarize("depth-frame", CASE_TWO, f2, ratio_vs_one_camera=ratio(f1, f2), **budget),
+        summarize("depth-sensing-step", CASE, step.wall_a, cpu_median_us=float(np.median(step.cpu_a))),
+        summarize(
+            "depth-sensing-step", CASE_TWO, step.wall_b, cpu_median_us=float(np.median(step.cpu_b)), **step.ratios()
+        ),
+        summarize("depth-frame", CASE, frame.wall_a, cpu_median_us=float(np.median(frame.cpu_a)), **budget),
+        summarize(
+            "depth-frame",
+            CASE_TWO,
+            frame.wall_b,
+            cpu_median_us=float(np.median(frame.cpu_b)),
+            **frame.ratios(),
+            **budget,
+        ),
     ]
+
+
+@dataclass
+class _Pair:
+    """Wall and process-CPU times [µs] of two functions called alternately."""
+
+    wall_a: np.ndarray
+    wall_b: np.ndarray
+    cpu_a: np.ndarray
+    cpu_b: np.ndarray
+
+    def ratios(self) -> dict[str, float]:
+        """B over A: ``ratio_vs_one_camera`` (wall medians) and ``cpu_ratio_vs_one_camera`` (CPU medians)."""
+        return {
+            "ratio_vs_one_camera": float(np.median(self.wall_b) / np.median(self.wall_a)),
+            "cpu_ratio_vs_one_camera": float(np.median(self.cpu_b) / np.median(self.cpu_a)),
+        }
+
+
+def _paired(fn_a: Callable[[], object], fn_b: Callable[[], object], repeats: int, warmup: int = 10) -> _Pair:
+    """Call A and B alternately ``repeats`` times each, timing wall clock and this process's CPU time.
+
+    On a shared machine the wall clock also counts the time other jobs hold the cores; the
+    process CPU time (every thread, the software renderer's included) counts only the work done,
+    so its ratio is the one to trust there.
+    """
+    for _ in range(warmup):
+        fn_a()
+        fn_b()
+    out = np.empty((4, repeats))
+    wall, cpu = time.perf_counter_ns, time.process_time_ns
+    for i in range(repeats):
+        for j, fn in ((0, fn_a), (1, fn_b)):
+            w0, c0 = wall(), cpu()
+            fn()
+            out[j, i] = (wall() - w0) * 1e-3
+            out[2 + j, i] = (cpu() - c0) * 1e-3
+    return _Pair(out[0], out[1], out[2], out[3])
 
 
 def _interleaved(
