@@ -171,7 +171,15 @@ def plot_distances(
         ax.set_ylim(bottom=0.0)
         ax.grid(alpha=0.3)
     axes[0, 0].set_title(f"{method}: control point to closest obstacle")
-    _legend_outside(axes[0, 0])
+    # One legend for every panel: a series may appear only in a lower one (e.g. occluded readings).
+    entries: dict[str, Any] = {}
+    for ax in axes[:, 0]:
+        for handle, label in zip(*ax.get_legend_handles_labels(), strict=True):
+            entries.setdefault(label, handle)
+    if entries:
+        axes[0, 0].legend(
+            list(entries.values()), list(entries), loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize="small"
+        )
     axes[-1, 0].set_xlabel("t [s]")
     return _save(fig, path)
 
