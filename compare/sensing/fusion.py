@@ -4,7 +4,8 @@ Each camera :math:`c` sorts every point :math:`X` of space (its depth along the 
 :math:`z_c(X)`, its nearest pixel :math:`q`, the filtered depth :math:`f_c(q)`):
 
 * **measured**: :math:`X` is the surface point of an obstacle pixel (the person, after the
-  arm and the static scene are removed);
+  arm and the static scene are removed) that has a neighbouring pixel within 5 cm in depth (a
+  lone flying pixel is not a surface; its half-line stays hidden space);
 * **hidden**: :math:`z_c(X) > f_c(q)` behind an obstacle pixel: unknown, may be obstacle
   (Flacco et al.'s conservative rule, the paper's sec. III);
 * **seen free**: in view and range, and either in front of an obstacle surface,
@@ -38,7 +39,7 @@ reading of a control point :math:`P` is the point of :math:`\mathcal O` closest 
 3. *Space hidden from every camera stays conservative.* A true person point is never seen free
    by any camera (a ray through it stops at it or before), so a person point hidden behind the
    person (or out of view) in every camera stays in :math:`\mathcal O`: the fused distance
-   never exceeds the truth there, as with one camera. Each camera's own premise is kept as
+   never exceeds the truth there (to the search's resolution), as with one camera. Each camera's own premise is kept as
    well: space behind the *arm* counts as free for the camera it is hidden from (otherwise
    every control point would read the shadow of its own link), so a person point hidden
    behind the arm from one camera and behind the person from all others is missed, as that
