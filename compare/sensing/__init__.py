@@ -10,6 +10,11 @@ camera, capsule person on mocap bodies). Two sensing modes with one result type
   depth-space distance of each control point (:class:`DepthDistance`, Flacco et al.);
 * **geometric**: :class:`GeometricDistance`, exact distance to the person's capsules.
 
+Several cameras (``[[sensor.cameras]]``): :func:`load_rig_workcell` adds them to the scene,
+:class:`DepthRig` runs a pipeline per camera and fuses the distances (:class:`DepthFusion`,
+``compare.sensing.fusion``); every reading says whether it was measured or assumed from hidden
+space (``ObstacleReading.occluded``) and by which camera (``.camera``).
+
 Example (headless: ``MUJOCO_GL=egl``)::
 
     import mujoco
