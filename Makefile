@@ -5,7 +5,7 @@ PY      = $(VENV)/bin/python
 STAMP   = $(VENV)/.installed
 export MUJOCO_GL ?= egl
 
-.PHONY: install system-deps hw-deps demo test lint format docs bench clean
+.PHONY: install system-deps hw-deps demo demo-cameras test lint format docs bench clean
 
 # Headless MuJoCo rendering needs EGL + Mesa; installed from Debian only when missing.
 system-deps:
@@ -44,6 +44,11 @@ demo: install
 	$(VENV)/bin/tpik-compare run configs/case2.toml --out results/case2 --overwrite
 
 # mypy checks the packages listed in pyproject.toml ([tool.mypy] files): robots, tpik, qp_baseline.
+# The same two case studies seen by two depth cameras, fused (docs/sensing.md).
+demo-cameras: install
+	$(VENV)/bin/tpik-compare run configs/case1_two_cameras.toml --out results/case1_two_cameras
+	$(VENV)/bin/tpik-compare run configs/case2_two_cameras.toml --out results/case2_two_cameras
+
 lint: install
 	$(VENV)/bin/ruff check .
 	$(VENV)/bin/ruff format --check .

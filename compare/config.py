@@ -146,6 +146,67 @@ class PersonConfig(_Strict):
         return frames
 
 
+class CameraConfig(_Strict):
+    """One depth camera of ``[[sensor.cameras]]`` (``compare.sensing.rig``; DESIGN §4).
+
+    A camera named like one of the scene's (``depth_camera``) keeps every value the MJCF gives
+    and overrides only what is set here; any other name adds a camera to the scene and needs
+    ``position_m`` plus ``look_at_m`` or ``quaternion_xyzw``; its intrinsics default to the
+    Kinect v2 depth stream (512×424, f = 365.5 px, c = (255, 205) px, 0.5–4.5 m).
+
+    Attributes:
+        name: Camera name (the scene's, or a new one).
+        position_m: Optical centre in the base frame [m].
+        look_at_m: A point on the optical axis [m] (image x kept horizontal).
+        quaternion_xyzw: Orientation of the optical frame (x right, y down, z forward) in the
+            base frame, (x, y, z, w) as ``tf`` prints it (a calibrated pose); instead of ``look_at_m``.
+        resolution: (width, height) [px].
+        focal_px: (fx, fy) [px].
+        principal_px: (cx, cy) [px].
+        range_m: Valid depth range (min, max) [m].
+        rate_hz: Frame rate [Hz]; default ``scenario.sensing_rate_hz``. Not slower than that rate
+            (a frame must be new at every distance update, or the loop's stale-frame check stops the arm).
+        noise_std_m: Gaussian depth noise σ [m]; default ``[sensor] noise_std_m``.
+        dropout: Fraction of pixels without return; default ``[sensor] dropout``.
+        self_filter_margin_m: Inflation of the arm removed from this camera's images [m]; default
+            ``[sensor] self_filter_margin_m``.
+    """
+
+    name: str = Field(min_length=1)
+    position_m: Vec3 | None = None
+    look_at_m: Vec3 | None = None
+    quaternion_xyzw: tuple[float, float, float, float] | None = None
+    resolution: tuple[int, int] | None = None
+    focal_px: tuple[float, float] | None = None
+    principal_px: tuple[float, float] | None = None
+    range_m: tuple[float, float] | None = None
+    rate_hz: float | None = Field(None, gt=0.0, le=1000.0)
+    noise_std_m: float | None = Field(None, ge=0.0, le=0.5)
+    dropout: float | None = Field(None, ge=0.0, lt=1.0)
+    self_filter_margin_m: float | None = Field(None, ge=0.0, le=0.3)
+
+    @model_validator(mode="after")
+    def _pose_and_intrinsics(self) -> CameraConfig:
+        if self.look_at_m is not None and self.quaternion_xyzw is not None:
+            raise ValueError("give look_at_m or quaternion_xyzw, not both")
+        if (self.position_m is None) != (self.look_at_m is None and self.quaternion_xyzw is None):
+            raise ValueError("give position_m together with look_at_m or quaternion_xyzw")
+        if self.position_m is not None and self.look_at_m is not None:
+            if math.dist(self.position_m, self.look_at_m) < 1e-6:
+                raise ValueError("look_at_m must differ from position_m")
+        if self.quaternion_xyzw is not None:
+            norm = math.sqrt(sum(v * v for v in self.quaternion_xyzw))
+            if not math.isfinite(norm) or abs(norm - 1.0) > 1e-3:
+                raise ValueError(f"quaternion_xyzw must have unit norm (got norm {norm:.6g})")
+        if self.resolution is not None and min(self.resolution) < 2:
+            raise ValueError(f"resolution must be at least 2x2 px, got {list(self.resolution)}")
+        if self.focal_px is not None and not min(self.focal_px) > 0.0:
+            raise ValueError(f"focal_px must be > 0, got {list(self.focal_px)}")
+        if self.range_m is not None and not 0.0 < self.range_m[0] < self.range_m[1]:
+            raise ValueError(f"range_m must satisfy 0 < min < max, got {list(self.range_m)}")
+        return self
+
+
 class SensorConfig(_Strict):
     """Simulated depth camera and distance estimation.
 
@@ -156,6 +217,12 @@ class SensorConfig(_Strict):
         self_filter_margin_m: Inflation of the robot geometry removed from the image [m].
         blind_fraction: Valid-pixel fraction under which a frame is "blind" (safe stop).
         max_age_s: Distance estimate older than this → stale → safe stop [s].
+        cameras: The depth cameras (``[[sensor.cameras]]``); empty = the scene's one camera as
+            the MJCF gives it (the paper's single Kinect). Two or more: per-camera distances
+            fused by ``compare.sensing.fusion`` (docs/sensing.md).
+        fusion_step_m: Sampling step along hidden half-lines when fusing several cameras [m].
+        fusion_tolerance_m: A point counts as seen free by a camera only if it is this much in
+            front of the measured surface (plus the noise allowance) [m].
     """
 
     noise_std_m: float = Field(0.0, ge=0.0, le=0.5)
@@ -164,6 +231,17 @@ class SensorConfig(_Strict):
     self_filter_margin_m: float = Field(0.03, ge=0.0, le=0.3)
     blind_fraction: float = Field(0.3, ge=0.0, le=1.0)
     max_age_s: float = Field(0.2, gt=0.0)
+    cameras: list[CameraConfig] = Field(default_factory=list)
+    fusion_step_m: float = Field(0.01, gt=0.0, le=0.1)
+    fusion_tolerance_m: float = Field(0.002, ge=0.0, le=0.1)
+
+    @field_validator("cameras")
+    @classmethod
+    def _unique_cameras(cls, cameras: list[CameraConfig]) -> list[CameraConfig]:
+        names = [c.name for c in cameras]
+        if len(set(names)) != len(names):
+            raise ValueError(f"camera names must be unique, got {names}")
+        return cameras
 
 
 class RandomConfig(_Strict):
@@ -276,6 +354,8 @@ class FaultSpec(_Strict):
         deadline_s: ``solver_timeout``: the solve deadline [s]; default the control period.
         sleep: ``solver_timeout``: really sleep ``delay_s`` (wall time) instead of adding it to the
             measured solve time only (results are identical; sweeps keep ``false``).
+        camera: Depth faults: index in ``[[sensor.cameras]]`` of the one camera hit; unset = every
+            camera.
     """
 
     kind: FaultKind
@@ -288,6 +368,7 @@ class FaultSpec(_Strict):
     every_n: int = Field(1, ge=1)
     deadline_s: float | None = Field(None, gt=0.0)
     sleep: bool = False
+    camera: int | None = Field(None, ge=0)
 
     @model_validator(mode="after")
     def _window(self) -> FaultSpec:
@@ -674,6 +755,7 @@ def parse_config(data: dict[str, Any], robot: robots.Robot | None = None) -> Con
         message = str(exc)
         raise ConfigError(message if message.startswith("levels") else f"levels: {message}") from None
     _check_methods(config, robot)
+    _check_cameras(config, robot)
     return config
 
 
@@ -695,6 +777,31 @@ def _check_robot_keys(config: Config, robot: robots.Robot) -> None:
                 f"random.reach_targets[{i}]: '{target}' is neither waypoint, push_ee, control_points "
                 f"nor a frame of '{robot.name}'"
             ) from None
+
+
+def _check_cameras(config: Config, robot: robots.Robot) -> None:
+    """Every ``[[sensor.cameras]]`` is in the scene or has a pose, and is not slower than the sensing rate."""
+    cameras = config.sensor.cameras
+    for i, spec in enumerate(config.faults.inject):
+        if spec.camera is not None and spec.camera >= max(1, len(cameras)):
+            raise ConfigError(f"faults.inject[{i}].camera: no camera {spec.camera} (there are {max(1, len(cameras))})")
+    if not cameras:
+        return
+    from compare.sensing.rig import scene_camera_names
+
+    in_scene = scene_camera_names(robot.name)
+    rate = config.scenario.sensing_rate_hz
+    for i, cam in enumerate(cameras):
+        if cam.name not in in_scene and cam.position_m is None:
+            raise ConfigError(
+                f"sensor.cameras[{i}].position_m: camera '{cam.name}' is not in the scene "
+                f"({', '.join(in_scene) or 'none'}): give position_m and look_at_m or quaternion_xyzw"
+            )
+        if cam.rate_hz is not None and cam.rate_hz < rate - 1e-9:
+            raise ConfigError(
+                f"sensor.cameras[{i}].rate_hz: {cam.rate_hz:g} Hz is slower than scenario.sensing_rate_hz "
+                f"= {rate:g} Hz (its frames would be judged stale); lower the sensing rate"
+            )
 
 
 def _check_methods(config: Config, robot: robots.Robot) -> None:

@@ -131,7 +131,7 @@ def run_method(config: Config, method: str, robot: robots.Robot, progress: Progr
     io = injector.wrap_io(sim.io)
     obstacles: ObstacleSource = sim.obstacles
     if sim.pipeline is not None and io is not sim.io:
-        obstacles = sim.pipeline.source(io.read_depth, sim.control_points)  # depth mode: reads the faulty frames
+        obstacles = sim.depth_source(io)  # depth mode: the pipeline reads the faulty frames
     elif sim.pipeline is None:
         obstacles = injector.wrap_obstacles(obstacles)  # geometric mode: frame faults emulated
     warmup_steps = warm_up_solver(solver, hierarchy, robot, q0, sc.dt)  # before faults and timing

@@ -20,6 +20,9 @@ column                     unit     meaning
                                     safety metrics of the ``obstacles`` group when present
 ``dist_meas:F``            m        measured obstacle distance of control point ``F`` (+inf: none)
 ``dist_true:F``            m        ground-truth obstacle distance of control point ``F``
+``occluded:F``             bool     the reading of ``F`` was assumed from space hidden from
+                                    every camera, not measured (``compare.sensing.fusion``)
+``camera:F``               str      camera whose pixel gave ``F``'s reading ("" : none/geometric)
 ``solve_time_us``          µs       wall time of the solver call
 ``status``                 str      ``ok`` | ``degraded`` | ``failed``
 ``fallback``               bool     the loop replaced the solver output by the safe fallback

@@ -44,6 +44,7 @@ GROUP_TITLES = {"joint_limits": "joint limits", "walls": "virtual walls", "obsta
 SAFETY_STYLE: dict[str, Any] = {"color": "tab:red", "linestyle": "-", "linewidth": 1.2}
 PHYSICAL_STYLE: dict[str, Any] = {"color": "tab:red", "linestyle": ":", "linewidth": 1.0}
 ACTIVE_STYLE: dict[str, Any] = {"color": "tab:orange", "alpha": 0.15, "linewidth": 0}
+OCCLUDED_STYLE: dict[str, Any] = {"color": "tab:purple", "marker": ".", "markersize": 3, "linestyle": "none"}
 
 
 def _figure(nrows: int = 1, ncols: int = 1, height_in: float = 3.2, width_in: float = 8.0) -> tuple[Figure, Any]:
@@ -77,6 +78,15 @@ def _active(steps: pd.DataFrame, name: str) -> np.ndarray | None:
     if col not in steps.columns:
         return None
     return steps[col].astype("boolean").fillna(False).to_numpy(dtype=bool)
+
+
+def _occluded(steps: pd.DataFrame, cp: str) -> np.ndarray | None:
+    """Steps whose reading of ``cp`` was assumed from hidden space (finite and occluded); None if none."""
+    col = f"occluded:{cp}"
+    if col not in steps.columns or f"dist_meas:{cp}" not in steps.columns:
+        return None
+    mask = steps[col].to_numpy(dtype=bool) & np.isfinite(steps[f"dist_meas:{cp}"].to_numpy(dtype=float))
+    return mask if mask.any() else None
 
 
 def _legend_outside(ax: Axes) -> None:
@@ -134,7 +144,8 @@ def plot_distances(
     """Distance of each control point to the closest obstacle (paper Figs. 4/9).
 
     Ground truth solid, measured dashed, the obstacle safety threshold as a red line, steps
-    where the control point's obstacle task is active shaded. None if there are no distance
+    where the control point's obstacle task is active shaded; readings assumed from hidden space
+    (``occluded:<cp>``, not measured) marked with purple dots. None if there are no distance
     columns, or no finite distance and no obstacle task.
     """
     cps = [
@@ -154,6 +165,10 @@ def plot_distances(
             d = _finite(steps[f"dist_{kind}:{cp}"]) if f"dist_{kind}:{cp}" in steps.columns else np.array([np.nan])
             if _has_data(d):
                 ax.plot(t, d, label="true" if kind == "true" else "measured", **style)
+        occluded = _occluded(steps, cp)
+        if occluded is not None:
+            meas = _finite(steps[f"dist_meas:{cp}"])
+            ax.plot(t[occluded], meas[occluded], **OCCLUDED_STYLE, label="assumed (occluded)")
         own = [task for task in obstacle_tasks if task.name.endswith(cp)] or list(obstacle_tasks)
         for k, value in enumerate(sorted({task.safety_lower for task in own})):
             _hline(ax, value, SAFETY_STYLE, "safety threshold" if k == 0 else None)
@@ -165,7 +180,15 @@ def plot_distances(
         ax.set_ylim(bottom=0.0)
         ax.grid(alpha=0.3)
     axes[0, 0].set_title(f"{method}: control point to closest obstacle")
-    _legend_outside(axes[0, 0])
+    # One legend for every panel: a series may appear only in a lower one (e.g. occluded readings).
+    entries: dict[str, Any] = {}
+    for ax in axes[:, 0]:
+        for handle, label in zip(*ax.get_legend_handles_labels(), strict=True):
+            entries.setdefault(label, handle)
+    if entries:
+        axes[0, 0].legend(
+            list(entries.values()), list(entries), loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize="small"
+        )
     axes[-1, 0].set_xlabel("t [s]")
     return _save(fig, path)
 

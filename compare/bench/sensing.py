@@ -11,6 +11,20 @@ timed on the same frame:
   base-frame point, ``scipy.spatial.cKDTree`` build and 3 nearest-point queries;
 * ``geometric-distance``: the no-render mode (capsule geometry), for sweeps.
 
+Case ``2x512x424-rho0.5``: the same scene seen by the two cameras of
+``configs/case1_two_cameras.toml`` (the second on the opposite side of the cell, behind the
+person: every control point lies in that camera's shadow of the person, so the fusion has work
+to do). Each row is timed alternating call by call with its one-camera counterpart on the same
+frames, by wall clock and by process CPU time (``ratio_vs_one_camera``,
+``cpu_ratio_vs_one_camera``, ``cpu_median_us``):
+
+* ``depth-distance``: per-camera distances of the 3 control points and their fusion
+  (:mod:`compare.sensing.fusion`), on filtered frames;
+* ``depth-sensing-step``: what the loop's sensing update costs per frame: both filters and the
+  fused distance (case ``512x424-rho0.5``: one camera's filter and distance);
+* ``depth-frame``: a whole frame, render included, against the 33 ms frame budget of a 30 Hz
+  camera (``frame_budget_ms``).
+
 Run: ``MUJOCO_GL=egl .venv/bin/python -m compare.bench.sensing [repeats]``.
 """
 
@@ -19,7 +33,10 @@ from __future__ import annotations
 import math
 import os
 import sys
+import time
 from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
 
 os.environ.setdefault("MUJOCO_GL", "egl")
 
@@ -31,11 +48,13 @@ import robots  # noqa: E402
 from compare.bench.timing import BenchRow, summarize, time_calls  # noqa: E402
 from compare.sensing import (  # noqa: E402
     DepthPipeline,
+    DepthRig,
     DepthSensingSettings,
     GeometricDistance,
     Person,
     PersonKeyframe,
     control_point_positions,
+    load_rig_workcell,
     load_workcell,
     make_data,
     point_cloud,
@@ -44,14 +63,18 @@ from compare.sensing import (  # noqa: E402
 from compare.versions import versions  # noqa: E402
 
 CASE = "512x424-rho0.5"
+CASE_TWO = "2x512x424-rho0.5"
 RHO_M = 0.5
+FRAME_BUDGET_MS = 1e3 / 30.0
+TWO_CAMERA_CONFIG = Path(__file__).resolve().parents[2] / "configs" / "case1_two_cameras.toml"
 
 
 def _bench_scene(
     robot: robots.Robot,
+    model: mujoco.MjModel | None = None,
 ) -> tuple[mujoco.MjModel, mujoco.MjData, dict[str, np.ndarray], np.ndarray]:
     """Work cell at ``home``, the person 0.7 m from the base reaching past the hand (all 3 points in range)."""
-    model = load_workcell(robot.name)
+    model = load_workcell(robot.name) if model is None else model
     data = make_data(model)
     q = np.array(data.qpos[: robot.nq])
     points = control_point_positions(robot.kinematics(q), robot.control_points)
@@ -127,12 +150,124 @@ def run_sensing_bench(repeats: int = 200, robot: robots.Robot | None = None) -> 
         ),
         summarize("geometric-distance", CASE, geometric_us, control_points=float(len(points))),
     ]
-    return rows
+    return rows + run_two_camera_bench(repeats)
 
 
-def _interleaved(fn_a: Callable[[], object], fn_b: Callable[[], object], repeats: int) -> tuple[np.ndarray, np.ndarray]:
-    """Time two functions in alternating blocks of 10 calls, so both see the same machine load."""
-    block = 10
+def run_two_camera_bench(repeats: int = 200, robot: robots.Robot | None = None) -> list[BenchRow]:
+    """Time one camera against the two of ``configs/case1_two_cameras.toml`` on the same scene (module docstring).
+
+    Returns:
+        Rows ``depth-distance`` (case ``2x512x424-rho0.5``), ``depth-sensing-step`` and
+        ``depth-frame`` (both cases); the two-camera rows carry ``ratio_vs_one_camera`` (wall
+        medians) and ``cpu_ratio_vs_one_camera`` (process CPU time: the one that holds on a
+        shared machine), from calls alternating with the one-camera counterpart.
+    """
+    from compare.bench.occlusion import cameras_from_config
+
+    cameras = cameras_from_config(TWO_CAMERA_CONFIG)
+    robot = robot or robots.load(robots.DEFAULT_ROBOT)
+    model, data, points, q = _bench_scene(robot, load_rig_workcell(robot.name, cameras))
+    settings = [
+        DepthSensingSettings(rho_m=RHO_M, camera=c.name, seed=i, robot_root_body=robot.base_body)
+        for i, c in enumerate(cameras)
+    ]
+    rig = DepthRig(model, settings)
+    one = rig.pipelines[0]
+    try:
+        frames = rig.render(data)
+        vfs = [valid_fraction(f) for f in frames]
+        filtered = rig.filter(frames, q=q)
+        fused = rig.fusion.compute(filtered, points, vfs)
+        samples = rig.fusion.last_samples
+        dist = _paired(
+            lambda: one.distance.compute(filtered[0], points, vfs[0]),
+            lambda: rig.fusion.compute(filtered, points, vfs),
+            repeats,
+        )
+        step = _paired(
+            lambda: one.distance.compute(one.filter(frames[0], q=q), points, vfs[0]),
+            lambda: rig.fusion.compute(rig.filter(frames, q=q), points, vfs),
+            max(20, repeats // 4),
+        )
+        frame = _paired(
+            lambda: one.process(one.render(data), points, q=q),
+            lambda: rig.process(rig.render(data), points, q=q),
+            max(20, repeats // 10),
+        )
+    finally:
+        rig.close()
+    truth = GeometricDistance(model, rho_m=RHO_M).compute(data, points)
+    error = max(abs(fused.readings[n].distance_m - truth.readings[n].distance_m) for n in points)
+    budget = {"frame_budget_ms": FRAME_BUDGET_MS}
+    return [
+        summarize(
+            "depth-distance",
+            CASE_TWO,
+            dist.wall_b,
+            **dist.ratios(),
+            one_camera_median_us=float(np.median(dist.wall_a)),
+            fusion_samples=float(samples),
+            occluded_readings=float(sum(r.occluded for r in fused.readings.values())),
+            max_error_vs_geometry_m=float(error),
+        ),
+        summarize("depth-sensing-step", CASE, step.wall_a, cpu_median_us=float(np.median(step.cpu_a))),
+        summarize(
+            "depth-sensing-step", CASE_TWO, step.wall_b, cpu_median_us=float(np.median(step.cpu_b)), **step.ratios()
+        ),
+        summarize("depth-frame", CASE, frame.wall_a, cpu_median_us=float(np.median(frame.cpu_a)), **budget),
+        summarize(
+            "depth-frame",
+            CASE_TWO,
+            frame.wall_b,
+            cpu_median_us=float(np.median(frame.cpu_b)),
+            **frame.ratios(),
+            **budget,
+        ),
+    ]
+
+
+@dataclass
+class _Pair:
+    """Wall and process-CPU times [µs] of two functions called alternately."""
+
+    wall_a: np.ndarray
+    wall_b: np.ndarray
+    cpu_a: np.ndarray
+    cpu_b: np.ndarray
+
+    def ratios(self) -> dict[str, float]:
+        """B over A: ``ratio_vs_one_camera`` (wall medians) and ``cpu_ratio_vs_one_camera`` (CPU medians)."""
+        return {
+            "ratio_vs_one_camera": float(np.median(self.wall_b) / np.median(self.wall_a)),
+            "cpu_ratio_vs_one_camera": float(np.median(self.cpu_b) / np.median(self.cpu_a)),
+        }
+
+
+def _paired(fn_a: Callable[[], object], fn_b: Callable[[], object], repeats: int, warmup: int = 10) -> _Pair:
+    """Call A and B alternately ``repeats`` times each, timing wall clock and this process's CPU time.
+
+    On a shared machine the wall clock also counts the time other jobs hold the cores; the
+    process CPU time (every thread, the software renderer's included) counts only the work done,
+    so its ratio is the one to trust there.
+    """
+    for _ in range(warmup):
+        fn_a()
+        fn_b()
+    out = np.empty((4, repeats))
+    wall, cpu = time.perf_counter_ns, time.process_time_ns
+    for i in range(repeats):
+        for j, fn in ((0, fn_a), (1, fn_b)):
+            w0, c0 = wall(), cpu()
+            fn()
+            out[j, i] = (wall() - w0) * 1e-3
+            out[2 + j, i] = (cpu() - c0) * 1e-3
+    return _Pair(out[0], out[1], out[2], out[3])
+
+
+def _interleaved(
+    fn_a: Callable[[], object], fn_b: Callable[[], object], repeats: int, block: int = 10
+) -> tuple[np.ndarray, np.ndarray]:
+    """Time two functions in alternating blocks of ``block`` calls, so both see the same machine load."""
     time_calls(fn_a, 1, warmup=20)
     time_calls(fn_b, 1, warmup=20)
     a, b = [], []

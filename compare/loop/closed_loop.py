@@ -179,6 +179,8 @@ class _Recorder:
         for cp in cps:
             f(f"dist_meas:{cp}", n_steps)
             f(f"dist_true:{cp}", n_steps)
+            self.cols[f"occluded:{cp}"] = np.zeros(n_steps, dtype=bool)
+            self.cols[f"camera:{cp}"] = np.full(n_steps, "", dtype=object)
         self.cols["waypoint"] = np.zeros(n_steps, dtype=np.int32)
         self.cols["status"] = np.empty(n_steps, dtype=object)
         self.cols["reason"] = np.full(n_steps, "", dtype=object)
@@ -315,6 +317,7 @@ def run_loop(
     # σ alone (SetTask.compute_value): the solver already formed the Jacobians it needed.
     sigma_record = [(cols[f"sigma:{t.name}"], cols[f"active:{t.name}"], t.name, t.compute_value) for t in set_tasks]
     dist_record = [(cols[f"dist_meas:{cp}"], cols[f"dist_true:{cp}"], cp) for cp in cps]
+    source_record = [(cols[f"occluded:{cp}"], cols[f"camera:{cp}"], cp) for cp in cps]
     truth_record = [(cols[f"truth:{t.name}"], t.frame) for t in obstacle_tasks]
     c_t, c_ee_x, c_ee_y, c_ee_z = cols["t"], cols["ee_x"], cols["ee_y"], cols["ee_z"]
     c_tx, c_ty, c_tz, c_err = cols["target_x"], cols["target_y"], cols["target_z"], cols["ee_error_m"]
@@ -340,6 +343,8 @@ def run_loop(
     last_good_sense_t = -math.inf
     blind = obstacles is not None and bool(obstacle_tasks)
     measured = dict.fromkeys(cps, math.inf)
+    # What each reading is: assumed from hidden space (occluded) or measured, and by which camera.
+    measured_source: dict[str, tuple[bool, str]] = dict.fromkeys(cps, (False, ""))
     was_blind = False
     fallback_since: float | None = None  # start of the current fallback episode [s]
     sensing_reason: str | None = None  # why the latest update was not usable (None: it was)
@@ -381,6 +386,11 @@ def run_loop(
                     for cp in cps:
                         r = result.readings.get(cp)
                         measured[cp] = r.distance_m if r is not None and r.in_range else math.inf
+                        measured_source[cp] = (
+                            (bool(getattr(r, "occluded", False)), getattr(r, "camera", None) or "")
+                            if r is not None and r.in_range
+                            else (False, "")
+                        )
             if obstacles is not None and obstacle_tasks:
                 if sensing_reason is not None:
                     reason_now = sensing_reason
@@ -477,6 +487,8 @@ def run_loop(
             for c_meas, c_true, cp in dist_record:
                 c_meas[i] = measured[cp]
                 c_true[i] = true_d.get(cp, math.inf)
+            for c_occ, c_cam, cp in source_record:
+                c_occ[i], c_cam[i] = measured_source[cp]
             for c_truth, frame in truth_record:
                 c_truth[i] = true_d.get(frame, math.inf)
             rec.n = i + 1

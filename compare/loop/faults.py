@@ -158,9 +158,10 @@ class FaultInjector:
         """Loop time [s]."""
         return self._clock() - self._t0
 
-    def rng(self, window: FaultWindow) -> np.random.Generator:
-        """The random stream of one fault (same for every method)."""
-        return np.random.default_rng([self._seed, window.index, 15066])
+    def rng(self, window: FaultWindow, camera: int = 0) -> np.random.Generator:
+        """The random stream of one fault (same for every method); camera > 0: that camera's own."""
+        key = [self._seed, window.index, 15066] + ([camera] if camera else [])
+        return np.random.default_rng(key)
 
     def of_kind(self, *kinds: str) -> list[FaultWindow]:
         """The windows of the given kinds, in config order."""
@@ -335,6 +336,9 @@ def unsafe_commands(steps: pd.DataFrame, v_max: np.ndarray) -> int:
 class FaultyRobotIO(RobotIO):
     """A :class:`RobotIO` whose depth frames and joint readings carry the configured faults.
 
+    With several cameras (:meth:`read_depth_frames`) each camera's stream carries the frame
+    faults whose ``camera`` is its index or unset (every camera), with its own pixel draws.
+
     Args:
         io: The real backend.
         injector: The run's injector (windows, random streams, log).
@@ -348,12 +352,7 @@ class FaultyRobotIO(RobotIO):
         self._frame_windows = injector.of_kind(*FRAME_KINDS)
         self._joint_windows = injector.of_kind(*JOINT_KINDS)
         self._rngs = {w.index: injector.rng(w) for w in injector.windows}
-        delays = [w.spec.delay_s for w in injector.of_kind("depth_delay")]
-        self._history: deque[DepthFrame] = deque()
-        self._history_s = (max(delays) + 0.2) if delays else 0.0
-        self._frozen: dict[int, DepthFrame | None] = {}
-        self._last_raw: DepthFrame | None = None
-        self._altered: dict[tuple[int, int], DepthFrame] = {}
+        self._streams: dict[int, _FrameStream] = {}
 
     def __getattr__(self, name: str) -> Any:  # model, data, ... of the wrapped backend
         return getattr(self._io, name)
@@ -380,9 +379,57 @@ class FaultyRobotIO(RobotIO):
             return reading
         return JointReading(q, qdot, reading.stamp_s)
 
+    def _stream(self, camera: int) -> _FrameStream:
+        stream = self._streams.get(camera)
+        if stream is None:
+            windows = [w for w in self._frame_windows if w.spec.camera in (None, camera)]
+            rngs = {w.index: self._rngs[w.index] if camera == 0 else self._inj.rng(w, camera) for w in windows}
+            stream = self._streams[camera] = _FrameStream(windows, rngs, self._inj)
+        return stream
+
     def read_depth(self) -> DepthFrame | None:
-        """The backend's latest frame with the active frame faults applied."""
-        raw = self._io.read_depth()
+        """The backend's latest frame (of the first camera) with the active frame faults applied."""
+        return self._stream(0).apply(self._io.read_depth())
+
+    def read_depth_frames(self) -> tuple[DepthFrame | None, ...]:
+        """Every camera's latest frame with the frame faults of that camera applied."""
+        return tuple(self._stream(c).apply(raw) for c, raw in enumerate(self._io.read_depth_frames()))
+
+    def send_velocity(self, qdot: np.ndarray) -> None:
+        """Forwarded."""
+        self._io.send_velocity(qdot)
+
+    def wait(self) -> None:
+        """Forwarded."""
+        self._io.wait()
+
+    def stop(self) -> None:
+        """Forwarded."""
+        self._io.stop()
+
+    def close(self) -> None:
+        """Forwarded."""
+        self._io.close()
+
+
+class _FrameStream:
+    """The frame faults of one camera's stream: history (delays), frozen frames, altered copies."""
+
+    def __init__(
+        self, windows: list[FaultWindow], rngs: dict[int, np.random.Generator], injector: FaultInjector
+    ) -> None:
+        self._windows = windows
+        self._rngs = rngs
+        self._inj = injector
+        delays = [w.spec.delay_s for w in windows if w.kind == "depth_delay"]
+        self._history: deque[DepthFrame] = deque()
+        self._history_s = (max(delays) + 0.2) if delays else 0.0
+        self._frozen: dict[int, DepthFrame | None] = {}
+        self._last_raw: DepthFrame | None = None
+        self._altered: dict[tuple[int, int], DepthFrame] = {}
+
+    def apply(self, raw: DepthFrame | None) -> DepthFrame | None:
+        """The frame the controller receives instead of ``raw`` (the backend's latest)."""
         if raw is not None and raw is not self._last_raw:
             self._last_raw = raw
             if self._history_s > 0.0:
@@ -391,14 +438,14 @@ class FaultyRobotIO(RobotIO):
                     self._history.popleft()
         t = self._inj.now()
         frame = raw
-        for w in self._frame_windows:
+        for w in self._windows:
             if not w.active(t):
                 if w.kind == "depth_frozen" and t < w.start_s:
                     self._frozen[w.index] = raw  # the frame the camera will be stuck on
                 continue
             frame = self._apply(w, frame, t)
         if frame is not raw:
-            for w in self._frame_windows:
+            for w in self._windows:
                 if w.active(t):
                     self._inj.log.record(w.index, t)
         return frame
@@ -427,22 +474,6 @@ class FaultyRobotIO(RobotIO):
         out = DepthFrame(depth, frame.stamp_s, frame.camera)
         self._altered = {key: out}  # one frame per fault is enough: frames do not come back
         return out
-
-    def send_velocity(self, qdot: np.ndarray) -> None:
-        """Forwarded."""
-        self._io.send_velocity(qdot)
-
-    def wait(self) -> None:
-        """Forwarded."""
-        self._io.wait()
-
-    def stop(self) -> None:
-        """Forwarded."""
-        self._io.stop()
-
-    def close(self) -> None:
-        """Forwarded."""
-        self._io.close()
 
 
 class FaultyObstacleSource:

@@ -95,6 +95,10 @@ class RobotIO(abc.ABC):
     def read_depth(self) -> DepthFrame | None:
         """Latest depth frame, or None if none has arrived yet (the caller checks its age)."""
 
+    def read_depth_frames(self) -> tuple[DepthFrame | None, ...]:
+        """Latest frame of every depth camera, in configuration order (one camera: ``read_depth``)."""
+        return (self.read_depth(),)
+
     @abc.abstractmethod
     def send_velocity(self, qdot: np.ndarray) -> None:
         """Command joint velocities [rad/s], shape (n,), held until the next command."""

@@ -9,7 +9,7 @@ forward kinematics (the pure-kinematics setting the solvers are analysed in).
 from __future__ import annotations
 
 import copy
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 
 import mujoco
 import numpy as np
@@ -34,6 +34,10 @@ class SimRobotIO(RobotIO):
         depth_camera: Renders a :class:`DepthFrame` from ``data``; called at most once per
             ``depth_period_s`` and only when :meth:`read_depth` asks for a newer frame.
         depth_period_s: Camera frame period [s] (1/30 s).
+        depth_cameras: Several cameras instead of ``depth_camera`` (:meth:`read_depth_frames`;
+            :meth:`read_depth` is the first), each at its own period ``depth_periods_s``
+            (default ``depth_period_s`` for all).
+        depth_periods_s: Frame period of each of ``depth_cameras`` [s].
         drive: Joint drive in ``dynamic`` mode: ``decoupled`` or ``servo``
             (:mod:`compare.loop.joint_drive`).
         drive_bandwidth_rad_s: λ of the ``decoupled`` drive [rad/s].
@@ -55,6 +59,8 @@ class SimRobotIO(RobotIO):
         depth_period_s: float = 1.0 / 30.0,
         drive: DriveKind = "decoupled",
         drive_bandwidth_rad_s: float = 100.0,
+        depth_cameras: Sequence[Callable[[mujoco.MjData], DepthFrame]] | None = None,
+        depth_periods_s: Sequence[float] | None = None,
     ) -> None:
         if mode not in ("dynamic", "kinematic"):
             raise ValueError(f"mode must be 'dynamic' or 'kinematic', got {mode!r}")
@@ -70,10 +76,16 @@ class SimRobotIO(RobotIO):
         self.dt = dt
         self.mode = mode
         self._scene_update = scene_update
-        self._depth_camera = depth_camera
-        self._depth_period_s = depth_period_s
-        self._next_depth_t = 0.0
-        self._frame: DepthFrame | None = None
+        if depth_cameras is not None and depth_camera is not None:
+            raise ValueError("give depth_camera or depth_cameras, not both")
+        cameras = list(depth_cameras) if depth_cameras is not None else [] if depth_camera is None else [depth_camera]
+        periods = [depth_period_s] * len(cameras) if depth_periods_s is None else list(depth_periods_s)
+        if len(periods) != len(cameras):
+            raise ValueError(f"{len(cameras)} depth cameras but {len(periods)} periods")
+        self._depth_cameras = cameras
+        self._depth_periods_s = periods
+        self._next_depth_t = [0.0] * len(cameras)
+        self._frames: list[DepthFrame | None] = [None] * len(cameras)
         self._substeps = max(1, round(dt / model.opt.timestep))
         self._command = np.zeros(nq)
         self.data.qpos[:nq] = q0
@@ -92,13 +104,18 @@ class SimRobotIO(RobotIO):
         return JointReading(d.qpos[: self.nq].copy(), qdot, float(d.time))
 
     def read_depth(self) -> DepthFrame | None:
-        """Latest frame, rendering a new one when the camera period has elapsed."""
-        if self._depth_camera is None:
-            return None
-        if self.data.time + 1e-9 >= self._next_depth_t:
-            self._frame = self._depth_camera(self.data)
-            self._next_depth_t += self._depth_period_s
-        return self._frame
+        """Latest frame (of the first camera), rendering a new one when the camera period has elapsed."""
+        return self._latest(0) if self._depth_cameras else None
+
+    def read_depth_frames(self) -> tuple[DepthFrame | None, ...]:
+        """Latest frame of every camera, each rendered anew when its own period has elapsed."""
+        return tuple(self._latest(c) for c in range(len(self._depth_cameras)))
+
+    def _latest(self, c: int) -> DepthFrame | None:
+        if self.data.time + 1e-9 >= self._next_depth_t[c]:
+            self._frames[c] = self._depth_cameras[c](self.data)
+            self._next_depth_t[c] += self._depth_periods_s[c]
+        return self._frames[c]
 
     def send_velocity(self, qdot: np.ndarray) -> None:
         """Joint velocity command [rad/s] (clipped to the servos' ``ctrlrange`` by the drive)."""

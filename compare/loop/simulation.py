@@ -14,15 +14,19 @@ import numpy as np
 import robots
 from compare.config import Config
 from compare.loop.closed_loop import ObstacleSource, control_points
+from compare.loop.robot_io import RobotIO
 from compare.loop.sim_io import SimRobotIO
+from compare.sensing.fusion import FusionSettings
 from compare.sensing.geometric_distance import GeometricDistance
 from compare.sensing.person import Person
 from compare.sensing.pipeline import (
     DepthPipeline,
+    DepthRig,
     DepthSensingSettings,
     GeometricObstacleSource,
     truth_function,
 )
+from compare.sensing.rig import load_rig_workcell
 from compare.sensing.scene import load_workcell
 
 
@@ -35,7 +39,8 @@ class Simulation:
         obstacles: Depth or geometric obstacle source.
         truth: Ground-truth distance per control point [m], from the person's capsules.
         person: The scripted person.
-        pipeline: The depth pipeline (None in geometric mode).
+        pipeline: The depth pipeline (None in geometric mode): one camera's
+            :class:`DepthPipeline`, or a :class:`DepthRig` with ``[[sensor.cameras]]`` of two or more.
         control_points: The control point frames sensed (``compare.loop.closed_loop.control_points``).
     """
 
@@ -43,8 +48,14 @@ class Simulation:
     obstacles: ObstacleSource
     truth: Callable[[robots.Kinematics], Mapping[str, float]]
     person: Person
-    pipeline: DepthPipeline | None = None
+    pipeline: DepthPipeline | DepthRig | None = None
     control_points: tuple[str, ...] = ()
+
+    def depth_source(self, io: RobotIO) -> ObstacleSource:
+        """The depth obstacle source reading its frames from ``io`` (e.g. a fault-injecting wrapper)."""
+        if self.pipeline is None:
+            raise ValueError("geometric sensing has no depth source")
+        return depth_source(self.pipeline, io, self.control_points)
 
     def close(self) -> None:
         """Free rendering resources."""
@@ -55,15 +66,24 @@ class Simulation:
 def build_simulation(config: Config, robot: robots.Robot, q0: np.ndarray) -> Simulation:
     """Build the work cell for ``config`` (already realized) with the arm at ``q0`` [rad]."""
     sc = config.scenario
-    model: mujoco.MjModel = load_workcell(robot.name)
     cps = control_points(config.build_hierarchy(robot), robot)
+    cameras = config.sensor.cameras if sc.sensing == "depth" else []
+    model: mujoco.MjModel = load_rig_workcell(robot.name, cameras) if cameras else load_workcell(robot.name)
     person = Person(model, config.person.keyframes, time_scale=sc.time_scale)
-    pipeline: DepthPipeline | None = None
+    pipeline: DepthPipeline | DepthRig | None = None
     depth_camera = None
+    depth_cameras = None
+    depth_periods = None
     if sc.sensing == "depth":
-        settings = DepthSensingSettings.from_sensor_config(config.sensor, seed=sc.seed, robot_root_body=robot.base_body)
-        pipeline = DepthPipeline(model, settings)
-        depth_camera = pipeline.render
+        settings = DepthSensingSettings.for_cameras(config.sensor, seed=sc.seed, robot_root_body=robot.base_body)
+        if len(settings) == 1:
+            pipeline = DepthPipeline(model, settings[0])
+            depth_camera = pipeline.render
+        else:
+            fusion = FusionSettings(config.sensor.fusion_step_m, config.sensor.fusion_tolerance_m)
+            pipeline = DepthRig(model, settings, fusion)
+            depth_cameras = [p.render for p in pipeline.pipelines]
+            depth_periods = [1.0 / (cam.rate_hz or sc.sensing_rate_hz) for cam in cameras]
     io = SimRobotIO(
         model,
         robot.nq,
@@ -74,11 +94,20 @@ def build_simulation(config: Config, robot: robots.Robot, q0: np.ndarray) -> Sim
         drive_bandwidth_rad_s=sc.drive_bandwidth_rad_s,
         scene_update=person.apply,
         depth_camera=depth_camera,
-        depth_period_s=1.0 / sc.sensing_rate_hz,
+        depth_period_s=1.0 / ((cameras[0].rate_hz if cameras else None) or sc.sensing_rate_hz),
+        depth_cameras=depth_cameras,
+        depth_periods_s=depth_periods,
     )
     obstacles: ObstacleSource
     if pipeline is not None:
-        obstacles = pipeline.source(io.read_depth, cps)
+        obstacles = depth_source(pipeline, io, cps)
     else:
         obstacles = GeometricObstacleSource(GeometricDistance(model, rho_m=config.sensor.rho_m), io.data, cps)
     return Simulation(io, obstacles, truth_function(model, io.data, cps), person, pipeline, cps)
+
+
+def depth_source(pipeline: DepthPipeline | DepthRig, io: RobotIO, frames: tuple[str, ...]) -> ObstacleSource:
+    """The obstacle source of a depth pipeline or rig for the control points ``frames``, reading from ``io``."""
+    if isinstance(pipeline, DepthRig):
+        return pipeline.source(io.read_depth_frames, frames)
+    return pipeline.source(io.read_depth, frames)

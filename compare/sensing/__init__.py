@@ -10,6 +10,11 @@ camera, capsule person on mocap bodies; :meth:`robots.Robot.workcell_model`). Tw
   depth-space distance of each control point (:class:`DepthDistance`, Flacco et al.);
 * **geometric**: :class:`GeometricDistance`, exact distance to the person's capsules.
 
+Several cameras (``[[sensor.cameras]]``): :func:`load_rig_workcell` adds them to the scene,
+:class:`DepthRig` runs a pipeline per camera and fuses the distances (:class:`DepthFusion`,
+``compare.sensing.fusion``); every reading says whether it was measured or assumed from hidden
+space (``ObstacleReading.occluded``) and by which camera (``.camera``).
+
 Example (headless: ``MUJOCO_GL=egl``)::
 
     import mujoco
@@ -50,17 +55,21 @@ from compare.sensing.camera import (
 )
 from compare.sensing.depth_distance import DepthDistance
 from compare.sensing.exceptions import SensingError, UnknownSceneElement
+from compare.sensing.fusion import DepthFusion, FusionSettings
 from compare.sensing.geometric_distance import GeometricDistance, closest_on_capsules
 from compare.sensing.person import Person, PersonKeyframe, PersonPose
 from compare.sensing.pipeline import (
     DepthObstacleSource,
     DepthPipeline,
+    DepthRig,
     DepthSensingSettings,
     GeometricObstacleSource,
+    RigObstacleSource,
     truth_function,
 )
 from compare.sensing.renderer import PERSON_GROUP, ROBOT_VISUAL_GROUP, STATIC_GROUP, DepthCamera
 from compare.sensing.results import DistanceResult, ObstacleReading
+from compare.sensing.rig import load_rig_workcell
 from compare.sensing.scene import (
     arm_qpos_addresses,
     control_point_positions,
@@ -77,17 +86,21 @@ __all__ = [
     "STATIC_GROUP",
     "DepthCamera",
     "DepthDistance",
+    "DepthFusion",
     "DepthNoise",
     "DepthObstacleSource",
     "DepthPipeline",
+    "DepthRig",
     "DepthSensingSettings",
     "DistanceResult",
+    "FusionSettings",
     "GeometricDistance",
     "GeometricObstacleSource",
     "ObstacleReading",
     "Person",
     "PersonKeyframe",
     "PersonPose",
+    "RigObstacleSource",
     "SelfFilter",
     "SensingError",
     "StaticBackground",
@@ -97,6 +110,7 @@ __all__ = [
     "closest_on_capsules",
     "control_point_positions",
     "deproject",
+    "load_rig_workcell",
     "load_workcell",
     "make_data",
     "point_cloud",

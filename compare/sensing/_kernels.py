@@ -27,7 +27,19 @@ def closest_in_boxes(
     work_v: np.ndarray,
     work_u: np.ndarray,
     work_d: np.ndarray,
-) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    measured: bool = False,
+) -> tuple[
+    np.ndarray,
+    np.ndarray,
+    np.ndarray,
+    np.ndarray,
+    np.ndarray,
+    np.ndarray,
+    np.ndarray,
+    np.ndarray,
+    np.ndarray,
+    np.ndarray,
+]:
     """Per control point, the ``support``-th smallest squared distance to the pixels' occluded half-lines.
 
     Args:
@@ -44,11 +56,17 @@ def closest_in_boxes(
         work_v: Scratch, int32 (H·W,).
         work_u: Scratch, int32 (H·W,).
         work_d: Scratch, float64 (H·W,).
+        measured: Also find the closest *measured* point: the surface point ``(a d, b d, d)`` of
+            the nearest pixel that has a neighbour within ``SUPPORT_DEPTH_M`` in depth (a flying
+            pixel is not a measurement; its hidden half-line still counts).
 
     Returns:
         Per control point (arrays of length K): squared distance [m²] (``inf`` when fewer than
         ``support`` pixels), ``a``, ``b``, ``s`` of the chosen pixel (its point is
-        ``(a s, b s, s)``), and the number of valid pixels in its box.
+        ``(a s, b s, s)``), whether that point lies behind the measured surface (``s > d``:
+        assumed from hidden space, not measured), the number of valid pixels in its box, and
+        (``measured``; else ``inf`` and zeros) the squared distance and ``a``, ``b``, ``d`` of
+        the closest measured point.
     """
     k_points = boxes.shape[0]
     v_lo, v_hi, u_lo, u_hi = depth.shape[0], 0, depth.shape[1], 0
@@ -71,17 +89,24 @@ def closest_in_boxes(
     out_a = np.zeros(k_points)
     out_b = np.zeros(k_points)
     out_s = np.zeros(k_points)
+    out_hidden = np.zeros(k_points, dtype=np.bool_)
     count = np.zeros(k_points, dtype=np.int64)
+    out_e2 = np.full(k_points, np.inf)
+    out_ea = np.zeros(k_points)
+    out_eb = np.zeros(k_points)
+    out_ed = np.zeros(k_points)
     best = np.empty(support)
     best_a = np.empty(support)
     best_b = np.empty(support)
     best_s = np.empty(support)
+    best_d = np.empty(support)
     last = support - 1
     for k in range(k_points):
         v0, v1, u0, u1 = boxes[k, 0], boxes[k, 1], boxes[k, 2], boxes[k, 3]
         px, py, pz = points[k, 0], points[k, 1], points[k, 2]
+        e, ea, eb, ed, ei = np.inf, 0.0, 0.0, 0.0, -1
         if support == 1:  # plain minimum in registers: the common case, ~3x faster
-            m, ma, mb, ms, c = np.inf, 0.0, 0.0, 0.0, 0
+            m, ma, mb, ms, md, c = np.inf, 0.0, 0.0, 0.0, 0.0, 0
             for i in range(n):
                 v = work_v[i]
                 u = work_u[i]
@@ -90,17 +115,32 @@ def closest_in_boxes(
                 c += 1
                 a = xn[u]
                 b = yn[v]
-                s = max((a * px + b * py + pz) * inv_rr[v, u], work_d[i])
+                d = work_d[i]
+                ir = inv_rr[v, u]
+                s0 = (a * px + b * py + pz) * ir
+                s = max(s0, d)
                 dx = a * s - px
                 dy = b * s - py
                 dz = s - pz
                 d2 = dx * dx + dy * dy + dz * dz
                 if d2 < m:
-                    m, ma, mb, ms = d2, a, b, s
+                    m, ma, mb, ms, md = d2, a, b, s, d
+                if measured:
+                    # Surface point: the same point when s = d, else |r|² (s0 − d)² farther (squared).
+                    e2 = d2 if s0 <= d else d2 + (s0 - d) * (s0 - d) / ir
+                    if e2 < e:
+                        e, ea, eb, ed, ei = e2, a, b, d, i
             count[k] = c
-            out_d2[k], out_a[k], out_b[k], out_s[k] = m, ma, mb, ms
+            out_d2[k], out_a[k], out_b[k], out_s[k], out_hidden[k] = m, ma, mb, ms, ms > md
+            if measured and ei >= 0 and not _supported(depth, work_v[ei], work_u[ei], work_d[ei], min_range, max_range):
+                e, ea, eb, ed = _closest_supported(
+                    depth, work_v, work_u, work_d, n, v0, v1, u0, u1, xn, yn, px, py, pz, min_range, max_range
+                )
+            out_e2[k], out_ea[k], out_eb[k], out_ed[k] = e, ea, eb, ed
             continue
         best[:] = np.inf
+        best_s[:] = 0.0
+        best_d[:] = 0.0
         c = 0
         for i in range(n):
             v = work_v[i]
@@ -110,8 +150,9 @@ def closest_in_boxes(
             c += 1
             a = xn[u]
             b = yn[v]
+            d = work_d[i]
             # Depth of the ray's closest approach to P, never in front of the measured surface.
-            s = max((a * px + b * py + pz) * inv_rr[v, u], work_d[i])
+            s = max((a * px + b * py + pz) * inv_rr[v, u], d)
             dx = a * s - px
             dy = b * s - py
             dz = s - pz
@@ -123,17 +164,94 @@ def closest_in_boxes(
                     best_a[j] = best_a[j - 1]
                     best_b[j] = best_b[j - 1]
                     best_s[j] = best_s[j - 1]
+                    best_d[j] = best_d[j - 1]
                     j -= 1
                 best[j] = d2
                 best_a[j] = a
                 best_b[j] = b
                 best_s[j] = s
+                best_d[j] = d
+            if measured:
+                dx = a * d - px
+                dy = b * d - py
+                dz = d - pz
+                d2 = dx * dx + dy * dy + dz * dz
+                if d2 < e:
+                    e, ea, eb, ed, ei = d2, a, b, d, i
+        if measured and ei >= 0 and not _supported(depth, work_v[ei], work_u[ei], work_d[ei], min_range, max_range):
+            e, ea, eb, ed = _closest_supported(
+                depth, work_v, work_u, work_d, n, v0, v1, u0, u1, xn, yn, px, py, pz, min_range, max_range
+            )
         count[k] = c
         out_d2[k] = best[last]
         out_a[k] = best_a[last]
         out_b[k] = best_b[last]
         out_s[k] = best_s[last]
-    return out_d2, out_a, out_b, out_s, count
+        out_hidden[k] = best_s[last] > best_d[last]
+        out_e2[k], out_ea[k], out_eb[k], out_ed[k] = e, ea, eb, ed
+    return out_d2, out_a, out_b, out_s, out_hidden, count, out_e2, out_ea, out_eb, out_ed
+
+
+SUPPORT_DEPTH_M = 0.05
+"""A measured point needs a neighbouring pixel whose depth is within this [m] (:func:`_supported`)."""
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _supported(depth: np.ndarray, v: int, u: int, d: float, min_range: float, max_range: float) -> bool:
+    """Whether one of the 8 neighbours of pixel (v, u) is valid and within ``SUPPORT_DEPTH_M`` of its depth ``d``.
+
+    A lone pixel far from all its neighbours in depth is a flying pixel (a real sensor's at depth
+    edges; the rasteriser's at faces seen edge-on), not a surface: it does not count as measured.
+    """
+    height, width = depth.shape
+    for dv in (-1, 0, 1):
+        for du in (-1, 0, 1):
+            if dv == 0 and du == 0:
+                continue
+            vv, uu = v + dv, u + du
+            if 0 <= vv < height and 0 <= uu < width:
+                f = depth[vv, uu]
+                if min_range <= f <= max_range and abs(f - d) <= SUPPORT_DEPTH_M:
+                    return True
+    return False
+
+
+@numba.njit(cache=True, nogil=True)
+def _closest_supported(
+    depth: np.ndarray,
+    work_v: np.ndarray,
+    work_u: np.ndarray,
+    work_d: np.ndarray,
+    n: int,
+    v0: int,
+    v1: int,
+    u0: int,
+    u1: int,
+    xn: np.ndarray,
+    yn: np.ndarray,
+    px: float,
+    py: float,
+    pz: float,
+    min_range: float,
+    max_range: float,
+) -> tuple[float, float, float, float]:
+    """The closest measured point among the supported pixels of a box (the rare second pass)."""
+    e, ea, eb, ed = np.inf, 0.0, 0.0, 0.0
+    for i in range(n):
+        v = work_v[i]
+        u = work_u[i]
+        if v < v0 or v >= v1 or u < u0 or u >= u1:
+            continue
+        a = xn[u]
+        b = yn[v]
+        d = work_d[i]
+        dx = a * d - px
+        dy = b * d - py
+        dz = d - pz
+        d2 = dx * dx + dy * dy + dz * dz
+        if d2 < e and _supported(depth, v, u, d, min_range, max_range):
+            e, ea, eb, ed = d2, a, b, d
+    return e, ea, eb, ed
 
 
 @numba.njit(cache=True, nogil=True)

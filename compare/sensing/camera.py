@@ -91,7 +91,8 @@ def camera_model_from_mujoco(
     principal point to :math:`c_x = (W-1)/2 - p_x`, :math:`c_y = (H-1)/2 - p_y` (checked by
     rendering in ``tests/compare/test_camera.py``). A camera given by ``fovy`` only gets
     :math:`f_x = f_y = (H/2)/\tan(\mathrm{fovy}/2)` and the centred principal point. The valid
-    range is the model's ``depth_camera_range`` numeric, else 0.5–4.5 m.
+    range is the camera's ``depth_camera_range:<camera>`` numeric, else the model's
+    ``depth_camera_range``, else 0.5–4.5 m.
 
     Args:
         model: The scene model.
@@ -133,21 +134,46 @@ def camera_model_from_mujoco(
     transform = np.eye(4)
     transform[:3, :3] = rot @ _MJ_TO_OPTICAL
     transform[:3, 3] = pos
-    min_range, max_range = _range(model)
+    min_range, max_range = _range(model, camera)
     return CameraModel(width, height, float(fx), float(fy), float(cx), float(cy), transform, min_range, max_range)
 
 
-def _range(model: mujoco.MjModel) -> tuple[float, float]:
-    idx = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_NUMERIC, RANGE_NUMERIC)
+def _range(model: mujoco.MjModel, camera: str) -> tuple[float, float]:
+    """The camera's own ``depth_camera_range:<camera>`` numeric, else the scene's ``depth_camera_range``."""
+    name = f"{RANGE_NUMERIC}:{camera}"
+    idx = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_NUMERIC, name)
+    if idx < 0:
+        name = RANGE_NUMERIC
+        idx = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_NUMERIC, name)
     if idx < 0:
         return DEFAULT_RANGE_M
     adr, size = int(model.numeric_adr[idx]), int(model.numeric_size[idx])
     if size != 2:
-        raise SensingError(f"numeric '{RANGE_NUMERIC}' must hold 2 values (min max), got {size}")
+        raise SensingError(f"numeric '{name}' must hold 2 values (min max), got {size}")
     lo, hi = (float(v) for v in model.numeric_data[adr : adr + 2])
     if not 0.0 < lo < hi:
-        raise SensingError(f"numeric '{RANGE_NUMERIC}' must satisfy 0 < min < max, got {lo} {hi}")
+        raise SensingError(f"numeric '{name}' must satisfy 0 < min < max, got {lo} {hi}")
     return lo, hi
+
+
+def look_at_rotation(position: np.ndarray, target: np.ndarray) -> np.ndarray:
+    """Axes of a MuJoCo camera (x right, y up, looking along −z) at ``position`` aimed at ``target``.
+
+    Image x is kept horizontal (perpendicular to the world z axis); straight up or down, x is
+    the world x axis. Returns the 3×3 rotation whose columns are the camera axes in the world.
+    """
+    pos = np.asarray(position, dtype=float)
+    forward = np.asarray(target, dtype=float) - pos
+    norm = np.linalg.norm(forward)
+    if norm < 1e-9:
+        raise SensingError("camera position and target coincide")
+    forward /= norm
+    right = np.cross(forward, [0.0, 0.0, 1.0])
+    if np.linalg.norm(right) < 1e-6:  # looking straight up or down: pick x as "right"
+        right = np.array([1.0, 0.0, 0.0])
+    right /= np.linalg.norm(right)
+    up = np.cross(right, forward)
+    return np.column_stack([right, up, -forward])
 
 
 def set_camera_look_at(
@@ -162,17 +188,7 @@ def set_camera_look_at(
     if model.cam_bodyid[cam] != 0:
         raise SensingError(f"camera '{camera}' moves with a body; only world cameras can be re-aimed")
     pos = np.asarray(position, dtype=float)
-    forward = np.asarray(target, dtype=float) - pos
-    norm = np.linalg.norm(forward)
-    if norm < 1e-9:
-        raise SensingError("camera position and target coincide")
-    forward /= norm
-    right = np.cross(forward, [0.0, 0.0, 1.0])
-    if np.linalg.norm(right) < 1e-6:  # looking straight up or down: pick x as "right"
-        right = np.array([1.0, 0.0, 0.0])
-    right /= np.linalg.norm(right)
-    up = np.cross(right, forward)
-    rot = np.column_stack([right, up, -forward])  # MuJoCo camera axes in the world
+    rot = look_at_rotation(pos, target)  # MuJoCo camera axes in the world
     quat = np.empty(4)
     mujoco.mju_mat2Quat(quat, rot.ravel())
     model.cam_pos[cam] = pos

@@ -7,8 +7,8 @@ Both produce :class:`~compare.sensing.results.DistanceResult` and both offer an
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Iterable, Mapping
-from dataclasses import dataclass
+from collections.abc import Callable, Iterable, Mapping, Sequence
+from dataclasses import dataclass, replace
 from typing import Any
 
 import mujoco
@@ -17,6 +17,8 @@ import numpy as np
 from compare.loop.robot_io import DepthFrame
 from compare.sensing.camera import DepthNoise, valid_fraction
 from compare.sensing.depth_distance import DepthDistance
+from compare.sensing.exceptions import SensingError
+from compare.sensing.fusion import DepthFusion, FusionSettings
 from compare.sensing.geometric_distance import GeometricDistance
 from compare.sensing.renderer import DepthCamera
 from compare.sensing.results import DistanceResult, ObstacleReading
@@ -43,6 +45,8 @@ class DepthSensingSettings:
         camera: Camera name in the scene.
         robot_root_body: Root body of the arm (self-filter); None = the work cell's arm
             (``robots.Robot.base_body``, found from the model's first joint).
+        occluded_margin_m: A reading nearer than every measured point by more than this is
+            ``occluded`` (``DepthDistance``; ``[sensor] fusion_step_m``).
     """
 
     rho_m: float = 0.5
@@ -57,6 +61,7 @@ class DepthSensingSettings:
     seed: int = 0
     camera: str = "depth_camera"
     robot_root_body: str | None = None
+    occluded_margin_m: float = 0.01
 
     @classmethod
     def from_sensor_config(cls, sensor: Any, seed: int = 0, **overrides: Any) -> DepthSensingSettings:
@@ -68,6 +73,7 @@ class DepthSensingSettings:
             "dropout": sensor.dropout,
             "blind_fraction": sensor.blind_fraction,
             "seed": seed,
+            "occluded_margin_m": sensor.fusion_step_m,
         }
         values.update(overrides)
         return cls(**values)
@@ -76,6 +82,27 @@ class DepthSensingSettings:
     def noise(self) -> DepthNoise:
         """The noise model."""
         return DepthNoise(self.noise_std_m, self.noise_proportional, self.dropout)
+
+    @classmethod
+    def for_cameras(cls, sensor: Any, seed: int = 0, **overrides: Any) -> list[DepthSensingSettings]:
+        """One settings object per camera of ``sensor.cameras`` (``compare.config.SensorConfig``).
+
+        A camera's ``noise_std_m``, ``dropout`` and ``self_filter_margin_m`` default to the
+        ``[sensor]`` values; camera ``i`` > 0 draws its noise from its own stream (seed
+        ``SeedSequence([seed, i])``), camera 0 from ``seed`` as a lone camera does. No cameras:
+        the scene's one camera, as :meth:`from_sensor_config`.
+        """
+        base = cls.from_sensor_config(sensor, seed=seed, **overrides)
+        out = []
+        for i, cam in enumerate(sensor.cameras):
+            values: dict[str, Any] = {"camera": cam.name}
+            for key in ("noise_std_m", "dropout", "self_filter_margin_m"):
+                if getattr(cam, key) is not None:
+                    values[key] = getattr(cam, key)
+            if i > 0:
+                values["seed"] = int(np.random.SeedSequence([seed, i]).generate_state(1)[0])
+            out.append(replace(base, **values))
+        return out or [base]
 
 
 class DepthPipeline:
@@ -110,7 +137,9 @@ class DepthPipeline:
             noise_allowance=s.noise_allowance,
             root_body=s.robot_root_body,
         )
-        self.distance = DepthDistance(self.camera, s.rho_m, s.blind_fraction, s.min_support)
+        self.distance = DepthDistance(
+            self.camera, s.rho_m, s.blind_fraction, s.min_support, name=s.camera, occluded_margin_m=s.occluded_margin_m
+        )
 
     def render(self, data: mujoco.MjData, stamp_s: float | None = None) -> DepthFrame:
         """A raw (noisy) depth frame of ``data``; usable as ``SimRobotIO(depth_camera=...)``."""
@@ -193,6 +222,119 @@ class DepthObstacleSource:
             filtered = self.pipeline.filter(frame, q=kin.q)
             self._last = (frame, filtered, vf)
         return self.pipeline.distance.compute(filtered, control_point_positions(kin, self.frames), vf)
+
+
+class DepthRig:
+    """Several depth cameras, their distances fused into one reading per control point.
+
+    A :class:`DepthPipeline` per camera (its own noise, background and self-filter margin) and
+    :class:`~compare.sensing.fusion.DepthFusion` (:mod:`compare.sensing.fusion`).
+
+    Args:
+        model: Work-cell model holding every camera (``compare.sensing.rig.load_rig_workcell``).
+        settings: One :class:`DepthSensingSettings` per camera (same ρ), in order.
+        fusion: Fusion parameters.
+
+    Attributes:
+        pipelines: The per-camera pipelines.
+        fusion: The :class:`~compare.sensing.fusion.DepthFusion`.
+    """
+
+    def __init__(
+        self,
+        model: mujoco.MjModel,
+        settings: Sequence[DepthSensingSettings],
+        fusion: FusionSettings | None = None,
+    ) -> None:
+        if len(settings) < 2:
+            raise SensingError("a rig needs at least two cameras (one camera: DepthPipeline)")
+        self.model = model
+        self.pipelines: list[DepthPipeline] = []
+        try:
+            for s in settings:
+                self.pipelines.append(DepthPipeline(model, s))
+        except Exception:
+            self.close()
+            raise
+        self.fusion = DepthFusion([p.distance for p in self.pipelines], [s.noise for s in settings], fusion)
+
+    @property
+    def names(self) -> list[str]:
+        """Camera names, in order."""
+        return [p.settings.camera for p in self.pipelines]
+
+    def render(self, data: mujoco.MjData) -> tuple[DepthFrame, ...]:
+        """A raw frame of every camera."""
+        return tuple(p.render(data) for p in self.pipelines)
+
+    def filter(
+        self, frames: Sequence[DepthFrame], q: np.ndarray | None = None, data: mujoco.MjData | None = None
+    ) -> list[DepthFrame]:
+        """Each camera's frame without the static scene and the arm (its own margins)."""
+        return [p.filter(f, q=q, data=data) for p, f in zip(self.pipelines, frames, strict=True)]
+
+    def process(
+        self,
+        frames: Sequence[DepthFrame],
+        control_points: Mapping[str, np.ndarray],
+        q: np.ndarray | None = None,
+        data: mujoco.MjData | None = None,
+    ) -> DistanceResult:
+        """Filter every camera's frame and fuse the distances of the control points (base frame [m])."""
+        vfs = [valid_fraction(f) for f in frames]
+        return self.fusion.compute(self.filter(frames, q=q, data=data), control_points, vfs)
+
+    def sense(self, data: mujoco.MjData, control_points: Mapping[str, np.ndarray]) -> DistanceResult:
+        """Render every camera and process the frames (the arm's pose taken from ``data``)."""
+        return self.process(self.render(data), control_points, data=data)
+
+    def source(
+        self, read_frames: Callable[[], Sequence[DepthFrame | None]], frames: Iterable[str]
+    ) -> RigObstacleSource:
+        """An ``update(t, kin)`` obstacle source reading every camera's latest frame (``io.read_depth_frames``)."""
+        return RigObstacleSource(self, read_frames, frames)
+
+    def close(self) -> None:
+        """Free every renderer."""
+        for p in self.pipelines:
+            p.close()
+
+
+class RigObstacleSource:
+    """``compare.loop.closed_loop.ObstacleSource`` with several cameras (see :class:`DepthObstacleSource`).
+
+    Each camera's latest frame is filtered once (at the joint positions of the update that
+    first sees it); a camera without a frame yet makes the update blind.
+    """
+
+    def __init__(
+        self,
+        rig: DepthRig,
+        read_frames: Callable[[], Sequence[DepthFrame | None]],
+        frames: Iterable[str],
+    ) -> None:
+        self.rig = rig
+        self.read_frames = read_frames
+        self.frames = tuple(frames)
+        self._last: list[tuple[DepthFrame, DepthFrame, float] | None] = [None] * len(rig.pipelines)
+
+    def update(self, t: float, kin: Kinematics) -> DistanceResult:
+        """Sense at time ``t`` [s] with the arm at ``kin.q``."""
+        latest = tuple(self.read_frames())
+        if len(latest) != len(self.rig.pipelines):
+            raise SensingError(f"the rig has {len(self.rig.pipelines)} cameras but {len(latest)} frames came in")
+        raw = [f for f in latest if f is not None]
+        if len(raw) != len(latest):  # a camera without a frame yet: blind
+            return _blind(self.frames, t)
+        filtered, fractions = [], []
+        for c, frame in enumerate(raw):
+            last = self._last[c]
+            if last is None or last[0] is not frame:
+                last = (frame, self.rig.pipelines[c].filter(frame, q=kin.q), valid_fraction(frame))
+                self._last[c] = last
+            filtered.append(last[1])
+            fractions.append(last[2])
+        return self.rig.fusion.compute(filtered, control_point_positions(kin, self.frames), fractions)
 
 
 class GeometricObstacleSource:

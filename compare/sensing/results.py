@@ -18,11 +18,19 @@ class ObstacleReading:
         closest_point: Closest obstacle point O in the base frame [m], shape (3,); ``None`` when
             nothing is in range.
         in_range: Whether an obstacle was found within the surveillance distance ρ.
+        occluded: The closest point was not measured but assumed: it lies in space hidden behind
+            a measured surface (occluded space counts as obstacle, Flacco et al.), from every
+            camera (several cameras: ``compare.sensing.fusion``). False for a measured point,
+            for geometric sensing and when nothing is in range.
+        camera: Name of the camera whose pixel gave the closest point (measured, or the one
+            behind whose surface it is hidden); None in geometric mode or when nothing is in range.
     """
 
     distance_m: float
     closest_point: np.ndarray | None
     in_range: bool
+    occluded: bool = False
+    camera: str | None = None
 
     @classmethod
     def nothing(cls) -> ObstacleReading:
@@ -43,7 +51,11 @@ class DistanceResult:
         stamp_s: Capture time of the frame (or time of the geometric query) [s]; NaN if unknown.
         pixels_visited: Valid pixels examined over all surveillance regions (0 in geometric mode).
         out_of_view: Control points whose surveillance cube lies entirely outside the camera's
-            view or range: their "nothing in range" means "not observed".
+            view or range (of every camera): their "nothing in range" means "not observed".
+        cameras: With several cameras, each camera's own result (before fusion), in
+            ``[[sensor.cameras]]`` order; empty otherwise. With several cameras
+            ``valid_fraction`` is the smallest camera's, ``blind`` is any camera's, and
+            ``stamp_s`` the oldest frame's.
     """
 
     readings: dict[str, ObstacleReading]
@@ -52,10 +64,15 @@ class DistanceResult:
     stamp_s: float = math.nan
     pixels_visited: int = 0
     out_of_view: tuple[str, ...] = field(default_factory=tuple)
+    cameras: tuple[DistanceResult, ...] = field(default_factory=tuple)
 
     def distances(self) -> dict[str, float]:
         """Distance per control point [m] (``inf`` when nothing is in range)."""
         return {name: r.distance_m for name, r in self.readings.items()}
+
+    def occluded(self) -> dict[str, bool]:
+        """Per control point: the closest point was assumed from hidden space, not measured."""
+        return {name: r.occluded for name, r in self.readings.items()}
 
     def closest_points(self) -> dict[str, np.ndarray | None]:
         """Closest point per control point in the base frame [m] (``None`` when nothing is in range)."""

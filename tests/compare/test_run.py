@@ -198,3 +198,27 @@ def test_run_help_says_what_happens_to_a_directory_with_results():
     assert result.exit_code == 0
     text = " ".join(result.output.split())
     assert "gets these methods added" in text and "--overwrite" in text and "refused (exit 2)" in text
+
+
+@pytest.mark.slow
+@pytest.mark.rendering
+def test_case1_with_two_cameras_logs_what_each_reading_is(tmp_path):
+    import numpy as np
+
+    from compare.analysis.results import load_steps
+
+    summary = _run(tmp_path, "case1_two_cameras.toml", "--time-scale", "0.2", "-m", "tpik")
+    m = summary["methods"]["tpik"]
+    assert m["sensing"] == "depth"
+    assert m["obstacles"]["physical_margin_min"] > 0.0 and m["failures"] == 0
+    steps = load_steps(tmp_path / "case1_two_cameras", "tpik")
+    seen = set()
+    for cp in ("link_4", "link_6", "link_7"):
+        measured = np.isfinite(steps[f"dist_meas:{cp}"].to_numpy(dtype=float))
+        cameras = steps[f"camera:{cp}"].astype(str).to_numpy()
+        # A reading in range names its camera; no reading, no camera and never "occluded".
+        assert set(cameras[measured]) <= {"depth_camera", "depth_camera_2"} and "" not in set(cameras[measured])
+        assert set(cameras[~measured]) <= {""}
+        assert not steps[f"occluded:{cp}"].to_numpy(dtype=bool)[~measured].any()
+        seen |= set(cameras[measured])
+    assert measured.any() and seen  # the person stepped in and was seen

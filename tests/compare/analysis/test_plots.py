@@ -129,3 +129,23 @@ def test_summary_table_and_markdown_report(plotted_run):
     assert "](plots/comparison.png)" in body and "](plots/tpik_joints.png)" in body
     assert "| hqp-daqp |" in body and "NoSolutionFound \\| level 2" not in body.split("## Failed")[0]
     assert "`hqp-osqp`: NoSolutionFound | level 2" in body
+
+
+def _purple_pixels(path: Path) -> int:
+    img = imread(path)[..., :3]
+    purple = np.array([148, 103, 189]) / 255.0  # matplotlib tab:purple
+    return int(np.count_nonzero(np.all(np.abs(img - purple) < 0.06, axis=-1)))
+
+
+def test_distance_plot_marks_readings_assumed_from_hidden_space(tmp_path):
+    from compare.analysis.plots import plot_distances
+
+    steps = _busy_steps(0, False)
+    t = steps["t"].to_numpy()
+    for cp in ("link_4", "link_6", "link_7"):
+        steps[f"occluded:{cp}"] = False
+    plain = plot_distances(steps, "tpik", ["link_4", "link_6", "link_7"], [], tmp_path / "plain.png")
+    steps["occluded:link_6"] = (t > 4.0) & (t < 6.0)
+    marked = plot_distances(steps, "tpik", ["link_4", "link_6", "link_7"], [], tmp_path / "marked.png")
+    assert _purple_pixels(plain) == 0
+    assert _purple_pixels(marked) > 50

@@ -229,3 +229,24 @@ def test_depth_mode_faults_on_rendered_frames(robot):
         assert f["reaction"] == "safe_stop", (kind, f)
         assert f["reaction_latency_s_max"] <= PERIOD_S + 1e-9
         assert f["moving_steps_while_faulty"] == 0
+
+
+@pytest.mark.slow
+@pytest.mark.rendering
+def test_a_fault_of_one_camera_of_two_stops_the_arm(robot):
+    config, _ = load_config(CONFIGS / "case1_two_cameras.toml")
+    data = config.model_dump(mode="python")
+    data["scenario"].update(duration_s=1.2, time_scale=1.0)
+    data["methods"] = {"names": ["tpik"], "settings": {}}
+    data["faults"] = {
+        "inject": [
+            {"kind": "depth_nan", "start_s": 0.3, "end_s": 0.5, "camera": 1},
+            {"kind": "depth_frozen", "start_s": 0.7, "end_s": 0.9, "camera": 1},
+        ]
+    }
+    result = run_method(parse_config(data), "tpik", robot)
+    _check_commands(result, robot)
+    for kind in ("depth_nan", "depth_frozen"):
+        f = result["summary"]["faults"][kind]
+        assert f["reaction"] == "safe_stop", (kind, f)
+        assert f["moving_steps_while_faulty"] == 0

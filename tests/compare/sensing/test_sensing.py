@@ -412,9 +412,14 @@ def test_numba_and_numpy_backends_agree(camera, support):
     assert fast.out_of_view == ref.out_of_view
     for name in points:
         a, b = fast.readings[name], ref.readings[name]
-        assert a.in_range == b.in_range
+        assert a.in_range == b.in_range and a.occluded == b.occluded
         if a.in_range:
             assert a.distance_m == pytest.approx(b.distance_m, abs=1e-9)
+    # The closest measured (supported) point too.
+    pts = np.array(list(points.values()))
+    ev_fast = DepthDistance(camera, rho_m=0.4, backend="numba").evaluate(frame, pts, measured=True)
+    ev_ref = DepthDistance(camera, rho_m=0.4, backend="numpy").evaluate(frame, pts, measured=True)
+    np.testing.assert_allclose(ev_fast.measured_m, ev_ref.measured_m, rtol=0, atol=1e-9)
 
 
 def test_surveillance_box_holds_every_pixel_within_rho(camera):
@@ -452,3 +457,20 @@ def test_compiled_capsule_distance_matches_numpy_reference():
     d_nb, c_nb = closest_on_capsules_kernel(points, a, b, r)
     np.testing.assert_allclose(d_nb, d_ref, atol=1e-12)
     np.testing.assert_allclose(c_nb, c_ref, atol=1e-12)
+
+
+@pytest.mark.parametrize("backend", DepthDistance.BACKENDS)
+def test_a_lone_flying_pixel_is_not_a_measured_point(camera, backend):
+    # A wall 2.5 m away and one pixel 40 cm nearer than all its neighbours (the rasteriser's or a
+    # real sensor's flying pixel): the closest measured point is on the wall, the half-line still counts.
+    depth = np.zeros((camera.height, camera.width), np.float32)
+    depth[150:250, 200:300] = 2.5
+    depth[200, 250] = 2.1
+    frame = DepthFrame(depth, 0.0, camera)
+    distance = DepthDistance(camera, rho_m=1.0, backend=backend)
+    p = camera.transform_base_to_camera[:3, :3] @ np.array([0.0, 0.0, 1.9]) + camera.transform_base_to_camera[:3, 3]
+    ev = distance.evaluate(frame, p[None, :], measured=True)
+    assert ev.measured_m[0] == pytest.approx(0.6, abs=0.01)  # the wall, not the lone pixel
+    assert ev.distance_m[0] < 0.25  # the lone pixel's hidden half-line passes near P
+    depth[201, 250] = 2.12  # a neighbour within 5 cm: now a measured surface
+    assert distance.evaluate(frame, p[None, :], measured=True).measured_m[0] == pytest.approx(0.2, abs=0.01)

@@ -70,9 +70,16 @@ def test_person_steps_in_and_out_of_range_through_sim_io(jaco):
 def test_sensing_bench_reports_the_design_rows():
     from compare.bench.sensing import run_sensing_bench
 
-    rows = {row.name: row for row in run_sensing_bench(repeats=10)}
+    all_rows = run_sensing_bench(repeats=10)
+    rows = {row.name: row for row in all_rows if row.case == "512x424-rho0.5"}
     for name in ("depth-render", "self-filter", "depth-distance", "depth-kdtree-baseline"):
-        assert rows[name].case == "512x424-rho0.5"
         assert rows[name].median_us > 0 and rows[name].samples >= 10
     assert rows["depth-distance"].extra["max_error_vs_geometry_m"] < 0.01
     assert rows["depth-kdtree-baseline"].extra["max_diff_vs_depth_distance_m"] < 1e-6
+    # Two cameras: each row next to its one-camera counterpart of the same run.
+    two = {row.name: row for row in all_rows if row.case == "2x512x424-rho0.5"}
+    assert set(two) == {"depth-distance", "depth-sensing-step", "depth-frame"}
+    assert {"depth-sensing-step", "depth-frame"} <= set(rows)
+    for row in two.values():
+        assert row.median_us > 0 and row.extra["ratio_vs_one_camera"] > 0
+    assert two["depth-distance"].extra["max_error_vs_geometry_m"] < 0.01

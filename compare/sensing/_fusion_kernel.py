@@ -1,0 +1,243 @@
+"""Compiled search of the fusion (:mod:`compare.sensing.fusion`): hidden points no other camera sees free.
+
+One call handles one control point and one *owner* camera: the half-lines hidden behind the
+owner's obstacle pixels are walked outward from their closest approach to the control point,
+and the first sample that no other camera sees free is the owner's candidate. The numpy-free
+inner loop keeps the search to a few microseconds per candidate half-line.
+"""
+
+from __future__ import annotations
+
+import numba
+import numpy as np
+
+_BUCKETS = 64
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _seen_free(
+    x: float,
+    y: float,
+    z: float,
+    rot: np.ndarray,
+    trans: np.ndarray,
+    intr: np.ndarray,
+    tau: np.ndarray,
+    others: tuple[np.ndarray, ...],
+) -> bool:
+    """Whether some other camera sees the owner-frame point (x, y, z) free (module ``fusion`` rule)."""
+    for m in range(len(others)):
+        xm = rot[m, 0, 0] * x + rot[m, 0, 1] * y + rot[m, 0, 2] * z + trans[m, 0]
+        ym = rot[m, 1, 0] * x + rot[m, 1, 1] * y + rot[m, 1, 2] * z + trans[m, 1]
+        zm = rot[m, 2, 0] * x + rot[m, 2, 1] * y + rot[m, 2, 2] * z + trans[m, 2]
+        lo = intr[m, 6]
+        hi = intr[m, 7]
+        if zm < lo or zm > hi:  # nearer than the minimum range or beyond the maximum: unknown
+            continue
+        iu = int(np.floor(intr[m, 2] + intr[m, 0] * xm / zm + 0.5))
+        iv = int(np.floor(intr[m, 3] + intr[m, 1] * ym / zm + 0.5))
+        if iu < 0 or iv < 0 or iu >= int(intr[m, 4]) or iv >= int(intr[m, 5]):  # out of view: unknown
+            continue
+        f = others[m][iv, iu]
+        if lo <= f <= hi:  # an obstacle pixel: free only in front of its surface
+            allowance = tau[m, 0] + tau[m, 1] * (f if tau[m, 2] > 0.0 else 1.0)
+            if zm < f - allowance:
+                return True
+            continue
+        return True  # arm, static scene or no return: the ray counts as free (the one-camera premise)
+    return False
+
+
+@numba.njit(cache=True, nogil=True)
+def occluded_search(
+    depth: np.ndarray,
+    box: np.ndarray,
+    xn: np.ndarray,
+    yn: np.ndarray,
+    inv_rr: np.ndarray,
+    min_range: float,
+    max_range: float,
+    p: np.ndarray,
+    radius_lo: float,
+    radius_hi: float,
+    step: float,
+    budget: int,
+    rot: np.ndarray,
+    trans: np.ndarray,
+    intr: np.ndarray,
+    tau: np.ndarray,
+    others: tuple[np.ndarray, ...],
+    work: np.ndarray,
+) -> tuple[float, float, float, float, int, bool]:
+    """Closest point hidden behind the owner's obstacle pixels that no other camera sees free.
+
+    Args:
+        depth: The owner's filtered depth image [m], (H, W), float32 (0/NaN: no obstacle).
+        box: The owner's surveillance box ``(v0, v1, u0, u1)`` of the control point.
+        xn: ``(u - cx) / fx`` per column of the owner, (W,).
+        yn: ``(v - cy) / fy`` per row, (H,).
+        inv_rr: ``1 / (1 + xn² + yn²)`` per pixel, (H, W).
+        min_range: Owner's smallest valid depth [m].
+        max_range: Owner's largest valid depth [m].
+        p: Control point in the owner's sensor frame [m], (3,).
+        radius_lo: Every point nearer than this to ``p`` is known to be seen free by another
+            camera [m] (the lower bound of :func:`compare.sensing.fusion.not_free_bound`).
+        radius_hi: Only points nearer than this are of interest [m] (the best distance so far).
+        step: Sampling step along a half-line, in depth [m].
+        budget: Largest number of samples; beyond it the search ends conservatively.
+        rot: Owner sensor frame → other camera's sensor frame, rotations (M, 3, 3).
+        trans: ... translations (M, 3).
+        intr: Other cameras' ``fx, fy, cx, cy, width, height, min_range, max_range``, (M, 8).
+        tau: Other cameras' free-space allowance ``tolerance, k σ0, proportional`` (M, 3): a point
+            is seen free in front of a surface at depth f only if nearer than
+            ``f − tolerance − k σ0 (f if proportional else 1)``.
+        others: The other cameras' filtered depth images (float32, each its own shape).
+        work: Scratch, float64 (6, H·W) of the owner.
+
+    Returns:
+        Distance [m] (``inf``: none nearer than ``radius_hi``), the point in the owner's sensor
+        frame [m], the number of samples tested, and whether the budget ran out (then the
+        distance is the nearest remaining half-line's unconstrained one: conservative).
+    """
+    v0, v1, u0, u1 = box[0], box[1], box[2], box[3]
+    px, py, pz = p[0], p[1], p[2]
+    hi2 = radius_hi * radius_hi
+    cand_a = work[0]
+    cand_b = work[1]
+    cand_d = work[2]
+    cand_s0 = work[3]
+    cand_l2 = work[4]
+    cand_rr = work[5]
+    n = 0
+    for v in range(v0, v1):
+        for u in range(u0, u1):
+            d = depth[v, u]
+            if not (min_range <= d <= max_range):
+                continue
+            a = xn[u]
+            b = yn[v]
+            s0 = (a * px + b * py + pz) * inv_rr[v, u]
+            if s0 <= d:  # the half-line's closest point is the measured surface point itself
+                continue
+            dx = a * s0 - px
+            dy = b * s0 - py
+            dz = s0 - pz
+            l2 = dx * dx + dy * dy + dz * dz
+            if l2 >= hi2:
+                continue
+            cand_a[n] = a
+            cand_b[n] = b
+            cand_d[n] = d
+            cand_s0[n] = s0
+            cand_l2[n] = l2
+            cand_rr[n] = 1.0 / inv_rr[v, u]
+            n += 1
+    best = np.inf
+    bx = by = bz = 0.0
+    if n == 0:
+        return best, bx, by, bz, 0, False
+    # Closest half-lines first (counting sort on the line distance).
+    counts = np.zeros(_BUCKETS + 1, dtype=np.int64)
+    keys = np.empty(n, dtype=np.int64)
+    for i in range(n):
+        key = min(int(_BUCKETS * np.sqrt(cand_l2[i]) / radius_hi), _BUCKETS - 1)
+        keys[i] = key
+        counts[key + 1] += 1
+    for j in range(_BUCKETS):
+        counts[j + 1] += counts[j]
+    order = np.empty(n, dtype=np.int64)
+    fill = counts[:_BUCKETS].copy()
+    for i in range(n):
+        order[fill[keys[i]]] = i
+        fill[keys[i]] += 1
+    limit = radius_hi
+    lo2 = radius_lo * radius_lo
+    samples = 0
+    for j in range(_BUCKETS):
+        if j * radius_hi / _BUCKETS >= min(best, limit):
+            break
+        for idx in range(counts[j], counts[j + 1]):
+            i = order[idx]
+            bound = min(best, limit)
+            l2 = cand_l2[i]
+            if l2 >= bound * bound:
+                continue
+            a, b, d, s0, rr = cand_a[i], cand_b[i], cand_d[i], cand_s0[i], cand_rr[i]
+            half = np.sqrt((bound * bound - l2) / rr)  # |s − s0| within the current best distance
+            inner = np.sqrt(max(lo2 - l2, 0.0) / rr)  # nearer than radius_lo: seen free for sure
+            k = 0
+            while True:
+                off = inner + k * step
+                if off >= half:
+                    break
+                hit = False
+                for sign in (1.0, -1.0):
+                    if sign < 0.0 and off == 0.0:
+                        continue
+                    s = s0 + sign * off
+                    if s <= d:
+                        continue
+                    samples += 1
+                    if not _seen_free(a * s, b * s, s, rot, trans, intr, tau, others):
+                        best = np.sqrt(l2 + off * off * rr)
+                        bx, by, bz = a * s, b * s, s
+                        hit = True
+                        break
+                if hit:
+                    break
+                if samples >= budget:
+                    # Out of budget: every half-line not searched yet counts unclipped (as with one camera).
+                    for rest in range(idx, n):
+                        r = order[rest]
+                        if cand_l2[r] < best * best:
+                            best = np.sqrt(cand_l2[r])
+                            bx, by, bz = cand_a[r] * cand_s0[r], cand_b[r] * cand_s0[r], cand_s0[r]
+                    return best, bx, by, bz, samples, True
+                k += 1
+    return best, bx, by, bz, samples, False
+
+
+@numba.njit(cache=True, nogil=True)
+def not_free_bounds(
+    p: np.ndarray,
+    distance: np.ndarray,
+    radius: np.ndarray,
+    intr: np.ndarray,
+    tau: np.ndarray,
+) -> np.ndarray:
+    r"""Per control point, a lower bound of its distance to the space one camera does not see free [m].
+
+    That space is what lies behind the camera's obstacle pixels (from :math:`f - \tau(f)`, at
+    nearest-pixel resolution) and what is out of its view or range. Within ``radius`` of a
+    control point it is at least :math:`\delta - 1.5\,\tau(z) - 0.8\,z / f_{min}` away
+    (:math:`\delta` the depth-space kernel's half-line distance, :math:`z` the farthest depth of
+    interest), and at least as far as the view's border planes and range limits.
+
+    Args:
+        p: Control points in the camera's sensor frame [m], (K, 3).
+        distance: The camera's half-line distances δ [m] (``inf``: no obstacle pixel), (K,).
+        radius: Distance of interest per control point [m], (K,).
+        intr: ``fx, fy, cx, cy, width, height, min_range, max_range``, (8,).
+        tau: ``tolerance, k σ0, proportional``, (3,).
+
+    Returns:
+        The bounds [m], (K,) (0 for a point out of view).
+    """
+    fx, fy, cx, cy, width, height, lo, hi = intr[0], intr[1], intr[2], intr[3], intr[4], intr[5], intr[6], intr[7]
+    out = np.empty(p.shape[0])
+    for k in range(p.shape[0]):
+        x, y, z = p[k, 0], p[k, 1], p[k, 2]
+        bound = min(z - lo, hi - z)
+        for lim, coord, f, c, sign in (
+            (-0.5, x, fx, cx, 1.0),
+            (width - 0.5, x, fx, cx, -1.0),
+            (-0.5, y, fy, cy, 1.0),
+            (height - 0.5, y, fy, cy, -1.0),
+        ):
+            alpha = (lim - c) / f  # the border plane: coord = alpha z
+            bound = min(bound, sign * (coord - alpha * z) / np.sqrt(1.0 + alpha * alpha))
+        z_far = max(z + radius[k], 0.0)
+        allowance = tau[0] + tau[1] * (z_far if tau[2] > 0.0 else 1.0)
+        bound = min(bound, distance[k] - 1.5 * allowance - 0.8 * z_far / min(fx, fy))
+        out[k] = max(bound, 0.0)
+    return out
