@@ -199,19 +199,42 @@ def plot(results: Annotated[Path, typer.Argument(help="A run or sweep results di
 def bench(
     json_out: Annotated[Path | None, typer.Option("--json", help="Write results as JSON (DESIGN §7).")] = None,
     repeats: Annotated[int, typer.Option(min=10, help="Timed calls per case.")] = 300,
-    only: Annotated[str | None, typer.Option(help="solvers | sensing (default both).")] = None,
+    only: Annotated[str | None, typer.Option(help="solvers | sensing | correctness (default all).")] = None,
     methods: MethodsOpt = None,
+    rounds: Annotated[int, typer.Option(min=1, help="Correctness: timed passes over the reference states.")] = 3,
+    plot_out: Annotated[
+        Path | None, typer.Option("--plot", help="Correctness: write the time-vs-correctness figure.")
+    ] = None,
+    csv_out: Annotated[
+        Path | None, typer.Option("--csv", help="Correctness: one row per (state, backend), qpbenchmark-style.")
+    ] = None,
+    export_qps: Annotated[
+        Path | None,
+        typer.Option("--export-qps", help="Write the level QPs of the reference states as a qpbenchmark test set."),
+    ] = None,
+    export_method: Annotated[str, typer.Option(help="HQP method posing the exported QPs.")] = "hqp-piqp",
 ) -> None:
-    """Solver and sensing micro-benchmarks with medians, p95 and ratios to the reference."""
+    """Solver, sensing and QP-correctness benchmarks: medians, p95, ratios, timing vs correctness.
+
+    ``--only correctness`` judges every HQP backend against the stored lexicographic reference
+    (compare/bench/data/qp_reference.json): success rate, level errors, qpbenchmark residuals, time.
+    """
     from compare.bench.__main__ import main as bench_main
 
-    argv: list[str] = ["--repeats", str(repeats)]
+    if only is not None and only not in ("solvers", "sensing", "correctness"):
+        _fail(f"--only must be solvers, sensing or correctness, got '{only}'")
+    if not export_method.startswith("hqp-"):
+        _fail(f"--export-method must be an hqp-<backend> method, got '{export_method}'")
+    argv: list[str] = ["--repeats", str(repeats), "--rounds", str(rounds), "--export-method", export_method]
     if json_out is not None:
         argv += ["--json", str(json_out)]
     if only is not None:
         argv += ["--only", only]
     if methods:
         argv += ["--methods", *methods]
+    for flag, value in (("--plot", plot_out), ("--csv", csv_out), ("--export-qps", export_qps)):
+        if value is not None:
+            argv += [flag, str(value)]
     code = bench_main(argv)
     if code:
         raise typer.Exit(code)

@@ -75,7 +75,8 @@ def test_osqp_defaults_violate_constraints_and_ours_do_not(jaco, wall_level_qp):
     if not (raw.found and _violation(raw.x, G, h, lb, ub) > 1e-6):
         pytest.skip("OSQP's defaults happened to be accurate on this problem")
     ours = HqpSolver(jaco, "osqp")
-    x, _, retried = ours.solve_qp(P, q, G, h, lb, ub, np.zeros_like(q))
+    x, _, retried, _, certified = ours.solve_qp(P, q, G, h, lb, ub, np.zeros_like(q))
+    assert certified
     assert _violation(x, G, h, lb, ub) <= ours.tolerance
     assert retried == 0
     exact = qpsolvers.solve_problem(qpsolvers.Problem(P, q, G, h, lb=lb, ub=ub), solver="daqp").x
@@ -86,7 +87,8 @@ def test_loose_osqp_settings_are_caught_by_the_check_and_retried(jaco, wall_leve
     _needs("osqp")
     P, q, G, h, lb, ub = wall_level_qp
     loose = HqpSolver(jaco, "osqp", {"eps_abs": 1e-2, "eps_rel": 1e-2, "polish": False, "tolerance": 1e-7})
-    x, _, retried = loose.solve_qp(P, q, G, h, lb, ub, np.zeros_like(q))
+    x, _, retried, _, certified = loose.solve_qp(P, q, G, h, lb, ub, np.zeros_like(q))
+    assert certified
     assert retried == 1
     assert _violation(x, G, h, lb, ub) <= 1e-7
 
@@ -102,14 +104,29 @@ def test_proxqp_false_infeasibility_is_survived(jaco):
     exact = qpsolvers.solve_problem(qpsolvers.Problem(c.P, c.q, c.G, c.h, lb=c.lb, ub=c.ub), solver="daqp").x
     for settings in ({}, {"initial_guess": "EQUALITY_CONSTRAINED_INITIAL_GUESS"}):
         hqp = HqpSolver(jaco, "proxqp", settings)
-        x, _, _ = hqp.solve_qp(c.P, c.q, c.G, c.h, c.lb, c.ub, x0)
+        x, _, _, _, certified = hqp.solve_qp(c.P, c.q, c.G, c.h, c.lb, c.ub, x0)
+        assert certified, settings
         assert _violation(x, c.G, c.h, c.lb, c.ub) <= hqp.tolerance
         assert np.max(np.abs(x - exact)) < 1e-5, settings
+    # Without the retry, the stock guess's "infeasible" answer is feasible but its multipliers do not
+    # certify it: it comes back uncertified (the cascade then reports the level), never as a solution.
+    lone = HqpSolver(jaco, "proxqp", {"initial_guess": "EQUALITY_CONSTRAINED_INITIAL_GUESS", "retry": False})
+    answer = lone.solve_qp(c.P, c.q, c.G, c.h, c.lb, c.ub, x0, level=3)
+    assert not answer.solution.found and not answer.certified
+    assert answer.certificate is not None and answer.certificate.reason
     with pytest.raises(NoSolutionFound) as info:
         HqpSolver(jaco, "proxqp", {"initial_guess": "EQUALITY_CONSTRAINED_INITIAL_GUESS", "retry": False}).solve_qp(
-            c.P, c.q, c.G, c.h, c.lb, c.ub, x0, level=3
+            c.P,
+            c.q,
+            c.G,
+            c.h,
+            c.lb,
+            c.ub,
+            x0,
+            f0=-1.0,
+            level=3,  # a (fictitious) better point known: unusable
         )
-    assert info.value.level == 3 and info.value.solution is not None and "no solution" in str(info.value)
+    assert info.value.level == 3 and info.value.solution is not None and "not certified" in str(info.value)
 
 
 def _near_singular_qp() -> tuple[np.ndarray, ...]:
@@ -136,9 +153,14 @@ def test_daqp_failure_on_a_near_singular_hessian_is_retried_with_regularisation(
     feasible = qpsolvers.solve_problem(qpsolvers.Problem(P, q, G, h, lb=lb, ub=ub), solver="quadprog").x
     assert feasible is not None  # the problem is feasible: DAQP's "infeasible" is wrong
     hqp = HqpSolver(jaco, "daqp")
-    x, _, retried = hqp.solve_qp(P, q, G, h, lb, ub, feasible)
+    x, _, retried, cert, _ = hqp.solve_qp(P, q, G, h, lb, ub, feasible)
     assert retried == 1
     assert _violation(x, G, h, lb, ub) <= hqp.tolerance
+    # The retry's extra 1e-8 on P moves the optimum of this near-singular QP a little (here the known
+    # feasible point is quadprog's optimum): close, and reported as not certified, not as the optimum.
+    f_exact = float(feasible @ (0.5 * P @ feasible) + q @ feasible)
+    assert cert.objective == pytest.approx(f_exact, rel=1e-6)
+    assert cert.objective > f_exact and not cert.passed and "above a known feasible point" in cert.reason
     with pytest.raises(NoSolutionFound):
         HqpSolver(jaco, "daqp", {"retry": False}).solve_qp(P, q, G, h, lb, ub, feasible)
 
@@ -152,7 +174,8 @@ def test_quadprog_semidefinite_hessian_is_retried_with_regularisation(jaco):
     with pytest.raises(Exception, match="positive definite"):
         qpsolvers.solve_problem(qpsolvers.Problem(P, q, lb=lb, ub=ub), solver="quadprog")
     hqp = HqpSolver(jaco, "quadprog")
-    x, _, retried = hqp.solve_qp(P, q, None, None, lb, ub, np.zeros(7))
+    x, _, retried, _, certified = hqp.solve_qp(P, q, None, None, lb, ub, np.zeros(7))
+    assert certified
     assert retried == 1 and np.all(np.isfinite(x)) and _violation(x, np.zeros((0, 7)), np.zeros(0), lb, ub) <= 0
 
 
@@ -163,6 +186,7 @@ class _Fake:
         self.x = x
         self.found = found
         self.extras: dict[str, object] = {}
+        self.y = self.z = self.z_box = None  # no multipliers: the certificate recovers them
 
 
 @pytest.mark.parametrize(
@@ -170,8 +194,8 @@ class _Fake:
     [
         ("not_found", "reported no solution"),
         ("nan", "non-finite"),
-        ("violating", "violates its constraints"),
-        ("worse", "worse than a known feasible point"),
+        ("violating", "primal residual"),
+        ("worse", "above a known feasible point"),
         ("raises", "raised RuntimeError"),
     ],
 )
