@@ -76,6 +76,7 @@ import scipy.sparse as spa
 from qp_baseline.certificate import Certificate, Tolerances, certify
 from qp_baseline.exceptions import InvalidSettings, NoSolutionFound, UnknownSolver
 from qp_baseline.level_qp import LevelAnswer, LevelQp
+from qp_baseline.polish import polish
 from robots import Kinematics, Robot
 from tpik.hierarchy import Hierarchy
 from tpik.step_result import SolveStatus, StepResult, failed
@@ -93,13 +94,13 @@ SOLVER_DEFAULTS: dict[str, dict[str, Any]] = {
     # KKT system of the detected active set (exact when it succeeds), but OSQP skips it when no
     # constraint is active: eps 1e-8 is what gets q̇ within 1e-6 then (1e-6 leaves ~1e-4).
     "osqp": {
-        "eps_abs": 1e-7,
+        "eps_abs": 1e-6,
         "eps_rel": 0.0,
         "polish": True,
         "polish_refine_iter": 10,
         "check_dualgap": False,
         "eps_prim_inf": 1e-9,
-        "max_iter": 4000,
+        "max_iter": 2000,
     },
     # ProxQP's default eps_abs is 1e-3 (qpsolvers documentation). Its default equality-constrained
     # initial guess ends in PROXQP_PRIMAL_INFEASIBLE on many of our (feasible) level QPs.
@@ -114,7 +115,7 @@ RETRY_SETTINGS: dict[str, dict[str, Any]] = {
     "daqp": {},
     "quadprog": {},
     # A looser retry converges where 1e-8 ran out of iterations; TOLERANCES["osqp"] still checks it.
-    "osqp": {"eps_abs": 1e-9, "eps_rel": 0.0, "max_iter": 20000},
+    "osqp": {"eps_abs": 1e-9, "eps_rel": 0.0, "max_iter": 4000},
     # ProxQP's false infeasibility: solve the closest feasible problem instead; our own feasibility
     # check decides (every level QP is feasible by construction).
     "proxqp": {
@@ -155,16 +156,12 @@ MIN_NORM_LEVEL: dict[str, bool] = {
 }
 """Whether the final min-norm level is solved by default (inexact backends need it)."""
 
-WARM_START: dict[str, bool] = {
-    "daqp": False,
-    "quadprog": False,
-    "osqp": True,
-    "proxqp": False,
-    "clarabel": False,
-    "piqp": False,
-}
-"""Whether each level's backend starts from that level's previous-step answer by default (only
-OSQP and ProxQP take a start point through qpsolvers)."""
+WARM_START: dict[str, bool] = dict.fromkeys(SUPPORTED_SOLVERS, False)
+"""Whether each level's backend starts from that level's previous-step answer by default. Only OSQP
+and ProxQP take a start point through qpsolvers (the primal x alone: a new solver object, ρ and
+factorisation every call), and it did not pay: on an 80-step closed-loop rollout with a wall
+binding (``tests/qp_baseline``'s wall scenario) OSQP took 206 975 iterations warm-started vs
+174 950 cold. Off by default, ``warm_start = true`` to try it."""
 
 _SPARSE_SOLVERS = frozenset({"osqp", "clarabel"})  # qpsolvers converts (and warns) otherwise
 
@@ -288,6 +285,10 @@ class HqpSettings:
             (:attr:`~qp_baseline.certificate.Tolerances.level`); ``max(1e-6, tolerance)`` when None.
         warm_start: Start each level's backend from that level's answer at the previous step;
             :data:`WARM_START` when None.
+        kkt_polish: When a backend answer is not certified, polish it (:func:`qp_baseline.polish.polish`:
+            exact KKT solves of the active set the answer identifies) and keep the polished answer if
+            it is certified — OSQP's polishing idea, for every backend (one small least squares).
+            Not OSQP's own ``polish`` setting, which goes to OSQP.
     """
 
     regularization: float = 1e-9
@@ -300,6 +301,7 @@ class HqpSettings:
     certify: bool = True
     objective_tolerance: float | None = None
     warm_start: bool | None = None
+    kkt_polish: bool = True
 
     def check(self, solver: str) -> None:
         """Raise :class:`InvalidSettings` naming the first bad value."""
@@ -310,7 +312,7 @@ class HqpSettings:
             number = isinstance(value, int | float) and not isinstance(value, bool)
             if not (number and math.isfinite(value) and value > 0):
                 raise InvalidSettings(solver, f"setting '{key}' must be a finite number > 0, got {value!r}", key)
-        for key in ("unconstrained_first", "min_norm_level", "retry", "certify", "warm_start"):
+        for key in ("unconstrained_first", "min_norm_level", "retry", "certify", "warm_start", "kkt_polish"):
             value = getattr(self, key)
             if not (isinstance(value, bool) or (value is None and key in ("min_norm_level", "warm_start"))):
                 raise InvalidSettings(solver, f"setting '{key}' must be true or false, got {value!r}", key)
@@ -759,6 +761,7 @@ class HqpSolver:
             qz = eps * (qd if Z is None else Z.T @ qd)
         # The QP in x = [z; w]: rows of earlier levels, this level's rows with slack, the box.
         m = c1 - c0
+        own0 = c0  # first row of this level's own rows in the QP
         if at_zero:
             z_lb, z_ub, G_rows, h = lb, ub, G_all[:c1], h_rel[:c1]
         elif Z is None:
@@ -771,8 +774,15 @@ class HqpSolver:
             # row "0 ≤ 0" that some backends take for an infeasibility: drop those.
             box_G, box_h = np.vstack([Z, -Z]), np.concatenate([ub - qd, qd - lb])
             live = np.abs(box_G).max(axis=1) > 1e-12
-            G_rows = np.vstack([G_all[:c1] @ Z, box_G[live]])
-            h = np.concatenate([h_rel[:c1] - G_all[:c1] @ qd, box_h[live]])
+            # Likewise an earlier level's row whose Jacobian lies in the row space of the eliminated
+            # equality rows (a wall on the EE under an EE position task): ≈ 0·z ≤ h holds for every
+            # z (it holds at z = 0 by construction) and only makes the dual ill-posed (OSQP ran to
+            # its iteration limit on such min-norm levels): drop those too.
+            prev = G_all[:c0] @ Z
+            alive = np.abs(prev).max(axis=1, initial=0.0) > 1e-12
+            own0 = int(alive.sum())
+            G_rows = np.vstack([prev[alive], G_all[c0:c1] @ Z, box_G[live]])
+            h = np.concatenate([(h_rel[:c0] - G_all[:c0] @ qd)[alive], h_rel[c0:c1] - G_all[c0:c1] @ qd, box_h[live]])
         if margin:
             h = h + margin
         if m == 0:  # no slack variable: x = z
@@ -782,7 +792,7 @@ class HqpSolver:
         else:
             G = np.zeros((G_rows.shape[0], d + m))
             G[:, :d] = G_rows
-            G[c0:c1, d:] = -np.eye(m)
+            G[own0 : own0 + m, d:] = -np.eye(m)
             violation = np.maximum(G_own @ qd - h_own, 0.0)  # slack of the known feasible point
             reach = G_own @ (0.5 * (ub + lb)) + np.abs(G_own) @ (0.5 * (ub - lb))
             x_lb = np.concatenate([z_lb, np.zeros(m)])
@@ -804,7 +814,7 @@ class HqpSolver:
 
         minimal_slacks = None
         if m:
-            G_slack, h_slack = G[c0:c1, :d], h[c0:c1]
+            G_slack, h_slack = G[own0 : own0 + m, :d], h[own0 : own0 + m]
 
             def minimal_slacks(x: np.ndarray) -> np.ndarray:
                 # The level's answer is q̇; its slacks are then max(0, G q̇ − h) (feasible, no worse).
@@ -857,7 +867,7 @@ class HqpSolver:
             # Absorb violations within tolerance, so later levels stay feasible by construction.
             np.maximum(h_acc, G_acc @ cand, out=h_acc)
         self._previous[k] = cand
-        doubt = "" if answer.certified else (answer.certificate.reason if answer.certificate else "not checked")
+        doubt = "" if answer.certified else ((answer.certificate.reason if answer.certificate else "") or "not checked")
         return cand, 1, backend_iterations(solution), retried, doubt
 
     @staticmethod
@@ -1044,6 +1054,28 @@ class HqpSolver:
             last_cert = cert
             if cert.passed:
                 return LevelAnswer(x, solution, attempt, cert, True)
+            if self.options.kkt_polish and cert.primal_residual < math.inf:
+                polished = polish(P, q, G, h, lb, ub, x, solution.z, solution.z_box, active=tol)
+                if polished is not None:
+                    xp = refine(polished[0]) if refine is not None else polished[0]
+                    cert_p = certify(
+                        P,
+                        q,
+                        G,
+                        h,
+                        xp,
+                        lb=lb,
+                        ub=ub,
+                        z=polished[2],
+                        z_box=polished[3],
+                        feasible_objective=f0,
+                        level_value=None if level_value is None else level_value(xp),
+                        curvature=curvature,
+                        modulus=modulus,
+                        tolerances=self.certificate_tolerances,
+                    )
+                    if cert_p.passed:
+                        return LevelAnswer(xp, solution, attempt, cert_p, True)
             said = "" if solution.found else f" ({self.solver} reported no solution)"
             reason = f"{self.solver} answer not certified: {cert.reason}{said}"
             if usable is None and cert.primal_residual <= tol and cert.objective <= f0 + tol * (1.0 + abs(f0)):

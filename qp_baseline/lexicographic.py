@@ -21,12 +21,11 @@ minimum-norm answer among the lexicographic optima. :math:`r = \dot\sigma_d + K\
 (:math:`J\dot q \le \dot\sigma_u`, :math:`-J\dot q \le -\dot\sigma_l`, the finite ones); the
 box is the cascade's hard joint box (velocity limits and one-step position limits).
 
-Each level QP is solved by Clarabel at tight tolerances, then **polished**: a primal-dual
-active-set iteration solves the KKT system of the active set exactly (least squares on the KKT
-matrix, so degenerate active sets are fine) until the active set repeats; the polished answer is
-kept only if its optimality conditions hold (:func:`qp_baseline.certificate.certify`, tolerances
-:data:`REFERENCE_TOLERANCES`). A level whose QP cannot be certified raises
-:class:`ReferenceError`: the reference is never a guess.
+Each level QP is solved by Clarabel at tight tolerances (then Clarabel's defaults, then DAQP:
+:data:`FIRST_PASSES`), then **polished** (:func:`qp_baseline.polish.polish`: exact KKT solves of
+the active set until it repeats); an answer is kept only if its optimality conditions hold
+(:func:`qp_baseline.certificate.certify`, tolerances :data:`REFERENCE_TOLERANCES`). A level whose
+QP cannot be certified raises :class:`ReferenceError`: the reference is never a guess.
 
 The level objective compared across methods is a function of the command alone,
 :math:`f_k(\dot q) = \|J_k\dot q - r_k\|^2 + \|[G_k\dot q - h_k]^+\|^2` (the smallest slacks
@@ -46,11 +45,12 @@ import qpsolvers
 
 from qp_baseline.certificate import Certificate, Tolerances, certify
 from qp_baseline.exceptions import HqpError
+from qp_baseline.polish import polish
 from robots import Kinematics, Robot
 from tpik.hierarchy import Hierarchy
 from tpik.tasks import SetTask
 
-REFERENCE_TOLERANCES = Tolerances(primal=1e-10, gap=1e-12, level=1e-10, active=1e-9)
+REFERENCE_TOLERANCES = Tolerances(primal=1e-10, gap=1e-11, level=1e-10, active=1e-9)
 """Optimality conditions every level of the reference meets (see :mod:`qp_baseline.certificate`)."""
 
 FIRST_PASSES: tuple[tuple[str, dict[str, float]], ...] = (
@@ -180,52 +180,10 @@ def _independent_rows(J: np.ndarray, v: np.ndarray, rtol: float = 1e-12) -> tupl
     return Ur.T @ J, Ur.T @ v
 
 
-def _polish(
-    P: np.ndarray,
-    c: np.ndarray,
-    G: np.ndarray,
-    h: np.ndarray,
-    A: np.ndarray,
-    b: np.ndarray,
-    x: np.ndarray,
-    z: np.ndarray,
-    max_rounds: int = 25,
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Primal-dual active-set iteration from (x, z): exact KKT solves of the active set.
-
-    Inequality rows (box included, as rows) are active when ``z_i > h_i − G_i x``; each round
-    solves the equality-constrained QP of the active rows by least squares on its KKT matrix.
-    Returns (x, y, z) of the last round.
-    """
-    n = x.shape[0]
-    y = np.zeros(A.shape[0])
-    prev: np.ndarray | None = None
-    for _ in range(max_rounds):
-        act = z > (h - G @ x)
-        if prev is not None and np.array_equal(act, prev):
-            break
-        prev = act
-        E = np.vstack([A, G[act]])
-        e = np.concatenate([b, h[act]])
-        K = np.zeros((n + E.shape[0], n + E.shape[0]))
-        K[:n, :n] = P
-        K[:n, n:] = E.T
-        K[n:, :n] = E
-        rhs = np.concatenate([-c, e])
-        sol = np.linalg.lstsq(K, rhs, rcond=1e-14)[0]
-        # One step of iterative refinement.
-        sol += np.linalg.lstsq(K, rhs - K @ sol, rcond=1e-14)[0]
-        x = sol[:n]
-        y = sol[n : n + A.shape[0]]
-        z = np.zeros(G.shape[0])
-        z[act] = sol[n + A.shape[0] :]
-    return x, y, z
-
-
 def _kkt_ok(cert: Certificate, tolerances: Tolerances) -> bool:
-    """Dual residual and duality gap of the certificate's multipliers within the gap tolerance (scaled)."""
+    """Dual residual and duality gap of the certificate's multipliers within 10× the gap tolerance (scaled)."""
     scale = 1.0 + abs(cert.objective)
-    return cert.dual_residual <= 100 * tolerances.gap * scale and cert.duality_gap <= 100 * tolerances.gap * scale
+    return cert.dual_residual <= 10 * tolerances.gap * scale and cert.duality_gap <= 10 * tolerances.gap * scale
 
 
 def solve_level_qp(
@@ -244,14 +202,11 @@ def solve_level_qp(
     Raises:
         ReferenceError: Neither the polished nor the raw answer meets ``tolerances``.
     """
-    n = c.shape[0]
     problem = qpsolvers.Problem(
         P, c, G if h.size else None, h if h.size else None, A if b.size else None, b if b.size else None, lb, ub
     )
-    # Box as rows for the polish (the reference's boxes are finite).
-    Gb = np.vstack([G, np.eye(n), -np.eye(n)])
-    hb = np.concatenate([h, ub, -lb])
     best: Certificate | None = None
+    certified: tuple[np.ndarray, Certificate] | None = None
     for solver, settings in FIRST_PASSES:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
@@ -261,13 +216,10 @@ def solve_level_qp(
                 continue
         if sol.x is None or not np.isfinite(sol.x).all():
             continue
-        z_rows = np.zeros(h.size) if sol.z is None else np.maximum(sol.z, 0.0)
-        zb = np.zeros(n) if sol.z_box is None else sol.z_box
-        z0 = np.concatenate([z_rows, np.maximum(zb, 0.0), np.maximum(-zb, 0.0)])
-        xp, yp, zp = _polish(P, c, Gb, hb, A, b, sol.x.copy(), z0)
         candidates = [(sol.x, sol.y, sol.z, sol.z_box)]
-        if np.isfinite(xp).all():
-            candidates.insert(0, (xp, yp, zp[: h.size], zp[h.size : h.size + n] - zp[h.size + n :]))
+        polished = polish(P, c, G, h, lb, ub, sol.x.copy(), sol.z, sol.z_box, A, b)
+        if polished is not None:
+            candidates.insert(0, polished)
         for x, y, z, z_box in candidates:
             cert = certify(P, c, G, h, x, A=A, b=b, lb=lb, ub=ub, y=y, z=z, z_box=z_box, tolerances=tolerances)
             if cert.passed and not _kkt_ok(cert, tolerances):
@@ -275,8 +227,12 @@ def solve_level_qp(
                 cert = certify(P, c, G, h, x, A=A, b=b, lb=lb, ub=ub, tolerances=tolerances)
             if cert.passed and _kkt_ok(cert, tolerances):
                 return x, cert
+            if cert.passed and certified is None:
+                certified = (x, cert)  # the bound holds; the qpbenchmark residuals are looser
             if best is None or cert.primal_residual < best.primal_residual:
                 best = cert
+    if certified is not None:
+        return certified
     if best is None:
         raise ReferenceError("no backend found a solution of a reference level QP (feasible by construction)")
     raise ReferenceError(f"reference level QP not certified: {best.reason}")
