@@ -202,6 +202,9 @@ def bench(
     only: Annotated[str | None, typer.Option(help="solvers | sensing | correctness (default all).")] = None,
     methods: MethodsOpt = None,
     rounds: Annotated[int, typer.Option(min=1, help="Correctness: timed passes over the reference states.")] = 3,
+    tolerance: Annotated[
+        float, typer.Option(min=1e-12, help="Correctness: level error within which a level matches the reference.")
+    ] = 1e-5,
     plot_out: Annotated[
         Path | None, typer.Option("--plot", help="Correctness: write the time-vs-correctness figure.")
     ] = None,
@@ -225,7 +228,8 @@ def bench(
         _fail(f"--only must be solvers, sensing or correctness, got '{only}'")
     if not export_method.startswith("hqp-"):
         _fail(f"--export-method must be an hqp-<backend> method, got '{export_method}'")
-    argv: list[str] = ["--repeats", str(repeats), "--rounds", str(rounds), "--export-method", export_method]
+    argv: list[str] = ["--repeats", str(repeats), "--rounds", str(rounds), "--tolerance", str(tolerance)]
+    argv += ["--export-method", export_method]
     if json_out is not None:
         argv += ["--json", str(json_out)]
     if only is not None:

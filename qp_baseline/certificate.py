@@ -136,6 +136,8 @@ class _Qp:
     b: np.ndarray
     lb: np.ndarray
     ub: np.ndarray
+    finite_lb: bool
+    finite_ub: bool
 
 
 def _as_qp(
@@ -152,6 +154,8 @@ def _as_qp(
     P = np.asarray(P.toarray() if hasattr(P, "toarray") else P, dtype=float)
     G_ = np.zeros((0, n)) if G is None else np.asarray(G.toarray() if hasattr(G, "toarray") else G, dtype=float)
     A_ = np.zeros((0, n)) if A is None else np.asarray(A.toarray() if hasattr(A, "toarray") else A, dtype=float)
+    lb_ = np.full(n, -np.inf) if lb is None else np.asarray(lb, dtype=float)
+    ub_ = np.full(n, np.inf) if ub is None else np.asarray(ub, dtype=float)
     return _Qp(
         P,
         np.asarray(q, dtype=float),
@@ -159,16 +163,18 @@ def _as_qp(
         np.zeros(0) if h is None else np.asarray(h, dtype=float).ravel(),
         A_.reshape(-1, n),
         np.zeros(0) if b is None else np.asarray(b, dtype=float).ravel(),
-        np.full(n, -np.inf) if lb is None else np.asarray(lb, dtype=float),
-        np.full(n, np.inf) if ub is None else np.asarray(ub, dtype=float),
+        lb_,
+        ub_,
+        bool(np.isfinite(lb_).all()),
+        bool(np.isfinite(ub_).all()),
     )
 
 
-def primal_residual(qp: _Qp, x: np.ndarray) -> float:
-    """:math:`r_p` of ``x`` (0 for a feasible point)."""
+def primal_residual(qp: _Qp, x: np.ndarray, slack: np.ndarray | None = None) -> float:
+    """:math:`r_p` of ``x`` (0 for a feasible point); ``slack`` = h − G x when already known."""
     parts = [0.0]
     if qp.h.size:
-        parts.append(float((qp.G @ x - qp.h).max()))
+        parts.append(-float((qp.h - qp.G @ x if slack is None else slack).min()))
     if qp.b.size:
         parts.append(float(np.abs(qp.A @ x - qp.b).max()))
     parts.append(float((qp.lb - x).max()))
@@ -180,16 +186,19 @@ def _box_term(g: np.ndarray, x: np.ndarray, lb: np.ndarray, ub: np.ndarray, curv
     r"""How much the Lagrangian can drop in the box: :math:`-\sum_i \min_{d_i} (g_i d_i + \tfrac12 c_i d_i^2)`.
 
     Over :math:`d_i \in [lb_i - x_i, ub_i - x_i]`, with :math:`P \succeq \mathrm{diag}(c)`; for
-    :math:`c_i = 0` this is :math:`\max(g_i(x_i - lb_i), g_i(x_i - ub_i))`.
+    :math:`c_i = 0` this is :math:`\max(g_i(x_i - lb_i), g_i(x_i - ub_i))`. Infinite when a
+    gradient component points out of an unbounded side.
     """
-    lo, hi = lb - x, ub - x
-    with np.errstate(divide="ignore", invalid="ignore"):
-        free = np.where(curvature > 0.0, -g / curvature, np.where(g > 0.0, -np.inf, np.inf))
-    d = np.clip(np.where(g == 0.0, 0.0, free), lo, hi)
-    with np.errstate(invalid="ignore"):
-        value = g * d + 0.5 * curvature * d * d
-    value = np.where(g == 0.0, 0.0, value)
-    return float(-value.sum())
+    lo = lb - x
+    hi = ub - x
+    d = np.where(g > 0.0, lo, hi)  # the linear minimiser (c = 0)
+    curved = curvature > 0.0
+    if curved.any():
+        d[curved] = np.clip(-g[curved] / curvature[curved], lo[curved], hi[curved])
+    d[g == 0.0] = 0.0
+    if not np.isfinite(d).all():
+        return math.inf
+    return float(-(g @ d) - 0.5 * float(curvature @ (d * d)))
 
 
 def _eigen_box_term(g: np.ndarray, x: np.ndarray, lb: np.ndarray, ub: np.ndarray, P: np.ndarray) -> float:
@@ -217,6 +226,8 @@ def _eigen_box_term(g: np.ndarray, x: np.ndarray, lb: np.ndarray, ub: np.ndarray
 def _judge(
     qp: _Qp,
     x: np.ndarray,
+    Px: np.ndarray,
+    slack: np.ndarray,
     multipliers: tuple[np.ndarray, np.ndarray, np.ndarray],
     r_p: float,
     f: float,
@@ -227,32 +238,40 @@ def _judge(
     source: MultiplierSource,
     modulus: float | None = None,
 ) -> Certificate:
-    """Residuals, gap and bound of ``x`` with one set of multipliers ``(y, z, z_box)``; the verdict."""
+    """Residuals, gap and bound of ``x`` with one set of multipliers ``(y, z, z_box)``; the verdict.
+
+    ``Px`` = P x and ``slack`` = h − G x are the caller's (computed once per answer).
+    """
     y, z, z_box = multipliers
     zp = np.maximum(z, 0.0)
-    Px = qp.P @ x
-    Gz = qp.G.T @ zp if zp.size else np.zeros_like(x)
-    Ay = qp.A.T @ y if y.size else np.zeros_like(x)
-    g = Px + qp.q + Gz + Ay
+    g = Px + qp.q
+    if zp.size:
+        g = g + qp.G.T @ zp
+    if y.size:
+        g = g + qp.A.T @ y
     r_d = float(np.abs(g + z_box).max()) if x.size else 0.0
     zb_lo, zb_hi = np.minimum(z_box, 0.0), np.maximum(z_box, 0.0)
-    fin_lo, fin_hi = np.isfinite(qp.lb), np.isfinite(qp.ub)
+    lo_part, hi_part = qp.lb @ zb_lo if qp.finite_lb else math.nan, qp.ub @ zb_hi if qp.finite_ub else math.nan
+    if not qp.finite_lb:
+        fin = np.isfinite(qp.lb)
+        lo_part = math.inf if (zb_lo[~fin] != 0.0).any() else float(qp.lb[fin] @ zb_lo[fin])
+    if not qp.finite_ub:
+        fin = np.isfinite(qp.ub)
+        hi_part = math.inf if (zb_hi[~fin] != 0.0).any() else float(qp.ub[fin] @ zb_hi[fin])
     terms = [
         float(x @ Px),
         float(qp.q @ x),
         float(qp.b @ y) if y.size else 0.0,
         float(qp.h @ zp) if zp.size else 0.0,
-        float(qp.lb[fin_lo] @ zb_lo[fin_lo]),
-        float(qp.ub[fin_hi] @ zb_hi[fin_hi]),
+        float(lo_part),
+        float(hi_part),
     ]
-    # A multiplier on an infinite bound has no finite gap term.
-    infinite_box = bool(((zb_lo != 0.0) & ~fin_lo).any() or ((zb_hi != 0.0) & ~fin_hi).any())
-    r_g = math.inf if infinite_box else abs(math.fsum(terms))
-    # f(x) − f_lo, term by term: −y'(Ax − b) − z'(Gx − h) + Σ max(g_i(x_i − lb_i), g_i(x_i − ub_i)).
-    comp = -float(zp @ (qp.G @ x - qp.h)) if zp.size else 0.0
+    r_g = abs(math.fsum(terms)) if math.isfinite(terms[4]) and math.isfinite(terms[5]) else math.inf
+    # f(x) − f_lo, term by term: −y'(Ax − b) − z'(Gx − h) + the drop of the Lagrangian in the box.
+    comp = float(zp @ slack) if zp.size else 0.0
     eq = -float(y @ (qp.A @ x - qp.b)) if y.size else 0.0
     sub = comp + eq + _box_term(g, x, qp.lb, qp.ub, curvature)
-    if _too_far(sub, f, level_value, modulus, x, tol) and x.size:
+    if x.size and _too_far(sub, f, level_value, modulus, x, tol):
         sub = min(sub, comp + eq + _eigen_box_term(g, x, qp.lb, qp.ub, qp.P))
     lower = f - sub if math.isfinite(sub) else -math.inf
     reason = ""
@@ -384,11 +403,18 @@ def certify(
     x = np.asarray(x, dtype=float)
     n = qp.q.shape[0]
     upper = math.inf if feasible_objective is None else float(feasible_objective)
-    curv = np.zeros(n) if curvature is None else np.broadcast_to(np.asarray(curvature, dtype=float), (n,))
+    if curvature is None:
+        curv = np.zeros(n)
+    elif np.ndim(curvature) == 0:
+        curv = np.full(n, float(curvature))  # type: ignore[arg-type]
+    else:
+        curv = np.asarray(curvature, dtype=float)
     if x.shape != (n,) or not np.isfinite(x).all():
         return Certificate(math.inf, math.inf, math.inf, math.nan, -math.inf, upper, "none", False, "non-finite answer")
-    r_p = primal_residual(qp, x)
-    f = float(x @ (0.5 * (qp.P @ x) + qp.q))
+    Px = qp.P @ x
+    slack = qp.h - qp.G @ x
+    r_p = primal_residual(qp, x, slack)
+    f = float(x @ (0.5 * Px + qp.q))
     given = _backend_multipliers(qp, y, z, z_box)
     # Checks that no multiplier can change.
     early = ""
@@ -398,7 +424,7 @@ def certify(
         early = f"objective {f:.9g} above a known feasible point's {upper:.9g}"
     if early:
         cert = (
-            _judge(qp, x, given, r_p, f, upper, level_value, curv, tol, "backend", modulus)
+            _judge(qp, x, Px, slack, given, r_p, f, upper, level_value, curv, tol, "backend", modulus)
             if given is not None
             else None
         )
@@ -409,7 +435,7 @@ def certify(
         )
     first: Certificate | None = None
     if given is not None:
-        first = _judge(qp, x, given, r_p, f, upper, level_value, curv, tol, "backend", modulus)
+        first = _judge(qp, x, Px, slack, given, r_p, f, upper, level_value, curv, tol, "backend", modulus)
         if first.passed or not recover:
             return first
     if recover:
@@ -419,7 +445,7 @@ def certify(
             recovered = recover_multipliers(qp, x, active)
             if recovered is None:
                 continue
-            cert = _judge(qp, x, recovered, r_p, f, upper, level_value, curv, tol, "recovered", modulus)
+            cert = _judge(qp, x, Px, slack, recovered, r_p, f, upper, level_value, curv, tol, "recovered", modulus)
             if cert.passed:
                 return cert
             if first is None:

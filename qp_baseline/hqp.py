@@ -50,15 +50,33 @@ Implementation choices:
   the levels that did call it. A level that needed the backend at the previous step goes
   straight to it (its active set usually persists; the answer is the same either way).
 
-Every backend answer is checked (status, finite, within the hard box and all rows, and no worse
-than a known feasible point, with ``tolerance``) before use; a failed check is retried once with
-the backend's robust settings and extra regularisation, then the level is given up: level 0 →
-FAILED with zero velocity, a later level → DEGRADED keeping the solution of the levels above it.
+Every backend answer is **certified** before use (:mod:`qp_baseline.certificate`, issue 23),
+whatever status the backend reported: its slacks set to their minimal value ``max(0, G q̇ − h)``,
+the answer must be within ``tolerance`` of every constraint, no worse than the known feasible
+point, and its level objective within ``objective_tolerance`` of the lower bound that the
+backend's multipliers (or multipliers recovered for the answer) prove — the primal residual, dual
+residual and duality gap of qpbenchmark are reported in ``extras["certificates"]``. An answer that
+fails is polished (:mod:`qp_baseline.polish`, exact KKT solves of its active set) and certified
+again; then retried once with :data:`RETRY_SETTINGS` and :data:`RETRY_REGULARIZATION`. What
+remains:
+
+* no usable answer (infeasible, non-finite, worse than the known feasible point): the level is
+  **given up** — level 0 → FAILED with zero velocity, a later level → DEGRADED keeping the
+  solution of the levels above it, ``extras["levels_dropped"]`` = that level and every level below;
+* a usable answer that is not certified: kept, the step DEGRADED and the level counted in
+  ``extras["levels_uncertified"]`` (FAILED at level 0). Never silently accepted.
+
+The min-norm level is certified on its distance to the optimum (it only picks the null-space part
+of q̇); an uncertified min-norm answer is kept (it meets every level above) and noted in
+``extras["min_norm_failure"]``. ``certify = false`` restores the checks before issue 23 (status,
+constraints, known feasible point). :attr:`HqpSolver.qp_log` records the level QPs
+(:class:`~qp_baseline.level_qp.LevelQp`), e.g. for a qpbenchmark export.
 """
 
 from __future__ import annotations
 
 import contextlib
+import functools
 import math
 import os
 import re
@@ -90,9 +108,14 @@ SOLVER_DEFAULTS: dict[str, dict[str, Any]] = {
     # are the regularisation's business).
     "daqp": {},
     "quadprog": {},
-    # OSQP's defaults (eps 1e-3, no polish) leave bound violations of ~1e-3. Polishing solves the
-    # KKT system of the detected active set (exact when it succeeds), but OSQP skips it when no
-    # constraint is active: eps 1e-8 is what gets q̇ within 1e-6 then (1e-6 leaves ~1e-4).
+    # OSQP (issue 23; measured in docs/benchmarks.md, "QP backends: timing vs correctness"): its
+    # defaults (eps 1e-3, no polish) leave violations of ~1e-3. eps 1e-6 with eps_rel 0 (absolute:
+    # our rows are in rad/s and m/s), polishing with 10 refinement steps; no duality-gap
+    # termination test (OSQP 1.x's absolute gap test kept it iterating to max_iter on most level
+    # QPs: the certificate checks the gap itself); infeasibility detection effectively off
+    # (eps_prim_inf 1e-9: every level QP is feasible by construction, and at 1e-4 OSQP declared
+    # feasible QPs infeasible); 2000 iterations, the retry 1e-9 with 4000. Before issue 23: eps
+    # 1e-8, 10 000 iterations, retry at 1e-6: 69 of 200 random states lost a level.
     "osqp": {
         "eps_abs": 1e-6,
         "eps_rel": 0.0,
@@ -103,7 +126,9 @@ SOLVER_DEFAULTS: dict[str, dict[str, Any]] = {
         "max_iter": 2000,
     },
     # ProxQP's default eps_abs is 1e-3 (qpsolvers documentation). Its default equality-constrained
-    # initial guess ends in PROXQP_PRIMAL_INFEASIBLE on many of our (feasible) level QPs.
+    # initial guess ends in PROXQP_PRIMAL_INFEASIBLE on many of our (feasible) level QPs. It does not
+    # test the duality gap by default, so a "solved" answer may be suboptimal: the certificate
+    # catches those (retry or KKT polish); check_duality_gap = true costs ~50× the iterations here.
     "proxqp": {"eps_abs": 1e-9, "eps_rel": 0.0, "initial_guess": "NO_INITIAL_GUESS"},
     "clarabel": {"tol_feas": 1e-9, "tol_gap_abs": 1e-9, "tol_gap_rel": 1e-9},
     "piqp": {"eps_abs": 1e-9, "eps_rel": 0.0},
@@ -112,7 +137,9 @@ SOLVER_DEFAULTS: dict[str, dict[str, Any]] = {
 ``initial_guess`` may be given by name (``"NO_INITIAL_GUESS"``, ``"WARM_START"``, ...)."""
 
 RETRY_SETTINGS: dict[str, dict[str, Any]] = {
-    "daqp": {},
+    # DAQP's proximal-point iterations for near-singular Hessians (converge to the optimum of the
+    # QP as posed): on 3 of the 200 random bench states DAQP reported level 2 unsolvable without.
+    "daqp": {"eps_prox": 1e-6},
     "quadprog": {},
     # A looser retry converges where 1e-8 ran out of iterations; TOLERANCES["osqp"] still checks it.
     "osqp": {"eps_abs": 1e-9, "eps_rel": 0.0, "max_iter": 4000},
@@ -1035,47 +1062,29 @@ class HqpSolver:
                 return LevelAnswer(x, solution, attempt, None, True)
             if refine is not None:
                 x = refine(x)
-            cert = certify(
-                P,
-                q,
-                G,
-                h,
-                x,
-                lb=lb,
-                ub=ub,
-                z=solution.z,
-                z_box=solution.z_box,
-                feasible_objective=f0,
-                level_value=None if level_value is None else level_value(x),
-                curvature=curvature,
-                modulus=modulus,
-                tolerances=self.certificate_tolerances,
-            )
+            # Cheapest first: the backend's multipliers; then the KKT polish (exact multipliers
+            # with it); then multipliers recovered for the answer itself (bounded least squares).
+            judge = functools.partial(self._certificate, P, q, G, h, lb, ub, f0, level_value, curvature, modulus)
+            cert = judge(x, solution.z, solution.z_box, recover=False)
             last_cert = cert
             if cert.passed:
                 return LevelAnswer(x, solution, attempt, cert, True)
             if self.options.kkt_polish and cert.primal_residual < math.inf:
-                polished = polish(P, q, G, h, lb, ub, x, solution.z, solution.z_box, active=tol)
-                if polished is not None:
+                # The active set from the answer alone first (rows it meets within 1e-9: interior-
+                # point multipliers of nearly active rows mislead), then from its multipliers.
+                for z_start, zb_start, active in ((None, None, 1e-9), (solution.z, solution.z_box, tol)):
+                    polished = polish(P, q, G, h, lb, ub, x, z_start, zb_start, active=active)
+                    if polished is None:
+                        continue
                     xp = refine(polished[0]) if refine is not None else polished[0]
-                    cert_p = certify(
-                        P,
-                        q,
-                        G,
-                        h,
-                        xp,
-                        lb=lb,
-                        ub=ub,
-                        z=polished[2],
-                        z_box=polished[3],
-                        feasible_objective=f0,
-                        level_value=None if level_value is None else level_value(xp),
-                        curvature=curvature,
-                        modulus=modulus,
-                        tolerances=self.certificate_tolerances,
-                    )
+                    cert_p = judge(xp, polished[2], polished[3], recover=False)
                     if cert_p.passed:
                         return LevelAnswer(xp, solution, attempt, cert_p, True)
+            if cert.primal_residual <= tol:
+                cert = judge(x, None, None, recover=True)
+                last_cert = cert
+                if cert.passed:
+                    return LevelAnswer(x, solution, attempt, cert, True)
             said = "" if solution.found else f" ({self.solver} reported no solution)"
             reason = f"{self.solver} answer not certified: {cert.reason}{said}"
             if usable is None and cert.primal_residual <= tol and cert.objective <= f0 + tol * (1.0 + abs(f0)):
@@ -1083,6 +1092,42 @@ class HqpSolver:
         if usable is not None:
             return usable
         raise NoSolutionFound(level, last_solution, reason, last_cert)
+
+    def _certificate(
+        self,
+        P: np.ndarray,
+        q: np.ndarray,
+        G: np.ndarray,
+        h: np.ndarray,
+        lb: np.ndarray,
+        ub: np.ndarray,
+        f0: float,
+        level_value: Callable[[np.ndarray], float] | None,
+        curvature: np.ndarray | None,
+        modulus: float | None,
+        x: np.ndarray,
+        z: np.ndarray | None,
+        z_box: np.ndarray | None,
+        recover: bool,
+    ) -> Certificate:
+        """:func:`~qp_baseline.certificate.certify` of ``x`` with this solver's tolerances."""
+        return certify(
+            P,
+            q,
+            G,
+            h,
+            x,
+            lb=lb,
+            ub=ub,
+            z=z,
+            z_box=z_box,
+            feasible_objective=f0,
+            level_value=None if level_value is None else level_value(x),
+            curvature=curvature,
+            modulus=modulus,
+            tolerances=self.certificate_tolerances,
+            recover=recover,
+        )
 
     def _call_backend(
         self,

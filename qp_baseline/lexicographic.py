@@ -39,6 +39,7 @@ import math
 import warnings
 from collections.abc import Sequence
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 import qpsolvers
@@ -53,7 +54,7 @@ from tpik.tasks import SetTask
 REFERENCE_TOLERANCES = Tolerances(primal=1e-10, gap=1e-11, level=1e-10, active=1e-9)
 """Optimality conditions every level of the reference meets (see :mod:`qp_baseline.certificate`)."""
 
-FIRST_PASSES: tuple[tuple[str, dict[str, float]], ...] = (
+FIRST_PASSES: tuple[tuple[str, dict[str, Any]], ...] = (
     (
         "clarabel",
         {"tol_feas": 1e-12, "tol_gap_abs": 1e-12, "tol_gap_rel": 1e-12, "tol_ktratio": 1e-10, "max_iter": 400},

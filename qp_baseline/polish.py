@@ -1,9 +1,9 @@
 r"""Active-set polish of an approximate QP answer (OSQP's polishing idea, for any backend).
 
 For :math:`\min \tfrac12 x^TPx + q^Tx` s.t. :math:`Gx \le h,\ Ax = b,\ lb \le x \le ub`, the box
-is taken as rows and, from an approximate primal-dual pair :math:`(x, z)`, a primal-dual
-active-set iteration runs: rows with :math:`z_i > h_i - G_i x` (or within ``active`` of binding)
-are active; the equality-constrained QP of the active rows is solved exactly through its KKT
+is taken as rows and, from an approximate primal-dual pair :math:`(x, z)` (or :math:`x` alone),
+a primal-dual active-set iteration runs: rows with :math:`z_i > h_i - G_i x` (or within ``active``
+of binding) are active; the equality-constrained QP of the active rows is solved exactly through its KKT
 system (least squares, so dependent active rows are fine, plus one step of iterative
 refinement); repeat from the new pair until the active set repeats. With the right active set —
 which an interior-point or first-order answer near the optimum usually identifies — the result

@@ -60,6 +60,12 @@ def _parser() -> argparse.ArgumentParser:
         help=f"HQP methods judged against the reference (default: {' '.join(HQP_BACKENDS)})",
     )
     c.add_argument("--rounds", type=int, default=3, help="timed passes over the reference states (default 3)")
+    c.add_argument(
+        "--tolerance",
+        type=float,
+        default=TOLERANCE,
+        help=f"level error within which a level matches the reference (default {TOLERANCE:g})",
+    )
     c.add_argument("--plot", type=Path, default=None, help="write the time-vs-correctness figure (PNG/SVG)")
     c.add_argument("--csv", type=Path, default=None, help="write one row per (state, backend), qpbenchmark-style")
     c.add_argument(
@@ -202,19 +208,19 @@ def _run_correctness(args: argparse.Namespace, args_list: list[str], console: Co
     except (FileNotFoundError, ReferenceMismatch) as exc:
         console.print(f"error: correctness bench: {exc}")
         return None
-    records = run_correctness_bench(list(args.backends), entries, rounds=args.rounds)
+    records = run_correctness_bench(list(args.backends), entries, rounds=args.rounds, tol=args.tolerance)
     summaries = summarize(records)
     console.print(
         correctness_table(
             summaries,
-            f"Timing vs correctness: HQP backends vs the lexicographic reference (tolerance {TOLERANCE:g}, "
+            f"Timing vs correctness: HQP backends vs the lexicographic reference (tolerance {args.tolerance:g}, "
             f"{args.rounds} interleaved rounds)",
         )
     )
     if args.plot is not None:
         from compare.bench.correctness_plot import plot_time_vs_correctness
 
-        console.print(f"wrote {plot_time_vs_correctness(summaries, records, args.plot)}")
+        console.print(f"wrote {plot_time_vs_correctness(summaries, records, args.plot, args.tolerance)}")
     if args.csv is not None:
         _write_records_csv(records, args.csv)
         console.print(f"wrote {args.csv}")
@@ -226,7 +232,7 @@ def _run_correctness(args: argparse.Namespace, args_list: list[str], console: Co
         console.print(f"wrote {len(problems)} level QPs of {args.export_method} to {args.export_qps}")
     data = json.loads(REFERENCE_FILE.read_text(encoding="utf-8"))
     return {
-        "tolerance": TOLERANCE,
+        "tolerance": args.tolerance,
         "rounds": args.rounds,
         "reference": {"file": REFERENCE_FILE.name, "fingerprint": data["fingerprint"], "made_with": data["made_with"]},
         "summaries": [to_jsonable(s.to_dict()) for s in summaries],
@@ -246,11 +252,14 @@ def main(argv: list[str] | None = None) -> int:
     if args.rounds < 1:
         print("--rounds must be >= 1", file=sys.stderr)
         return 2
+    if not (math.isfinite(args.tolerance) and args.tolerance > 0):
+        print("--tolerance must be a finite number > 0", file=sys.stderr)
+        return 2
     bad = [b for b in args.backends if not b.startswith("hqp-")]
     if bad:
         print(f"--backends takes hqp-<backend> methods only, got {', '.join(bad)}", file=sys.stderr)
         return 2
-    console = Console(width=max(Console().width, 132))
+    console = Console(width=max(Console().width, 160))
     info = versions()
     console.print(
         f"python {info.get('python')} · numpy {info.get('numpy')} · pin {info.get('pin')} · "

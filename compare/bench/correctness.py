@@ -198,6 +198,7 @@ def run_correctness_bench(
     rounds: int = 3,
     tol: float = TOLERANCE,
     settings: Mapping[str, Mapping[str, Any]] | None = None,
+    variants: Mapping[str, IkSolver] | None = None,
 ) -> list[StepRecord]:
     """Judge and time every method on every reference state (module docstring).
 
@@ -207,6 +208,8 @@ def run_correctness_bench(
         rounds: Timed passes over all states (≥ 1); correctness from the first.
         tol: Level tolerance of :func:`compare_levels`.
         settings: Per-method settings for :func:`compare.methods.make_method`.
+        variants: Extra solvers by label (e.g. one backend with other settings), timed in the same
+            interleaved run.
 
     Returns:
         One record per (method, state), in state order.
@@ -218,7 +221,7 @@ def run_correctness_bench(
     for n in method_names:
         if n not in names:
             print(f"note: skipping method '{n}' in the correctness bench: only hqp-<backend> solves the cascade")
-    solvers: dict[str, IkSolver] = build_methods(names, robot, settings)
+    solvers: dict[str, IkSolver] = {**build_methods(names, robot, settings), **(variants or {})}
     hierarchies = {name: case2_hierarchy(robot) for name in solvers}
     order = list(solvers)
     records: dict[tuple[str, str], StepRecord] = {}

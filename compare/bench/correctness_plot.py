@@ -21,7 +21,9 @@ MIN_STATES = 20
 Wilson interval says nothing; their steps are in the error panel."""
 
 
-def plot_time_vs_correctness(summaries: Sequence[Summary], records: Sequence[StepRecord], path: Path) -> Path:
+def plot_time_vs_correctness(
+    summaries: Sequence[Summary], records: Sequence[StepRecord], path: Path, tolerance: float = TOLERANCE
+) -> Path:
     """Draw the time-vs-correctness figure: success rate and every step's level error against time.
 
     Left: success rate (Wilson 95 % bars) against median step time per backend, for each state
@@ -32,6 +34,7 @@ def plot_time_vs_correctness(summaries: Sequence[Summary], records: Sequence[Ste
         summaries: :func:`compare.bench.correctness.summarize` output.
         records: The per-step records it was made from.
         path: Output file (PNG or SVG by suffix); parent directories are created.
+        tolerance: The level tolerance the records were judged with (drawn).
 
     Returns:
         ``path``.
@@ -64,13 +67,13 @@ def plot_time_vs_correctness(summaries: Sequence[Summary], records: Sequence[Ste
     ax_rate.legend(fontsize=7, loc="lower left")
     for m in methods:
         rs = [r for r in records if r.method == m]
-        t = np.array([r.time_us for r in rs])
-        e = np.maximum(np.array([r.worst_error for r in rs]), _FLOOR)
+        times = np.array([r.time_us for r in rs])
+        errors = np.maximum(np.array([r.worst_error for r in rs]), _FLOOR)
         flagged = np.array([r.flagged for r in rs])
-        ax_err.scatter(t[~flagged], e[~flagged], s=9, color=colors[m], alpha=0.6, label=m)
+        ax_err.scatter(times[~flagged], errors[~flagged], s=9, color=colors[m], alpha=0.6, label=m)
         if flagged.any():
-            ax_err.scatter(t[flagged], e[flagged], s=22, marker="x", color=colors[m], alpha=0.9)
-    ax_err.axhline(TOLERANCE, color="k", ls="--", lw=1, label=f"tolerance {TOLERANCE:g}")
+            ax_err.scatter(times[flagged], errors[flagged], s=22, marker="x", color=colors[m], alpha=0.9)
+    ax_err.axhline(tolerance, color="k", ls="--", lw=1, label=f"tolerance {tolerance:g}")
     ax_err.set_xscale("log")
     ax_err.set_yscale("log")
     ax_err.set_xlabel("step time [µs]")

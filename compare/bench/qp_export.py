@@ -124,9 +124,9 @@ def export_test_set(problems: Sequence[NamedLevelQp], out_dir: Path, made_with: 
         qp = item.qp
         problem = qp.problem()
         problem.save(str(data / f"{item.name}.npz"))
-        for key in PARQUET_KEYS:
-            value = item.name if key == "name" else getattr(problem, key)
-            columns[key].append(value if key == "name" else _flat(value))
+        columns["name"].append(item.name)
+        for key in PARQUET_KEYS[:-1]:
+            columns[key].append(_flat(getattr(problem, key)))
         try:
             x_ref, cert = solve_level_qp(qp.P, qp.q, qp.G, qp.h, np.zeros((0, qp.q.size)), np.zeros(0), qp.lb, qp.ub)
             ref_obj, ref_norm, kkt = qp.objective(x_ref), float(np.linalg.norm(x_ref)), cert.duality_gap
