@@ -216,6 +216,10 @@ def bench(
         typer.Option("--export-qps", help="Write the level QPs of the reference states as a qpbenchmark test set."),
     ] = None,
     export_method: Annotated[str, typer.Option(help="HQP method posing the exported QPs.")] = "hqp-piqp",
+    backends: Annotated[
+        list[str] | None,
+        typer.Option("--backends", help="Correctness: HQP methods to judge (repeatable; default all six)."),
+    ] = None,
 ) -> None:
     """Solver, sensing and QP-correctness benchmarks: medians, p95, ratios, timing vs correctness.
 
@@ -236,6 +240,11 @@ def bench(
         argv += ["--only", only]
     if methods:
         argv += ["--methods", *methods]
+    if backends:
+        bad = [b for b in backends if not b.startswith("hqp-")]
+        if bad:
+            _fail(f"--backends takes hqp-<backend> methods only, got {', '.join(bad)}")
+        argv += ["--backends", *backends]
     for flag, value in (("--plot", plot_out), ("--csv", csv_out), ("--export-qps", export_qps)):
         if value is not None:
             argv += [flag, str(value)]

@@ -185,10 +185,11 @@ MIN_NORM_LEVEL: dict[str, bool] = {
 
 WARM_START: dict[str, bool] = dict.fromkeys(SUPPORTED_SOLVERS, False)
 """Whether each level's backend starts from that level's previous-step answer by default. Only OSQP
-and ProxQP take a start point through qpsolvers (the primal x alone: a new solver object, ρ and
-factorisation every call), and it did not pay: on an 80-step closed-loop rollout with a wall
-binding (``tests/qp_baseline``'s wall scenario) OSQP took 206 975 iterations warm-started vs
-174 950 cold. Off by default, ``warm_start = true`` to try it."""
+and ProxQP take a start point through qpsolvers (the primal x alone: a new solver object, ρ, duals
+and factorisation every call), and it did not pay consistently: on an 80-step closed-loop rollout
+with a wall binding (``tests/qp_baseline``'s wall scenario) OSQP took 206 975 iterations warm vs
+174 950 cold, 158 975 vs 190 950 once the KKT polish changed which levels retry
+(``docs/benchmarks.md``). Off by default, ``warm_start = true`` to try it."""
 
 _SPARSE_SOLVERS = frozenset({"osqp", "clarabel"})  # qpsolvers converts (and warns) otherwise
 

@@ -12,7 +12,7 @@ are ``P, q, G, h, A, b, lb, ub, name`` with matrices flattened row-major (its ``
   so a solver's cost error can be computed; the cascade's own answer objective and whether it
   was certified;
 * ``hqp_cascade.py``: a qpbenchmark ``TestSet`` reading ``data/*.npz``
-  (``qpbenchmark hqp_cascade.py run``);
+  (``python hqp_cascade.py run``, results in ``results/``; checked with qpbenchmark 2.7.1);
 * ``README.md``: what the problems are and how they were made.
 
 The problems are every level QP a cascade sent to its backend (:attr:`HqpSolver.qp_log
@@ -155,6 +155,7 @@ def export_test_set(problems: Sequence[NamedLevelQp], out_dir: Path, made_with: 
         writer.writeheader()
         writer.writerows(rows)
     (out_dir / "hqp_cascade.py").write_text(_TEST_SET_SCRIPT, encoding="utf-8")
+    (out_dir / "results").mkdir(exist_ok=True)  # where qpbenchmark writes its results CSV
     (out_dir / "README.md").write_text(_readme(problems, made_with), encoding="utf-8")
     return out_dir
 

@@ -180,3 +180,33 @@ def test_certificate_settings_are_validated(jaco):
         HqpSolver(jaco, "daqp", {"objective_tolerance": -1.0})
     with pytest.raises(hqp_module.InvalidSettings, match="certify"):
         HqpSolver(jaco, "daqp", {"certify": "yes"})
+
+
+@pytest.mark.parametrize("solver", [s for s in ("osqp", "proxqp") if s in SOLVERS])
+def test_warm_start_hands_each_level_its_previous_answer_in_this_steps_variables(jaco, solver, monkeypatch):
+    """The same state twice: the start point of every level's first attempt is that level's answer
+    of the step before, mapped into this step's variables [z; w] (null-space coordinates, slacks)."""
+    hierarchy, kin = _all_levels_binding(jaco)
+    hqp = HqpSolver(jaco, solver, {"warm_start": True, "unconstrained_first": False})
+    hqp.qp_log = []
+    first = hqp.solve(hierarchy, kin, DT)
+    answers = {record.level: record.x for record in hqp.qp_log}
+    starts: list[np.ndarray | None] = []
+    real = hqp._call_backend
+
+    def capture(P, q, G, h, lb, ub, initvals, kwargs):
+        starts.append(None if initvals is None else initvals.copy())
+        return real(P, q, G, h, lb, ub, initvals, kwargs)
+
+    monkeypatch.setattr(hqp, "_call_backend", capture)
+    hqp.qp_log = []
+    second = hqp.solve(hierarchy, kin, DT)
+    np.testing.assert_allclose(second.qdot, first.qdot, atol=1e-6)
+    assert second.extras["retries"] == 0  # one backend call per level: starts[i] is level i's
+    assert len(hqp.qp_log) == len(starts) >= 4
+    for record, start in zip(hqp.qp_log, starts, strict=False):  # the first attempt of each level
+        assert start is not None
+        expected = np.clip(answers[record.level], record.lb, record.ub)
+        # Equal up to how much the levels above moved between the two steps (their own answers
+        # agree within the certificate's tolerance, not exactly: iterative backends).
+        np.testing.assert_allclose(start, expected, atol=2e-5, err_msg=f"level {record.level}")
