@@ -21,23 +21,31 @@ active upper one), the certificate holds
   the Lagrangian is convex, so for every feasible :math:`\hat x`
 
   .. math::
-      f(\hat x) \ge L(\hat x) \ge L(x) + g^T(\hat x - x)
-      \ge L(x) + \textstyle\sum_i \min\big(g_i(lb_i - x_i),\ g_i(ub_i - x_i)\big) =: f_{lo},
+      f(\hat x) \ge L(\hat x) = L(x) + g^T(\hat x - x) + \tfrac12 (\hat x - x)^TP(\hat x - x)
+      \ge L(x) + \textstyle\sum_i \min_{d_i \in [lb_i - x_i,\ ub_i - x_i]}
+      \big(g_i d_i + \tfrac12 c_i d_i^2\big) =: f_{lo}
 
-  and the level objective is judged against it: :math:`f(x) - f_{lo}` bounds how far the answer
-  is from the optimum (computed term by term, as products of multipliers and residuals, so no
-  large numbers cancel). An upper bound :math:`f_{hi}` is the objective of a known feasible
+  for any :math:`c \ge 0` with :math:`P \succeq \mathrm{diag}(c)` (``curvature``; 0: the linear
+  bound), sharpened along P's eigenvectors when that is not enough. :math:`f(x) - f_{lo}` bounds
+  how far the answer is from the optimum; it is computed term by term (complementarity
+  :math:`z^T(h - Gx)`, the equality residual, the box term), as products of multipliers and
+  residuals, so no large numbers cancel. An upper bound is the objective of a known feasible
   point when the caller has one: an answer above it is certainly not the optimum.
 
-Tolerances are scaled to the problem as OSQP and qpbenchmark scale theirs: the primal residual
-is absolute (the constraints' unit), the dual residual is relative to the largest term of the
-stationarity sum, the gaps relative to the largest term of the objective (:class:`Tolerances`).
-An answer passes when all four hold. If the backend gave no multipliers, or its multipliers do
-not certify the answer, multipliers are **recovered** for the answer itself: a bounded least
-squares on the rows and bounds within ``active_tolerance`` of binding,
-:math:`\min_{y,\ z_A \ge 0,\ \mu} \|Px + q + A^Ty + G_A^Tz_A + E\mu\|` (scipy ``lsq_linear``;
-:math:`E\mu` the signed box multipliers of the active bounds). The certificate reports which
-multipliers it used.
+**Verdict** (:class:`Tolerances`, scaled to the problem): the primal residual within ``primal``
+(absolute: the constraints' unit); the objective not above the known feasible point; and
+:math:`f(x) - f_{lo}` within tolerance — as the error of a level's residual norm when the QP is a
+level of a cascade (``level_value``, :attr:`Tolerances.level`: the unit a user reads, m/s or
+rad/s), as a distance to the optimum when the answer itself matters (``modulus``), else relative
+to :math:`1 + |f|` (:attr:`Tolerances.gap`). The bound combines the dual residual and the
+complementarity rigorously; the qpbenchmark dual residual and duality gap are reported but do not
+decide alone (a backend's box multipliers may be off while its answer is optimal).
+
+If the backend gave no multipliers, or its multipliers do not certify the answer, multipliers can
+be **recovered** for the answer itself: a bounded least squares on the rows and bounds within
+``active`` of binding, :math:`\min_{y,\ z_A \ge 0,\ \mu} \|Px + q + A^Ty + G_A^Tz_A + E\mu\|`
+(scipy ``lsq_linear``; :math:`E\mu` the signed box multipliers of the active bounds), tried with
+``active`` and with 100 × ``active``. The certificate reports which multipliers it used.
 """
 
 from __future__ import annotations

@@ -157,11 +157,10 @@ RETRY_SETTINGS: dict[str, dict[str, Any]] = {
 }
 """Settings of the one retry after a failed or rejected answer (with :data:`RETRY_REGULARIZATION`)."""
 
-RETRY_REGULARIZATION = 1e-8
+RETRY_REGULARIZATION = 1e-7
 """Extra diagonal added to the Hessian on the retry (near-singular Hessians: DAQP, quadprog). Small
-enough that the retry's answer still passes the certificate of the original problem (1e-6 shifted
-well-conditioned levels by ~1e-6, the certificate's tolerance); 1e-9 more already lets DAQP solve the
-near-singular QP of ``tests/qp_baseline/test_solver_traps.py``."""
+enough that the retry's answer still passes the certificate of the original problem (1e-6, the
+value before issue 23, shifted well-conditioned levels by about the certificate's tolerance)."""
 
 TOLERANCES: dict[str, float] = {
     "daqp": 1e-6,
@@ -1066,14 +1065,17 @@ class HqpSolver:
             # Cheapest first: the backend's multipliers; then the KKT polish (exact multipliers
             # with it); then multipliers recovered for the answer itself (bounded least squares).
             judge = functools.partial(self._certificate, P, q, G, h, lb, ub, f0, level_value, curvature, modulus)
-            cert = judge(x, solution.z, solution.z_box, recover=False)
+            z, z_box = getattr(solution, "z", None), getattr(solution, "z_box", None)
+            cert = judge(x, z, z_box, recover=False)
             last_cert = cert
             if cert.passed:
                 return LevelAnswer(x, solution, attempt, cert, True)
-            if self.options.kkt_polish and cert.primal_residual < math.inf:
+            # Polish near-optimal answers only: nearly feasible and no worse than the known point.
+            near = cert.primal_residual <= 100.0 * tol and cert.objective <= f0 + tol * (1.0 + abs(f0))
+            if self.options.kkt_polish and near:
                 # The active set from the answer alone first (rows it meets within 1e-9: interior-
                 # point multipliers of nearly active rows mislead), then from its multipliers.
-                for z_start, zb_start, active in ((None, None, 1e-9), (solution.z, solution.z_box, tol)):
+                for z_start, zb_start, active in ((None, None, 1e-9), (z, z_box, tol)):
                     polished = polish(P, q, G, h, lb, ub, x, z_start, zb_start, active=active)
                     if polished is None:
                         continue
@@ -1087,7 +1089,15 @@ class HqpSolver:
                 if cert.passed:
                     return LevelAnswer(x, solution, attempt, cert, True)
             said = "" if solution.found else f" ({self.solver} reported no solution)"
-            reason = f"{self.solver} answer not certified: {cert.reason}{said}"
+            if cert.primal_residual > tol:
+                reason = (
+                    f"{self.solver} answer violates its constraints by {cert.primal_residual:.3g} (tolerance {tol:g})"
+                )
+            elif cert.objective > f0 and "known feasible point" in cert.reason:
+                reason = f"{self.solver} answer is worse than a known feasible point ({cert.objective:.6g} > {f0:.6g})"
+            else:
+                reason = f"{self.solver} answer not certified: {cert.reason}"
+            reason += said
             if usable is None and cert.primal_residual <= tol and cert.objective <= f0 + tol * (1.0 + abs(f0)):
                 usable = LevelAnswer(x, solution, attempt, cert, False)
         if usable is not None:

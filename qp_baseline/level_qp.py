@@ -7,8 +7,9 @@ is a list) and what :mod:`qp_baseline.qpbenchmark_export` writes as a qpbenchmar
 
 from __future__ import annotations
 
+from collections.abc import Iterator
 from dataclasses import dataclass
-from typing import Any, NamedTuple
+from typing import Any
 
 import numpy as np
 import qpsolvers
@@ -16,8 +17,12 @@ import qpsolvers
 from qp_baseline.certificate import Certificate
 
 
-class LevelAnswer(NamedTuple):
+@dataclass(frozen=True)
+class LevelAnswer:
     """The answer of one checked level solve.
+
+    Unpacks as ``x, solution, retried = hqp.solve_qp(...)`` (what ``solve_qp`` returned before
+    the certificate), the way :class:`~tpik.step_result.StepResult` unpacks as ``qdot, report``.
 
     Attributes:
         x: The accepted answer. Shape (d,).
@@ -33,6 +38,11 @@ class LevelAnswer(NamedTuple):
     retried: int
     certificate: Certificate | None
     certified: bool
+
+    def __iter__(self) -> Iterator[Any]:
+        yield self.x
+        yield self.solution
+        yield self.retried
 
 
 @dataclass(frozen=True)

@@ -9,8 +9,10 @@ certificate's tolerance — judged against the independent lexicographic referen
 
 from __future__ import annotations
 
+import dataclasses
 import json
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -58,14 +60,20 @@ def test_a_projection_with_a_known_optimum_is_certified_for_every_backend(jaco, 
         assert answer.certificate.primal_residual <= hqp.tolerance
 
 
-@pytest.mark.parametrize("trap", TRAPS, ids=[f"{t['backend']}-{t['state']['name']}" for t in TRAPS])
-def test_backend_traps_are_solved_to_tolerance_or_reported(jaco, trap):
+def _trap(jaco: object, trap: dict[str, Any]) -> tuple[Hierarchy, Any, QpState, Any, Any]:
+    """The frozen state of ``trap`` on a case-2 hierarchy, and its lexicographic reference."""
     _needs(trap["backend"])
     state = QpState.from_dict(trap["state"])
-    hierarchy = case2_hierarchy(jaco)
+    hierarchy = case2_hierarchy(jaco)  # type: ignore[arg-type]
     apply_qp_state(hierarchy, state)
-    kin = jaco.kinematics(state.bench.q)
-    reference, rows = lexicographic_reference(hierarchy, jaco, kin, state.dt)
+    kin = jaco.kinematics(state.bench.q)  # type: ignore[attr-defined]
+    reference, rows = lexicographic_reference(hierarchy, jaco, kin, state.dt)  # type: ignore[arg-type]
+    return hierarchy, kin, state, reference, rows
+
+
+@pytest.mark.parametrize("trap", TRAPS, ids=[f"{t['backend']}-{t['state']['name']}" for t in TRAPS])
+def test_backend_traps_are_solved_to_tolerance_or_reported(jaco, trap):
+    hierarchy, kin, state, reference, rows = _trap(jaco, trap)
     result = HqpSolver(jaco, trap["backend"]).solve(hierarchy, kin, state.dt)
     assert np.isfinite(result.qdot).all() and (np.abs(result.qdot) <= jaco.v_max + 1e-9).all()
     verdict = compare_levels(level_objectives(rows, result.qdot), reference.objectives, CERTIFICATE_TOLERANCE)
@@ -88,12 +96,7 @@ def _pre_issue_solver(jaco: object, backend: str, monkeypatch: pytest.MonkeyPatc
 @pytest.mark.parametrize("trap", TRAPS, ids=[f"{t['backend']}-{t['state']['name']}" for t in TRAPS])
 def test_backend_traps_were_real_before_the_certificate(jaco, trap, monkeypatch):
     """The frozen states are traps: without the certificate the backend loses a level or is silently worse."""
-    _needs(trap["backend"])
-    state = QpState.from_dict(trap["state"])
-    hierarchy = case2_hierarchy(jaco)
-    apply_qp_state(hierarchy, state)
-    kin = jaco.kinematics(state.bench.q)
-    reference, rows = lexicographic_reference(hierarchy, jaco, kin, state.dt)
+    hierarchy, kin, state, reference, rows = _trap(jaco, trap)
     result = _pre_issue_solver(jaco, trap["backend"], monkeypatch).solve(hierarchy, kin, state.dt)
     verdict = compare_levels(level_objectives(rows, result.qdot), reference.objectives, CERTIFICATE_TOLERANCE)
     dropped = result.extras["levels_dropped"] > 0
@@ -146,7 +149,7 @@ def test_an_uncertified_answer_is_kept_degraded_and_failed_at_level_zero(jaco, m
 
     def doubt_one_level(*args, **kwargs):
         answer = real(*args, **kwargs)
-        return answer._replace(certified=False) if _level_of(args, kwargs) == level else answer
+        return dataclasses.replace(answer, certified=False) if _level_of(args, kwargs) == level else answer
 
     monkeypatch.setattr(hqp, "solve_qp", doubt_one_level)
     result = hqp.solve(hierarchy, kin, DT)

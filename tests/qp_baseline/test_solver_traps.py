@@ -75,8 +75,9 @@ def test_osqp_defaults_violate_constraints_and_ours_do_not(jaco, wall_level_qp):
     if not (raw.found and _violation(raw.x, G, h, lb, ub) > 1e-6):
         pytest.skip("OSQP's defaults happened to be accurate on this problem")
     ours = HqpSolver(jaco, "osqp")
-    x, _, retried, _, certified = ours.solve_qp(P, q, G, h, lb, ub, np.zeros_like(q))
-    assert certified
+    answer = ours.solve_qp(P, q, G, h, lb, ub, np.zeros_like(q))
+    x, _, retried = answer
+    assert answer.certified
     assert _violation(x, G, h, lb, ub) <= ours.tolerance
     assert retried == 0
     exact = qpsolvers.solve_problem(qpsolvers.Problem(P, q, G, h, lb=lb, ub=ub), solver="daqp").x
@@ -91,8 +92,9 @@ def test_loose_osqp_settings_are_caught_by_the_check_and_retried_or_polished(jac
     P, q, G, h, lb, ub = wall_level_qp
     settings = {"eps_abs": 1e-2, "eps_rel": 1e-2, "polish": False, "tolerance": 1e-7}
     loose = HqpSolver(jaco, "osqp", {**settings, "kkt_polish": ours})
-    x, _, retried, _, certified = loose.solve_qp(P, q, G, h, lb, ub, np.zeros_like(q))
-    assert certified
+    answer = loose.solve_qp(P, q, G, h, lb, ub, np.zeros_like(q))
+    x, _, retried = answer
+    assert answer.certified
     assert retried == (0 if ours else 1)
     assert _violation(x, G, h, lb, ub) <= 1e-7
 
@@ -108,8 +110,9 @@ def test_proxqp_false_infeasibility_is_survived(jaco):
     exact = qpsolvers.solve_problem(qpsolvers.Problem(c.P, c.q, c.G, c.h, lb=c.lb, ub=c.ub), solver="daqp").x
     for settings in ({}, {"initial_guess": "EQUALITY_CONSTRAINED_INITIAL_GUESS"}):
         hqp = HqpSolver(jaco, "proxqp", settings)
-        x, _, _, _, certified = hqp.solve_qp(c.P, c.q, c.G, c.h, c.lb, c.ub, x0)
-        assert certified, settings
+        answer = hqp.solve_qp(c.P, c.q, c.G, c.h, c.lb, c.ub, x0)
+        x = answer.x
+        assert answer.certified, settings
         assert _violation(x, c.G, c.h, c.lb, c.ub) <= hqp.tolerance
         assert np.max(np.abs(x - exact)) < 1e-5, settings
     # Without the retry, the stock guess's "infeasible" answer is feasible but its multipliers do not
@@ -130,7 +133,7 @@ def test_proxqp_false_infeasibility_is_survived(jaco):
             f0=-1.0,
             level=3,  # a (fictitious) better point known: unusable
         )
-    assert info.value.level == 3 and info.value.solution is not None and "not certified" in str(info.value)
+    assert info.value.level == 3 and info.value.solution is not None and "worse than a known" in str(info.value)
 
 
 def _near_singular_qp() -> tuple[np.ndarray, ...]:
@@ -157,10 +160,12 @@ def test_daqp_failure_on_a_near_singular_hessian_is_retried_with_regularisation(
     feasible = qpsolvers.solve_problem(qpsolvers.Problem(P, q, G, h, lb=lb, ub=ub), solver="quadprog").x
     assert feasible is not None  # the problem is feasible: DAQP's "infeasible" is wrong
     hqp = HqpSolver(jaco, "daqp")
-    x, _, retried, cert, _ = hqp.solve_qp(P, q, G, h, lb, ub, feasible)
+    answer = hqp.solve_qp(P, q, G, h, lb, ub, feasible)
+    x, _, retried = answer
+    cert = answer.certificate
     assert retried == 1
     assert _violation(x, G, h, lb, ub) <= hqp.tolerance
-    # The retry's extra 1e-8 on P moves the optimum of this near-singular QP a little (here the known
+    # The retry's extra 1e-7 on P moves the optimum of this near-singular QP a little (here the known
     # feasible point is quadprog's optimum): close, and reported as not certified, not as the optimum.
     f_exact = float(feasible @ (0.5 * P @ feasible) + q @ feasible)
     assert cert.objective == pytest.approx(f_exact, rel=1e-6)
@@ -178,8 +183,9 @@ def test_quadprog_semidefinite_hessian_is_retried_with_regularisation(jaco):
     with pytest.raises(Exception, match="positive definite"):
         qpsolvers.solve_problem(qpsolvers.Problem(P, q, lb=lb, ub=ub), solver="quadprog")
     hqp = HqpSolver(jaco, "quadprog")
-    x, _, retried, _, certified = hqp.solve_qp(P, q, None, None, lb, ub, np.zeros(7))
-    assert certified
+    answer = hqp.solve_qp(P, q, None, None, lb, ub, np.zeros(7))
+    x, _, retried = answer
+    assert answer.certified
     assert retried == 1 and np.all(np.isfinite(x)) and _violation(x, np.zeros((0, 7)), np.zeros(0), lb, ub) <= 0
 
 
@@ -198,8 +204,8 @@ class _Fake:
     [
         ("not_found", "reported no solution"),
         ("nan", "non-finite"),
-        ("violating", "primal residual"),
-        ("worse", "above a known feasible point"),
+        ("violating", "violates its constraints"),
+        ("worse", "worse than a known feasible point"),
         ("raises", "raised RuntimeError"),
     ],
 )
