@@ -336,17 +336,45 @@ def plot(results: Annotated[Path, typer.Argument(help="A run or sweep results di
 def bench(
     json_out: Annotated[Path | None, typer.Option("--json", help="Write results as JSON (DESIGN §7).")] = None,
     repeats: Annotated[int, typer.Option(min=10, help="Timed calls per case.")] = 300,
-    only: Annotated[str | None, typer.Option(help="solvers | sensing (default both).")] = None,
+    only: Annotated[str | None, typer.Option(help="solvers | sensing | correctness (default all).")] = None,
     methods: MethodsOpt = None,
     config: Annotated[
         Path | None,
         typer.Option("--config", help="Scenario TOML: its robot, levels (case-2 hierarchy) and method settings."),
     ] = None,
+    rounds: Annotated[int, typer.Option(min=1, help="Correctness: timed passes over the reference states.")] = 3,
+    tolerance: Annotated[
+        float, typer.Option(min=1e-12, help="Correctness: level error within which a level matches the reference.")
+    ] = 1e-5,
+    plot_out: Annotated[
+        Path | None, typer.Option("--plot", help="Correctness: write the time-vs-correctness figure.")
+    ] = None,
+    csv_out: Annotated[
+        Path | None, typer.Option("--csv", help="Correctness: one row per (state, backend), qpbenchmark-style.")
+    ] = None,
+    export_qps: Annotated[
+        Path | None,
+        typer.Option("--export-qps", help="Write the level QPs of the reference states as a qpbenchmark test set."),
+    ] = None,
+    export_method: Annotated[str, typer.Option(help="HQP method posing the exported QPs.")] = "hqp-piqp",
+    backends: Annotated[
+        list[str] | None,
+        typer.Option("--backends", help="Correctness: HQP methods to judge (repeatable; default all six)."),
+    ] = None,
 ) -> None:
-    """Solver and sensing micro-benchmarks with medians, p95 and ratios to the reference."""
+    """Solver, sensing and QP-correctness benchmarks: medians, p95, ratios, timing vs correctness.
+
+    ``--only correctness`` judges every HQP backend against the stored lexicographic reference
+    (compare/bench/data/qp_reference.json): success rate, level errors, qpbenchmark residuals, time.
+    """
     from compare.bench.__main__ import main as bench_main
 
-    argv: list[str] = ["--repeats", str(repeats)]
+    if only is not None and only not in ("solvers", "sensing", "correctness"):
+        _fail(f"--only must be solvers, sensing or correctness, got '{only}'")
+    if not export_method.startswith("hqp-"):
+        _fail(f"--export-method must be an hqp-<backend> method, got '{export_method}'")
+    argv: list[str] = ["--repeats", str(repeats), "--rounds", str(rounds), "--tolerance", str(tolerance)]
+    argv += ["--export-method", export_method]
     if json_out is not None:
         argv += ["--json", str(json_out)]
     if only is not None:
@@ -355,6 +383,14 @@ def bench(
         argv += ["--methods", *methods]
     if config is not None:
         argv += ["--config", str(config)]
+    if backends:
+        bad = [b for b in backends if not b.startswith("hqp-")]
+        if bad:
+            _fail(f"--backends takes hqp-<backend> methods only, got {', '.join(bad)}")
+        argv += ["--backends", *backends]
+    for flag, value in (("--plot", plot_out), ("--csv", csv_out), ("--export-qps", export_qps)):
+        if value is not None:
+            argv += [flag, str(value)]
     code = bench_main(argv)
     if code:
         raise typer.Exit(code)

@@ -42,12 +42,15 @@ class NoSolutionFound(HqpError):
         solution: The backend's answer (a :class:`qpsolvers.Solution`, or ``None`` when
             the backend raised).
         reason: Human-readable cause.
+        certificate: Certificate of the last rejected answer (a
+            :class:`qp_baseline.certificate.Certificate`), or ``None``.
     """
 
-    def __init__(self, level: int, solution: Any, reason: str) -> None:
+    def __init__(self, level: int, solution: Any, reason: str, certificate: Any = None) -> None:
         self.level = level
         self.solution = solution
         self.reason = reason
+        self.certificate = certificate
         super().__init__(f"priority level {level}: {reason}")
 
 

@@ -52,22 +52,40 @@ Implementation choices:
   the levels that did call it. A level that needed the backend at the previous step goes
   straight to it (its active set usually persists; the answer is the same either way).
 
-Every backend answer is checked (status, finite, within the hard box and all rows, and no worse
-than a known feasible point, with ``tolerance``) before use; a failed check is retried once with
-the backend's robust settings and extra regularisation, then the level is given up: level 0 →
-FAILED with zero velocity, a later level → DEGRADED keeping the solution of the levels above it.
+Every backend answer is **certified** before use (:mod:`qp_baseline.certificate`, issue 23),
+whatever status the backend reported: its slacks set to their minimal value ``max(0, G q̇ − h)``,
+the answer must be within ``tolerance`` of every constraint, no worse than the known feasible
+point, and its level objective within ``objective_tolerance`` of the lower bound that the
+backend's multipliers (or multipliers recovered for the answer) prove — the primal residual, dual
+residual and duality gap of qpbenchmark are reported in ``extras["certificates"]``. An answer that
+fails is polished (:mod:`qp_baseline.polish`, exact KKT solves of its active set) and certified
+again; then retried once with :data:`RETRY_SETTINGS` and :data:`RETRY_REGULARIZATION`. What
+remains:
+
+* no usable answer (infeasible, non-finite, worse than the known feasible point): the level is
+  **given up** — level 0 → FAILED with zero velocity, a later level → DEGRADED keeping the
+  solution of the levels above it, ``extras["levels_dropped"]`` = that level and every level below;
+* a usable answer that is not certified: kept, the step DEGRADED and the level counted in
+  ``extras["levels_uncertified"]`` (FAILED at level 0). Never silently accepted.
+
+The min-norm level is certified on its distance to the optimum (it only picks the null-space part
+of q̇); an uncertified min-norm answer is kept (it meets every level above) and noted in
+``extras["min_norm_failure"]``. ``certify = false`` restores the checks before issue 23 (status,
+constraints, known feasible point). :attr:`HqpSolver.qp_log` records the level QPs
+(:class:`~qp_baseline.level_qp.LevelQp`), e.g. for a qpbenchmark export.
 """
 
 from __future__ import annotations
 
 import contextlib
+import functools
 import math
 import os
 import re
 import sys
 import time
 import warnings
-from collections.abc import Iterator, Mapping
+from collections.abc import Callable, Iterator, Mapping
 from dataclasses import dataclass, fields
 from typing import Any
 
@@ -75,7 +93,10 @@ import numpy as np
 import qpsolvers
 import scipy.sparse as spa
 
+from qp_baseline.certificate import Certificate, Tolerances, certify
 from qp_baseline.exceptions import InvalidSettings, NoSolutionFound, UnknownSolver
+from qp_baseline.level_qp import LevelAnswer, LevelQp
+from qp_baseline.polish import polish
 from qp_baseline.set_rows import SetRowBuilder
 from qp_baseline.time_limits import TimeLimited
 from robots import Kinematics, Robot
@@ -93,12 +114,27 @@ SOLVER_DEFAULTS: dict[str, dict[str, Any]] = {
     # are the regularisation's business).
     "daqp": {},
     "quadprog": {},
-    # OSQP's defaults (eps 1e-3, no polish) leave bound violations of ~1e-3. Polishing solves the
-    # KKT system of the detected active set (exact when it succeeds), but OSQP skips it when no
-    # constraint is active: eps 1e-8 is what gets q̇ within 1e-6 then (1e-6 leaves ~1e-4).
-    "osqp": {"eps_abs": 1e-8, "eps_rel": 0.0, "polish": True, "max_iter": 10000},
+    # OSQP (issue 23; measured in docs/benchmarks.md, "QP backends: timing vs correctness"): its
+    # defaults (eps 1e-3, no polish) leave violations of ~1e-3. eps 1e-6 with eps_rel 0 (absolute:
+    # our rows are in rad/s and m/s), polishing with 10 refinement steps; no duality-gap
+    # termination test (OSQP 1.x's absolute gap test kept it iterating to max_iter on most level
+    # QPs: the certificate checks the gap itself); infeasibility detection effectively off
+    # (eps_prim_inf 1e-9: every level QP is feasible by construction, and at 1e-4 OSQP declared
+    # feasible QPs infeasible); 2000 iterations, the retry 1e-9 with 4000. Before issue 23: eps
+    # 1e-8, 10 000 iterations, retry at 1e-6: 69 of 200 random states lost a level.
+    "osqp": {
+        "eps_abs": 1e-6,
+        "eps_rel": 0.0,
+        "polish": True,
+        "polish_refine_iter": 10,
+        "check_dualgap": False,
+        "eps_prim_inf": 1e-9,
+        "max_iter": 2000,
+    },
     # ProxQP's default eps_abs is 1e-3 (qpsolvers documentation). Its default equality-constrained
-    # initial guess ends in PROXQP_PRIMAL_INFEASIBLE on many of our (feasible) level QPs.
+    # initial guess ends in PROXQP_PRIMAL_INFEASIBLE on many of our (feasible) level QPs. It does not
+    # test the duality gap by default, so a "solved" answer may be suboptimal: the certificate
+    # catches those (retry or KKT polish); check_duality_gap = true costs ~50× the iterations here.
     "proxqp": {"eps_abs": 1e-9, "eps_rel": 0.0, "initial_guess": "NO_INITIAL_GUESS"},
     "clarabel": {"tol_feas": 1e-9, "tol_gap_abs": 1e-9, "tol_gap_rel": 1e-9},
     "piqp": {"eps_abs": 1e-9, "eps_rel": 0.0},
@@ -107,10 +143,12 @@ SOLVER_DEFAULTS: dict[str, dict[str, Any]] = {
 ``initial_guess`` may be given by name (``"NO_INITIAL_GUESS"``, ``"WARM_START"``, ...)."""
 
 RETRY_SETTINGS: dict[str, dict[str, Any]] = {
-    "daqp": {},
+    # DAQP's proximal-point iterations for near-singular Hessians (converge to the optimum of the
+    # QP as posed): on 3 of the 200 random bench states DAQP reported level 2 unsolvable without.
+    "daqp": {"eps_prox": 1e-6},
     "quadprog": {},
     # A looser retry converges where 1e-8 ran out of iterations; TOLERANCES["osqp"] still checks it.
-    "osqp": {"eps_abs": 1e-6, "eps_rel": 0.0, "polish": True, "max_iter": 10000},
+    "osqp": {"eps_abs": 1e-9, "eps_rel": 0.0, "max_iter": 4000},
     # ProxQP's false infeasibility: solve the closest feasible problem instead; our own feasibility
     # check decides (every level QP is feasible by construction).
     "proxqp": {
@@ -125,13 +163,15 @@ RETRY_SETTINGS: dict[str, dict[str, Any]] = {
 }
 """Settings of the one retry after a failed or rejected answer (with :data:`RETRY_REGULARIZATION`)."""
 
-RETRY_REGULARIZATION = 1e-6
-"""Extra diagonal added to the Hessian on the retry (near-singular Hessians: DAQP, quadprog)."""
+RETRY_REGULARIZATION = 1e-7
+"""Extra diagonal added to the Hessian on the retry (near-singular Hessians: DAQP, quadprog). Small
+enough that the retry's answer still passes the certificate of the original problem (1e-6, the
+value before issue 23, shifted well-conditioned levels by about the certificate's tolerance)."""
 
 TOLERANCES: dict[str, float] = {
     "daqp": 1e-6,
     "quadprog": 1e-6,
-    "osqp": 1e-5,  # polishing may fail: then OSQP's own eps (scaled) applies
+    "osqp": 1e-6,
     "proxqp": 1e-6,
     "clarabel": 1e-6,
     "piqp": 1e-6,
@@ -147,6 +187,14 @@ MIN_NORM_LEVEL: dict[str, bool] = {
     "piqp": True,
 }
 """Whether the final min-norm level is solved by default (inexact backends need it)."""
+
+WARM_START: dict[str, bool] = dict.fromkeys(SUPPORTED_SOLVERS, False)
+"""Whether each level's backend starts from that level's previous-step answer by default. Only OSQP
+and ProxQP take a start point through qpsolvers (the primal x alone: a new solver object, ρ, duals
+and factorisation every call), and it did not pay consistently: on an 80-step closed-loop rollout
+with a wall binding (``tests/qp_baseline``'s wall scenario) OSQP took 206 975 iterations warm vs
+174 950 cold, 158 975 vs 190 950 once the KKT polish changed which levels retry
+(``docs/benchmarks.md``). Off by default, ``warm_start = true`` to try it."""
 
 _SPARSE_SOLVERS = frozenset({"osqp", "clarabel"})  # qpsolvers converts (and warns) otherwise
 
@@ -265,6 +313,17 @@ class HqpSettings:
         retry: Retry a failed level once with :data:`RETRY_SETTINGS`.
         gain_cap: Cap every task gain at 1/dt in the control reference (:mod:`tpik.reference`;
             the same default as TPIK and mink).
+        certify: Judge every backend answer by its certificate (:mod:`qp_baseline.certificate`:
+            primal residual, dual residual, duality gap, level objective against the dual bound);
+            off: status, constraints and the known feasible point only (the checks before issue 23).
+        objective_tolerance: Accepted error of a level's residual norm, relative to 1 + ρ
+            (:attr:`~qp_baseline.certificate.Tolerances.level`); ``max(1e-6, tolerance)`` when None.
+        warm_start: Start each level's backend from that level's answer at the previous step;
+            :data:`WARM_START` when None.
+        kkt_polish: When a backend answer is not certified, polish it (:func:`qp_baseline.polish.polish`:
+            exact KKT solves of the active set the answer identifies) and keep the polished answer if
+            it is certified — OSQP's polishing idea, for every backend (one small least squares).
+            Not OSQP's own ``polish`` setting, which goes to OSQP.
     """
 
     regularization: float = 1e-9
@@ -275,19 +334,31 @@ class HqpSettings:
     min_norm_level: bool | None = None
     retry: bool = True
     gain_cap: bool = True
+    certify: bool = True
+    objective_tolerance: float | None = None
+    warm_start: bool | None = None
+    kkt_polish: bool = True
 
     def check(self, solver: str) -> None:
         """Raise :class:`InvalidSettings` naming the first bad value."""
-        for key in ("regularization", "slack_tolerance", "rank_tolerance", "tolerance"):
+        for key in ("regularization", "slack_tolerance", "rank_tolerance", "tolerance", "objective_tolerance"):
             value = getattr(self, key)
-            if value is None and key in ("tolerance", "slack_tolerance"):
+            if value is None and key in ("tolerance", "slack_tolerance", "objective_tolerance"):
                 continue
             number = isinstance(value, int | float) and not isinstance(value, bool)
             if not (number and math.isfinite(value) and value > 0):
                 raise InvalidSettings(solver, f"setting '{key}' must be a finite number > 0, got {value!r}", key)
-        for key in ("unconstrained_first", "min_norm_level", "retry", "gain_cap"):
+        for key in (
+            "unconstrained_first",
+            "min_norm_level",
+            "retry",
+            "gain_cap",
+            "certify",
+            "warm_start",
+            "kkt_polish",
+        ):
             value = getattr(self, key)
-            if not (isinstance(value, bool) or (value is None and key == "min_norm_level")):
+            if not (isinstance(value, bool) or (value is None and key in ("min_norm_level", "warm_start"))):
                 raise InvalidSettings(solver, f"setting '{key}' must be true or false, got {value!r}", key)
 
 
@@ -352,6 +423,16 @@ class HqpSolver(TimeLimited):
         self.slack_margin = 0.1 * self.tolerance
         mnl = self.options.min_norm_level
         self.min_norm_level = MIN_NORM_LEVEL[solver] if mnl is None else mnl
+        self.objective_tolerance = float(self.options.objective_tolerance or max(1e-6, self.tolerance))
+        self.certificate_tolerances = Tolerances(
+            primal=self.tolerance, level=self.objective_tolerance, active=max(1e-6, self.tolerance)
+        )
+        ws = self.options.warm_start
+        self.warm_start = WARM_START[solver] if ws is None else ws
+        self.qp_log: list[LevelQp] | None = None
+        """When a list, every backend-solved level QP is appended to it (:class:`LevelQp`)."""
+        self._previous: dict[int, np.ndarray] = {}  # level → its q̇ answer at the previous step
+        self._certificates: dict[int, Certificate] = {}  # this step's, per level
         self._sparse = solver in _SPARSE_SOLVERS
         self._quiet = solver == "osqp"
         n = robot.nq
@@ -382,6 +463,7 @@ class HqpSolver(TimeLimited):
         if hierarchy is self._hierarchy:
             return
         self._needed_backend = {}
+        self._previous = {}
         n = self.robot.nq
         levels: list[_Level] = []
         set_tasks: list[SetTask] = []
@@ -461,7 +543,11 @@ class HqpSolver(TimeLimited):
             with zero velocity. ``build_time_s`` covers task evaluation and problem assembly,
             ``solve_time_s`` the backend calls and the unconstrained linear solves. ``extras``:
             ``slacks`` {level: {task: slack}}, ``residuals`` {level: ‖J q̇ − r‖}, ``qp_calls``,
-            ``iterations`` {level: backend iterations, where reported}, ``retries``.
+            ``iterations`` {level: backend iterations, where reported}, ``retries``,
+            ``levels_dropped`` (task levels given up: the failed one and every level below it),
+            ``levels_uncertified`` (levels whose answer was kept without a certificate),
+            ``certificates`` {level or ``"min_norm"``: :class:`~qp_baseline.certificate.Certificate`
+            of each backend-solved level}, ``min_norm_failure``.
         """
         n = self.robot.nq
         if not (math.isfinite(dt) and dt > 0.0):
@@ -470,6 +556,7 @@ class HqpSolver(TimeLimited):
         if self.budget is not None:
             self.budget.start()
         self._backend_time = 0.0
+        self._certificates = {}
         self._prepare(hierarchy)
         lb, ub = self._box(kin.q, dt)
         cuts = self._evaluate(kin, dt, lb, ub)  # a task error (tpik.TpikError) propagates, as in every solver
@@ -479,7 +566,7 @@ class HqpSolver(TimeLimited):
         Z: np.ndarray | None = None  # None: identity (no equality row solved yet)
         residuals: dict[str, float] = {}
         iterations: dict[str, int] = {}
-        qp_calls = retries = 0
+        qp_calls = retries = levels_dropped = levels_uncertified = 0
         status, message = SolveStatus.OK, ""
         min_norm_failure = ""
         slack: np.ndarray | None = None  # per row, set by the first backend answer
@@ -510,7 +597,9 @@ class HqpSolver(TimeLimited):
             if d == 0 or (r.size == 0 and c0 == c1):
                 continue
             try:
-                qd, used, its, retried = self._solve_level(k, qd, Z, J, r, G_all, h_rel, c0, c1, lb, ub, eps, margin)
+                qd, used, its, retried, doubt = self._solve_level(
+                    k, qd, Z, J, r, G_all, h_rel, c0, c1, lb, ub, eps, margin
+                )
             except NoSolutionFound as exc:
                 if k == 0:
                     return self._failed(f"{self.name}: {exc}", t_start, k)
@@ -519,8 +608,19 @@ class HqpSolver(TimeLimited):
                     min_norm_failure = str(exc)
                     break
                 status = SolveStatus.DEGRADED
-                message = f"{self.name}: {exc}; kept the solution of the levels above"
+                levels_dropped = n_levels - k
+                message = f"{self.name}: {exc}; kept the solution of the levels above ({levels_dropped} dropped)"
                 break
+            if doubt:
+                if k == 0:
+                    return self._failed(f"{self.name}: priority level 0: answer not certified: {doubt}", t_start, k)
+                if k == n_levels:
+                    min_norm_failure = f"answer not certified: {doubt}"  # kept: it meets every level above
+                else:
+                    status = SolveStatus.DEGRADED
+                    levels_uncertified += 1
+                    note = f"priority level {k} ({lv.name}): answer not certified: {doubt}"
+                    message = f"{message}; {note}" if message else f"{self.name}: {note}"
             qp_calls += used
             retries += retried
             if its is not None:
@@ -585,11 +685,23 @@ class HqpSolver(TimeLimited):
                 "iterations": iterations,
                 "retries": retries,
                 "min_norm_failure": min_norm_failure,
+                "levels_dropped": levels_dropped,
+                "levels_uncertified": levels_uncertified,
+                "certificates": {self._level_name(k): c for k, c in self._certificates.items()},
             },
         )
 
+    def _level_name(self, k: int) -> str:
+        return self._levels[k].name if k < len(self._levels) else "min_norm"
+
     def _failed(self, message: str, t_start: float, level: int) -> StepResult:
-        res = failed(self.robot.nq, message, level=level)
+        res = failed(
+            self.robot.nq,
+            message,
+            level=level,
+            levels_dropped=len(self._levels),
+            certificates={self._level_name(k): c for k, c in self._certificates.items()},
+        )
         res.solve_time_s = self._backend_time
         res.build_time_s = time.perf_counter() - t_start - self._backend_time
         return res
@@ -618,7 +730,7 @@ class HqpSolver(TimeLimited):
         ub: np.ndarray,
         eps: float,
         margin: float = 0.0,
-    ) -> tuple[np.ndarray, int, int | None, int]:
+    ) -> tuple[np.ndarray, int, int | None, int, str]:
         """Solve level ``k`` for q̇ = qd + Z z.
 
         Rows ``:c0`` of ``G_all``/``h_rel`` are the earlier levels' (already relaxed), rows
@@ -627,10 +739,12 @@ class HqpSolver(TimeLimited):
         ``margin`` relaxes every row of the QP (min-norm level only).
 
         Returns:
-            (q̇, 1 if the backend was called else 0, backend iterations, 1 if retried else 0).
+            (q̇, 1 if the backend was called else 0, backend iterations, 1 if retried else 0, why
+            the answer is not certified — empty when it is, or when no backend was called).
 
         Raises:
-            NoSolutionFound: Neither attempt gave an answer that passes the checks.
+            NoSolutionFound: Neither attempt gave a usable answer (feasible, no worse than the
+                known feasible point).
         """
         G_acc, h_acc = G_all[:c0], h_rel[:c0]
         G_own, h_own = G_all[c0:c1], h_rel[c0:c1]
@@ -662,7 +776,8 @@ class HqpSolver(TimeLimited):
                 and (G_acc @ cand <= h_acc).all()
                 and (G_own @ cand <= h_own).all()
             ):
-                return cand, 0, None, 0
+                self._previous[k] = cand
+                return cand, 0, None, 0, ""
         n = qd.shape[0]
         d = n if Z is None else Z.shape[1]
         if Pz is None or qz is None:
@@ -670,6 +785,7 @@ class HqpSolver(TimeLimited):
             qz = eps * (qd if Z is None else Z.T @ qd)
         # The QP in x = [z; w]: rows of earlier levels, this level's rows with slack, the box.
         m = c1 - c0
+        own0 = c0  # first row of this level's own rows in the QP
         if at_zero:
             z_lb, z_ub, G_rows, h = lb, ub, G_all[:c1], h_rel[:c1]
         elif Z is None:
@@ -682,8 +798,15 @@ class HqpSolver(TimeLimited):
             # row "0 ≤ 0" that some backends take for an infeasibility: drop those.
             box_G, box_h = np.vstack([Z, -Z]), np.concatenate([ub - qd, qd - lb])
             live = np.abs(box_G).max(axis=1) > 1e-12
-            G_rows = np.vstack([G_all[:c1] @ Z, box_G[live]])
-            h = np.concatenate([h_rel[:c1] - G_all[:c1] @ qd, box_h[live]])
+            # Likewise an earlier level's row whose Jacobian lies in the row space of the eliminated
+            # equality rows (a wall on the EE under an EE position task): ≈ 0·z ≤ h holds for every
+            # z (it holds at z = 0 by construction) and only makes the dual ill-posed (OSQP ran to
+            # its iteration limit on such min-norm levels): drop those too.
+            prev = G_all[:c0] @ Z
+            alive = np.abs(prev).max(axis=1, initial=0.0) > 1e-12
+            own0 = int(alive.sum())
+            G_rows = np.vstack([prev[alive], G_all[c0:c1] @ Z, box_G[live]])
+            h = np.concatenate([(h_rel[:c0] - G_all[:c0] @ qd)[alive], h_rel[c0:c1] - G_all[c0:c1] @ qd, box_h[live]])
         if margin:
             h = h + margin
         if m == 0:  # no slack variable: x = z
@@ -693,7 +816,7 @@ class HqpSolver(TimeLimited):
         else:
             G = np.zeros((G_rows.shape[0], d + m))
             G[:, :d] = G_rows
-            G[c0:c1, d:] = -np.eye(m)
+            G[own0 : own0 + m, d:] = -np.eye(m)
             violation = np.maximum(G_own @ qd - h_own, 0.0)  # slack of the known feasible point
             reach = G_own @ (0.5 * (ub + lb)) + np.abs(G_own) @ (0.5 * (ub - lb))
             x_lb = np.concatenate([z_lb, np.zeros(m)])
@@ -704,7 +827,58 @@ class HqpSolver(TimeLimited):
             q_vec = np.concatenate([qz, np.zeros(m)])
             x0 = np.concatenate([np.zeros(d), violation])
             f0 = 0.5 * float(violation @ violation)
-        x, solution, retried = self.solve_qp(P, q_vec, G, h, x_lb, x_ub, x0, f0, level=k)
+        # Level objective ½(‖J q̇ − r‖² + ‖w‖²) = f(x) + ½‖J qd − r‖² + ½ε‖qd‖² − ½ε‖q̇(x)‖²
+        # (J = I, r = 0 on the min-norm level: ½‖q̇‖²).
+        res0 = (J @ qd - r) if r.size else self._no_bounds
+        offset = 0.5 * float(res0 @ res0 + eps * (qd @ qd))
+
+        def level_value(x: np.ndarray) -> float:
+            qdot = x[:d] if at_zero else (qd + x[:d] if Z is None else qd + Z @ x[:d])
+            return float(x @ (0.5 * (P @ x) + q_vec)) + offset - 0.5 * eps * float(qdot @ qdot)
+
+        minimal_slacks = None
+        if m:
+            G_slack, h_slack = G[own0 : own0 + m, :d], h[own0 : own0 + m]
+
+            def minimal_slacks(x: np.ndarray) -> np.ndarray:
+                # The level's answer is q̇; its slacks are then max(0, G q̇ − h) (feasible, no worse).
+                out = x.copy()
+                out[d:] = np.maximum(G_slack @ x[:d] - h_slack, 0.0)
+                return out
+
+        start = None
+        if self.warm_start and k in self._previous:
+            start = self._warm_start_point(self._previous[k], qd, Z, at_zero, G_own, h_own, x_lb, x_ub)
+        try:
+            # P ⪰ diag(curvature): (JZ)ᵀJZ + εI ⪰ εI (JZ = Z, orthonormal, on the min-norm level), I on slacks.
+            bend = 1.0 + eps if J is self._eye else eps
+            curvature = np.concatenate([np.full(d, bend), np.ones(m)]) if m else np.full(d, bend)
+            # Task levels are judged on their objective; the min-norm level (P = (1 + ε)I) on its
+            # answer itself: it only picks the null-space part of q̇.
+            min_norm = k == len(self._levels)
+            answer = self.solve_qp(
+                P,
+                q_vec,
+                G,
+                h,
+                x_lb,
+                x_ub,
+                x0,
+                f0,
+                k,
+                None if min_norm else level_value,
+                start,
+                minimal_slacks,
+                curvature,
+                1.0 + eps if min_norm else None,
+            )
+        except NoSolutionFound as exc:
+            self._record(k, P, q_vec, G, h, x_lb, x_ub, x0, None, exc.certificate, level_value, m)
+            raise
+        x, solution, retried = answer.x, answer.solution, answer.retried
+        self._record(k, P, q_vec, G, h, x_lb, x_ub, x0, x, answer.certificate, level_value, m)
+        if answer.certificate is not None:
+            self._certificates[k] = answer.certificate
         cand = x[:d].copy() if at_zero else (qd + x[:d] if Z is None else qd + Z @ x[:d])
         np.maximum(cand, lb, out=cand)
         np.minimum(cand, ub, out=cand)
@@ -716,7 +890,69 @@ class HqpSolver(TimeLimited):
         if c0:
             # Absorb violations within tolerance, so later levels stay feasible by construction.
             np.maximum(h_acc, G_acc @ cand, out=h_acc)
-        return cand, 1, backend_iterations(solution), retried
+        self._previous[k] = cand
+        doubt = "" if answer.certified else ((answer.certificate.reason if answer.certificate else "") or "not checked")
+        return cand, 1, backend_iterations(solution), retried, doubt
+
+    @staticmethod
+    def _warm_start_point(
+        previous: np.ndarray,
+        qd: np.ndarray,
+        Z: np.ndarray | None,
+        at_zero: bool,
+        G_own: np.ndarray,
+        h_own: np.ndarray,
+        x_lb: np.ndarray,
+        x_ub: np.ndarray,
+    ) -> np.ndarray:
+        """The level's previous-step answer ``previous`` (q̇) in this step's variables x = [z; w], clipped."""
+        if at_zero:
+            z = previous.copy()
+        else:
+            z = previous - qd if Z is None else Z.T @ (previous - qd)
+        if h_own.size:
+            qdot = z if at_zero else (qd + z if Z is None else qd + Z @ z)
+            z = np.concatenate([z, np.maximum(G_own @ qdot - h_own, 0.0)])
+        return np.clip(z, x_lb, x_ub)
+
+    def _record(
+        self,
+        k: int,
+        P: np.ndarray,
+        q: np.ndarray,
+        G: np.ndarray,
+        h: np.ndarray,
+        lb: np.ndarray,
+        ub: np.ndarray,
+        x0: np.ndarray,
+        x: np.ndarray | None,
+        certificate: Certificate | None,
+        level_value: Callable[[np.ndarray], float] | None,
+        slacks: int,
+    ) -> None:
+        """Append the level QP to :attr:`qp_log` when it is a list (copies: the buffers are reused)."""
+        if self.qp_log is None:
+            return
+        offset = None
+        if level_value is not None:
+            probe = x if x is not None else x0
+            offset = level_value(probe) - float(probe @ (0.5 * (P @ probe) + q))
+        self.qp_log.append(
+            LevelQp(
+                k,
+                P.copy(),
+                q.copy(),
+                G.copy(),
+                h.copy(),
+                lb.copy(),
+                ub.copy(),
+                x0.copy(),
+                None if x is None else x.copy(),
+                certificate,
+                offset,
+                slacks,
+            )
+        )
 
     def solve_qp(
         self,
@@ -729,14 +965,26 @@ class HqpSolver(TimeLimited):
         x0: np.ndarray,
         f0: float | None = None,
         level: int = 0,
-    ) -> tuple[np.ndarray, qpsolvers.Solution, int]:
+        level_value: Callable[[np.ndarray], float] | None = None,
+        initvals: np.ndarray | None = None,
+        refine: Callable[[np.ndarray], np.ndarray] | None = None,
+        curvature: np.ndarray | None = None,
+        modulus: float | None = None,
+    ) -> LevelAnswer:
         r"""Solve :math:`\min \tfrac12 x^TPx + q^Tx` s.t. :math:`Gx \le h,\ lb \le x \le ub`, checked.
 
-        An answer is accepted only if the backend reports success, it is finite, it satisfies
-        every constraint within ``tolerance`` and its objective is no worse than that of the
-        known feasible point ``x0``. Otherwise the QP is solved once more with
-        :data:`RETRY_SETTINGS`, :data:`RETRY_REGULARIZATION` added to the diagonal of P and
-        ``x0`` as warm start (when ``retry`` is on).
+        With ``certify`` on (default), every answer is judged by its certificate
+        (:func:`qp_baseline.certificate.certify` with the backend's multipliers, or recovered
+        ones): primal residual within ``tolerance``, objective no worse than at the known
+        feasible point ``x0``, and within ``objective_tolerance`` of the dual bound — in the
+        level's residual norm when ``level_value`` is given. The backend's own status does not
+        decide: a certified answer is right whatever the backend reported, an uncertified
+        "solved" one is not. A failed certificate is retried once with :data:`RETRY_SETTINGS`,
+        :data:`RETRY_REGULARIZATION` added to the diagonal of P (the answer is still certified
+        against the original P) and ``x0`` as warm start (when ``retry`` is on). If no answer is
+        certified, the first *usable* one (feasible within ``tolerance``, no worse than ``x0``)
+        is returned with ``certified=False``: the caller reports the level. With ``certify``
+        off, an answer is accepted on the backend's status, the constraints and ``x0`` alone.
 
         Args:
             P: Positive definite cost matrix. Shape (d, d).
@@ -748,53 +996,146 @@ class HqpSolver(TimeLimited):
             x0: A feasible point. Shape (d,).
             f0: Objective at ``x0`` (computed when None).
             level: Priority level reported by :class:`NoSolutionFound`.
+            level_value: ½-scaled level objective of an answer (see
+                :attr:`~qp_baseline.certificate.Tolerances.level`), None for a plain QP.
+            initvals: Warm start of the first attempt (backends that take one: OSQP, ProxQP).
+            refine: Exact map applied to an answer before it is judged (the cascade sets the
+                slacks of the level's rows to their minimal value ``max(0, G q̇ − h)``).
+            curvature: :math:`c` with :math:`P \succeq \mathrm{diag}(c)`, sharpening the certificate's
+                bound (see :func:`~qp_baseline.certificate.certify`).
+            modulus: :math:`\mu` with :math:`P \succeq \mu I` when the answer itself must be within
+                tolerance of the optimum (the min-norm level), not only its objective.
 
         Returns:
-            (x, the backend's solution, 1 if the retry gave it else 0).
+            :class:`~qp_baseline.level_qp.LevelAnswer`.
 
         Raises:
-            NoSolutionFound: No attempt passed the checks (``solution`` holds the last answer).
+            NoSolutionFound: No attempt gave a usable answer (``solution`` holds the last answer,
+                ``certificate`` its certificate).
         """
         if G is None or h is None:
             G, h = np.zeros((0, q.shape[0])), np.zeros(0)
         if f0 is None:
             f0 = float(x0 @ (0.5 * (P @ x0) + q))
         d = q.shape[0]
-        attempts: list[tuple[dict[str, Any], float]] = [(self._kwargs, 0.0)]
+        attempts: list[tuple[dict[str, Any], float, np.ndarray | None]] = [(self._kwargs, 0.0, initvals)]
         if self.options.retry:
-            attempts.append((self._retry_kwargs, RETRY_REGULARIZATION))
+            attempts.append((self._retry_kwargs, RETRY_REGULARIZATION, x0))
         tol = self.tolerance
         last_solution: Any = None
+        last_cert: Certificate | None = None
+        usable: LevelAnswer | None = None
         reason = ""
-        for attempt, (kwargs, extra_reg) in enumerate(attempts):
+        for attempt, (kwargs, extra_reg, start) in enumerate(attempts):
+            if attempt and usable is not None:
+                start = usable.x  # the retry starts from the first attempt's usable answer, when there is one
             P_try = P
             if extra_reg:
                 P_try = P.copy()
                 P_try.flat[:: d + 1] += extra_reg
             try:
-                solution = self._call_backend(P_try, q, G, h, lb, ub, x0 if attempt else None, kwargs)
+                solution = self._call_backend(P_try, q, G, h, lb, ub, start, kwargs)
             except Exception as exc:  # noqa: BLE001 - a backend error is a failure of this QP
                 last_solution, reason = None, f"{self.solver} raised {type(exc).__name__}: {exc}"
                 continue
             last_solution = solution
             x = solution.x
-            if not solution.found or x is None:
+            if x is None or (not solution.found and not self.options.certify):
                 reason = f"{self.solver} reported no solution"
                 continue
             x = np.asarray(x, dtype=float)
             if x.shape != (d,) or not np.isfinite(x).all():
                 reason = f"{self.solver} returned a non-finite or misshaped solution"
                 continue
-            viol = max((lb - x).max(), (x - ub).max(), (G @ x - h).max() if h.size else -math.inf)
-            if viol > tol:
-                reason = f"{self.solver} answer violates its constraints by {viol:.3g} (tolerance {tol:g})"
-                continue
-            f = float(x @ (0.5 * (P @ x) + q))
-            if f > f0 + tol * (1.0 + abs(f0)):
-                reason = f"{self.solver} answer is worse than a known feasible point ({f:.6g} > {f0:.6g})"
-                continue
-            return x, solution, attempt
-        raise NoSolutionFound(level, last_solution, reason)
+            if not self.options.certify:
+                viol = max((lb - x).max(), (x - ub).max(), (G @ x - h).max() if h.size else -math.inf)
+                if viol > tol:
+                    reason = f"{self.solver} answer violates its constraints by {viol:.3g} (tolerance {tol:g})"
+                    continue
+                f = float(x @ (0.5 * (P @ x) + q))
+                if f > f0 + tol * (1.0 + abs(f0)):
+                    reason = f"{self.solver} answer is worse than a known feasible point ({f:.6g} > {f0:.6g})"
+                    continue
+                return LevelAnswer(x, solution, attempt, None, True)
+            if refine is not None:
+                x = refine(x)
+            # Cheapest first: the backend's multipliers; then the KKT polish (exact multipliers
+            # with it); then multipliers recovered for the answer itself (bounded least squares).
+            judge = functools.partial(self._certificate, P, q, G, h, lb, ub, f0, level_value, curvature, modulus)
+            z, z_box = getattr(solution, "z", None), getattr(solution, "z_box", None)
+            cert = judge(x, z, z_box, recover=False)
+            last_cert = cert
+            if cert.passed:
+                return LevelAnswer(x, solution, attempt, cert, True)
+            # Polish near-optimal answers only: nearly feasible and no worse than the known point.
+            near = cert.primal_residual <= 100.0 * tol and cert.objective <= f0 + tol * (1.0 + abs(f0))
+            if self.options.kkt_polish and near:
+                # The active set from the answer alone first (rows it meets within 1e-9: interior-
+                # point multipliers of nearly active rows mislead), then from its multipliers.
+                for z_start, zb_start, active in ((None, None, 1e-9), (z, z_box, tol)):
+                    polished = polish(P, q, G, h, lb, ub, x, z_start, zb_start, active=active)
+                    if polished is None:
+                        continue
+                    xp = refine(polished[0]) if refine is not None else polished[0]
+                    cert_p = judge(xp, polished[2], polished[3], recover=False)
+                    if cert_p.passed:
+                        return LevelAnswer(xp, solution, attempt, cert_p, True)
+            if cert.primal_residual <= tol:
+                cert = judge(x, None, None, recover=True)
+                last_cert = cert
+                if cert.passed:
+                    return LevelAnswer(x, solution, attempt, cert, True)
+            said = "" if solution.found else f" ({self.solver} reported no solution)"
+            if cert.primal_residual > tol:
+                reason = (
+                    f"{self.solver} answer violates its constraints by {cert.primal_residual:.3g} (tolerance {tol:g})"
+                )
+            elif cert.objective > f0 and "known feasible point" in cert.reason:
+                reason = f"{self.solver} answer is worse than a known feasible point ({cert.objective:.6g} > {f0:.6g})"
+            else:
+                reason = f"{self.solver} answer not certified: {cert.reason}"
+            reason += said
+            if usable is None and cert.primal_residual <= tol and cert.objective <= f0 + tol * (1.0 + abs(f0)):
+                usable = LevelAnswer(x, solution, attempt, cert, False)
+        if usable is not None:
+            return usable
+        raise NoSolutionFound(level, last_solution, reason, last_cert)
+
+    def _certificate(
+        self,
+        P: np.ndarray,
+        q: np.ndarray,
+        G: np.ndarray,
+        h: np.ndarray,
+        lb: np.ndarray,
+        ub: np.ndarray,
+        f0: float,
+        level_value: Callable[[np.ndarray], float] | None,
+        curvature: np.ndarray | None,
+        modulus: float | None,
+        x: np.ndarray,
+        z: np.ndarray | None,
+        z_box: np.ndarray | None,
+        recover: bool,
+    ) -> Certificate:
+        """:func:`~qp_baseline.certificate.certify` of ``x`` with this solver's tolerances."""
+        return certify(
+            P,
+            q,
+            G,
+            h,
+            x,
+            lb=lb,
+            ub=ub,
+            z=z,
+            z_box=z_box,
+            feasible_objective=f0,
+            level_value=None if level_value is None else level_value(x),
+            curvature=curvature,
+            modulus=modulus,
+            tolerances=self.certificate_tolerances,
+            recover=recover,
+        )
 
     def _call_backend(
         self,

@@ -6,11 +6,14 @@ Examples::
     python -m compare.bench --only solvers --methods tpik mink --repeats 500 --json bench.json
     python -m compare.bench --only sensing
     python -m compare.bench --only solvers --config configs/panda_case2.toml   # that config's robot and levels
+    python -m compare.bench --only correctness --rounds 3 --plot time_vs_correctness.png
+    python -m compare.bench --only correctness --export-qps qp_testset/
 
 Prints tables (medians, p95, ratio to ``mink-native`` — the same problem written with mink alone
 — measured in the same interleaved run; ``mink`` is the project's adapter, timed beside it) and,
-with ``--json``, writes ``{"versions": ..., "command": ..., "results": [row, ...]}`` (DESIGN §7;
-``ratio_to_mink`` of a row is against ``mink-native``).
+with ``--json``, writes ``{"versions": ..., "command": ..., "results": [row, ...], "correctness": {...}}``
+(DESIGN §7; ``ratio_to_mink`` of a row is against ``mink-native``; ``correctness``: every HQP backend
+against the stored lexicographic reference, :mod:`compare.bench.correctness`).
 """
 
 from __future__ import annotations
@@ -18,13 +21,17 @@ from __future__ import annotations
 import argparse
 import importlib
 import json
+import math
 import shlex
 import sys
 from pathlib import Path
+from typing import Any
 
 from rich.console import Console
 from rich.table import Table
 
+from compare.analysis.metrics import to_jsonable
+from compare.bench.correctness import HQP_BACKENDS, TOLERANCE, StepRecord, Summary
 from compare.bench.solvers import DEFAULT_METHODS, run_candidate_bench, run_solver_bench
 from compare.bench.timing import BenchRow
 from compare.versions import versions
@@ -41,7 +48,7 @@ def _parser() -> argparse.ArgumentParser:
     )
     p.add_argument("--repeats", type=int, default=300, help="timed calls per method and case (default 300)")
     p.add_argument("--json", type=Path, default=None, help="write the results as JSON to this file")
-    p.add_argument("--only", choices=("solvers", "sensing"), default=None, help="run one group only")
+    p.add_argument("--only", choices=("solvers", "sensing", "correctness"), default=None, help="run one group only")
     p.add_argument(
         "--config",
         type=Path,
@@ -54,6 +61,31 @@ def _parser() -> argparse.ArgumentParser:
         type=int,
         default=8,
         help="largest |C| of the TPIK-vs-candidates table, 0..12; -1 skips it (default 8)",
+    )
+    c = p.add_argument_group("correctness (timing vs correctness of the HQP backends)")
+    c.add_argument(
+        "--backends",
+        nargs="+",
+        default=list(HQP_BACKENDS),
+        help=f"HQP methods judged against the reference (default: {' '.join(HQP_BACKENDS)})",
+    )
+    c.add_argument("--rounds", type=int, default=3, help="timed passes over the reference states (default 3)")
+    c.add_argument(
+        "--tolerance",
+        type=float,
+        default=TOLERANCE,
+        help=f"level error within which a level matches the reference (default {TOLERANCE:g})",
+    )
+    c.add_argument("--plot", type=Path, default=None, help="write the time-vs-correctness figure (PNG/SVG)")
+    c.add_argument("--csv", type=Path, default=None, help="write one row per (state, backend), qpbenchmark-style")
+    c.add_argument(
+        "--export-qps",
+        type=Path,
+        default=None,
+        help="write the level QPs of the reference states as a qpbenchmark test set in this directory",
+    )
+    c.add_argument(
+        "--export-method", default="hqp-piqp", help="HQP method whose cascade poses the exported QPs (default hqp-piqp)"
     )
     return p
 
@@ -107,6 +139,120 @@ def _generic_table(rows: list[BenchRow], title: str) -> Table:
     return table
 
 
+def correctness_table(summaries: list[Summary], title: str) -> Table:
+    """Rich table of :class:`~compare.bench.correctness.Summary` rows."""
+    table = Table(title=title)
+    for col in (
+        "backend",
+        "states",
+        "correct",
+        "rate % [95 % CI]",
+        "flagged",
+        "silent",
+        "worst e_k",
+        "primal p95",
+        "dual p95",
+        "gap p95",
+        "median [µs]",
+        "p95 [µs]",
+        "QPs/step",
+    ):
+        table.add_column(col, justify="left" if col in ("backend", "states") else "right")
+
+    def sci(value: float | None) -> str:
+        return "" if value is None or not math.isfinite(value) else f"{value:.1e}"
+
+    for s in summaries:
+        lo, hi = s.success_rate["ci95"]
+        table.add_row(
+            s.name,
+            f"{s.states} ({s.count})",
+            str(s.correct),
+            f"{100 * s.success_rate['rate']:.1f} [{100 * lo:.1f}, {100 * hi:.1f}]",
+            str(s.flagged),
+            str(s.silent),
+            sci(s.worst_level_error),
+            sci(s.primal_residual.get("p95")),
+            sci(s.dual_residual.get("p95")),
+            sci(s.duality_gap.get("p95")),
+            _fmt(s.time_us.get("median")),
+            _fmt(s.time_us.get("p95")),
+            f"{s.qp_calls_per_step:.2f}",
+        )
+    return table
+
+
+def _write_records_csv(records: list[StepRecord], path: Path) -> None:
+    """qpbenchmark-style results table: problem, solver, settings, runtime, found, residuals, plus our verdict."""
+    import pandas as pd
+
+    rows = [
+        {
+            "problem": r.state,
+            "solver": r.method,
+            "settings": "default",
+            "runtime": r.time_us * 1e-6,
+            "found": r.status != "failed",
+            "primal_residual": r.primal_residual,
+            "dual_residual": r.dual_residual,
+            "duality_gap": r.duality_gap,
+            "state_set": r.state_set,
+            "status": r.status,
+            "verdict": r.verdict,
+            "level": r.level,
+            "worst_level_error": r.worst_error,
+            "flagged": r.flagged,
+            "levels_dropped": r.levels_dropped,
+            "levels_uncertified": r.levels_uncertified,
+            "qp_calls": r.qp_calls,
+            "retries": r.retries,
+        }
+        for r in records
+    ]
+    path.parent.mkdir(parents=True, exist_ok=True)
+    pd.DataFrame(rows).to_csv(path, index=False)
+
+
+def _run_correctness(args: argparse.Namespace, args_list: list[str], console: Console) -> dict[str, Any] | None:
+    from compare.bench.correctness import run_correctness_bench, summarize
+    from compare.bench.qp_reference import REFERENCE_FILE, ReferenceMismatch, load_reference
+
+    try:
+        entries = load_reference()
+    except (FileNotFoundError, ReferenceMismatch) as exc:
+        console.print(f"error: correctness bench: {exc}")
+        return None
+    records = run_correctness_bench(list(args.backends), entries, rounds=args.rounds, tol=args.tolerance)
+    summaries = summarize(records)
+    console.print(
+        correctness_table(
+            summaries,
+            f"Timing vs correctness: HQP backends vs the lexicographic reference (tolerance {args.tolerance:g}, "
+            f"{args.rounds} interleaved rounds)",
+        )
+    )
+    if args.plot is not None:
+        from compare.bench.correctness_plot import plot_time_vs_correctness
+
+        console.print(f"wrote {plot_time_vs_correctness(summaries, records, args.plot, args.tolerance)}")
+    if args.csv is not None:
+        _write_records_csv(records, args.csv)
+        console.print(f"wrote {args.csv}")
+    if args.export_qps is not None:
+        from compare.bench.qp_export import collect_bench_qps, export_test_set
+
+        problems = collect_bench_qps(args.export_method, entries)
+        export_test_set(problems, args.export_qps, "python -m compare.bench " + shlex.join(args_list))
+        console.print(f"wrote {len(problems)} level QPs of {args.export_method} to {args.export_qps}")
+    data = json.loads(REFERENCE_FILE.read_text(encoding="utf-8"))
+    return {
+        "tolerance": args.tolerance,
+        "rounds": args.rounds,
+        "reference": {"file": REFERENCE_FILE.name, "fingerprint": data["fingerprint"], "made_with": data["made_with"]},
+        "summaries": [to_jsonable(s.to_dict()) for s in summaries],
+    }
+
+
 def main(argv: list[str] | None = None) -> int:
     """Run the benchmarks; returns the process exit code."""
     args_list = sys.argv[1:] if argv is None else list(argv)
@@ -116,6 +262,16 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     if not -1 <= args.max_candidates <= 12:
         print("--max-candidates must be in -1..12", file=sys.stderr)
+        return 2
+    if args.rounds < 1:
+        print("--rounds must be >= 1", file=sys.stderr)
+        return 2
+    if not (math.isfinite(args.tolerance) and args.tolerance > 0):
+        print("--tolerance must be a finite number > 0", file=sys.stderr)
+        return 2
+    bad = [b for b in args.backends if not b.startswith("hqp-")]
+    if bad:
+        print(f"--backends takes hqp-<backend> methods only, got {', '.join(bad)}", file=sys.stderr)
         return 2
     robot, description, settings = None, None, None
     if args.config is not None:
@@ -127,7 +283,7 @@ def main(argv: list[str] | None = None) -> int:
             print(f"error: {exc}", file=sys.stderr)
             return 2
         robot, description, settings = config.load_robot(), config.hierarchy_description(), config.methods.settings
-    console = Console(width=max(Console().width, 132))
+    console = Console(width=max(Console().width, 160))
     info = versions()
     console.print(
         f"python {info.get('python')} · numpy {info.get('numpy')} · pin {info.get('pin')} · "
@@ -152,13 +308,20 @@ def main(argv: list[str] | None = None) -> int:
             sens = sensing.run_sensing_bench(args.repeats, robot)
             console.print(_generic_table(sens, "Sensing, one 512×424 frame"))
             rows += sens
+    correctness = None
+    if args.only in (None, "correctness"):
+        correctness = _run_correctness(args, args_list, console)
+        if correctness is None:
+            return 2
     if args.json is not None:
-        payload = {
+        payload: dict[str, Any] = {
             "versions": info,
             "command": "python -m compare.bench " + shlex.join(args_list),
             "robot": robot.name if robot is not None else DEFAULT_ROBOT,
             "results": [r.to_dict() for r in rows],
         }
+        if correctness is not None:
+            payload["correctness"] = correctness
         args.json.parent.mkdir(parents=True, exist_ok=True)
         args.json.write_text(json.dumps(payload, indent=2) + "\n", encoding="utf-8")
         console.print(f"wrote {args.json}")

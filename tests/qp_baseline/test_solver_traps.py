@@ -91,12 +91,18 @@ def test_osqp_defaults_still_violate_constraints_on_the_wall_level_qp(jaco, wall
     assert raw.found and _violation(raw.x, G, h, lb, ub) > max(_violation(ours, G, h, lb, ub), 0.0)
 
 
-def test_loose_osqp_settings_are_caught_by_the_check_and_retried(jaco, wall_level_qp):
+@pytest.mark.parametrize("ours", [False, True], ids=["retried", "polished"])
+def test_loose_osqp_settings_are_caught_by_the_check_and_retried_or_polished(jaco, wall_level_qp, ours):
+    """OSQP at eps 1e-2 without its polish: the certificate rejects the answer; our polish (an exact KKT
+    solve of the active set OSQP found) fixes it at once, or else the retry's settings do."""
     _needs("osqp")
     P, q, G, h, lb, ub = wall_level_qp
-    loose = HqpSolver(jaco, "osqp", {"eps_abs": 1e-2, "eps_rel": 1e-2, "polish": False, "tolerance": 1e-7})
-    x, _, retried = loose.solve_qp(P, q, G, h, lb, ub, np.zeros_like(q))
-    assert retried == 1
+    settings = {"eps_abs": 1e-2, "eps_rel": 1e-2, "polish": False, "tolerance": 1e-7}
+    loose = HqpSolver(jaco, "osqp", {**settings, "kkt_polish": ours})
+    answer = loose.solve_qp(P, q, G, h, lb, ub, np.zeros_like(q))
+    x, _, retried = answer
+    assert answer.certified
+    assert retried == (0 if ours else 1)
     assert _violation(x, G, h, lb, ub) <= 1e-7
 
 
@@ -148,7 +154,9 @@ def test_proxqp_recorded_problem_is_solved_with_our_settings(jaco):
     exact = qpsolvers.solve_problem(qpsolvers.Problem(c.P, c.q, c.G, c.h, lb=c.lb, ub=c.ub), solver="daqp").x
     for settings in ({}, {"initial_guess": "EQUALITY_CONSTRAINED_INITIAL_GUESS"}):
         hqp = HqpSolver(jaco, "proxqp", settings)
-        x, _, _ = hqp.solve_qp(c.P, c.q, c.G, c.h, c.lb, c.ub, x0)
+        answer = hqp.solve_qp(c.P, c.q, c.G, c.h, c.lb, c.ub, x0)
+        x = answer.x
+        assert answer.certified, settings
         assert _violation(x, c.G, c.h, c.lb, c.ub) <= hqp.tolerance
         assert np.max(np.abs(x - exact)) < 1e-5, settings
 
@@ -228,7 +236,9 @@ def test_quadprog_semidefinite_hessian_is_retried_with_regularisation(jaco):
     with pytest.raises(Exception, match="positive definite"):
         qpsolvers.solve_problem(qpsolvers.Problem(P, q, lb=lb, ub=ub), solver="quadprog")
     hqp = HqpSolver(jaco, "quadprog")
-    x, _, retried = hqp.solve_qp(P, q, None, None, lb, ub, np.zeros(7))
+    answer = hqp.solve_qp(P, q, None, None, lb, ub, np.zeros(7))
+    x, _, retried = answer
+    assert answer.certified
     assert retried == 1 and np.all(np.isfinite(x)) and _violation(x, np.zeros((0, 7)), np.zeros(0), lb, ub) <= 0
 
 
@@ -239,6 +249,7 @@ class _Fake:
         self.x = x
         self.found = found
         self.extras: dict[str, object] = {}
+        self.y = self.z = self.z_box = None  # no multipliers: the certificate recovers them
 
 
 @pytest.mark.parametrize(

@@ -1,0 +1,141 @@
+"""The correctness certificate against hand-built QPs with known optima, and against qpsolvers itself."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+import qpsolvers
+
+from qp_baseline.certificate import Tolerances, certify
+
+
+def _halfline() -> tuple[np.ndarray, ...]:
+    """min ½x² − x s.t. x ≤ 0.5: optimum x* = 0.5, f* = −0.375, multiplier z* = 0.5."""
+    return np.eye(1), np.array([-1.0]), np.eye(1), np.array([0.5])
+
+
+def test_the_optimum_with_its_multiplier_is_certified_with_zero_residuals():
+    P, q, G, h = _halfline()
+    cert = certify(P, q, G, h, np.array([0.5]), z=np.array([0.5]))
+    assert cert.passed and cert.multipliers == "backend"
+    assert cert.primal_residual == 0.0 and cert.dual_residual == 0.0 and cert.duality_gap == pytest.approx(0.0)
+    assert cert.objective == pytest.approx(-0.375) and cert.lower_bound == pytest.approx(-0.375)
+
+
+def test_a_feasible_suboptimal_answer_fails_and_its_bound_stays_below_the_optimum():
+    P, q, G, h = _halfline()
+    cert = certify(P, q, G, h, np.array([0.4]), z=np.array([0.6]))  # z consistent with stationarity at 0.4
+    assert not cert.passed and "above the optimum" in cert.reason
+    assert cert.lower_bound <= -0.375 + 1e-12 < cert.objective  # weak duality: a valid bound, f(x) above f*
+
+
+def test_an_infeasible_answer_fails_on_its_primal_residual():
+    P, q, G, h = _halfline()
+    cert = certify(P, q, G, h, np.array([0.6]), z=np.array([0.4]))
+    assert not cert.passed and cert.primal_residual == pytest.approx(0.1) and cert.reason.startswith("primal residual")
+
+
+def test_a_multiplier_of_the_wrong_sign_is_not_trusted_but_recovered():
+    P, q, G, h = _halfline()
+    x = np.array([0.5])
+    wrong = certify(P, q, G, h, x, z=np.array([-0.5]), recover=False)
+    assert not wrong.passed and wrong.dual_residual == pytest.approx(0.5)  # z⁺ = 0: stationarity off by 0.5
+    right = certify(P, q, G, h, x, z=np.array([-0.5]))
+    assert right.passed and right.multipliers == "recovered" and right.dual_residual == pytest.approx(0.0, abs=1e-12)
+
+
+def test_missing_multipliers_are_recovered_on_the_active_set():
+    P, q, G, h = _halfline()
+    cert = certify(P, q, G, h, np.array([0.5]))
+    assert cert.passed and cert.multipliers == "recovered"
+    assert certify(P, q, G, h, np.array([0.5]), recover=False).multipliers == "none"
+
+
+def test_equality_constraint_and_box():
+    # min ½‖x‖² s.t. x₁ + x₂ = 1, 0.6 ≤ x₁: optimum (0.6, 0.4), y* = −0.4, box multiplier on x₁: −0.2.
+    P, q = np.eye(2), np.zeros(2)
+    A, b = np.array([[1.0, 1.0]]), np.array([1.0])
+    lb, ub = np.array([0.6, -1.0]), np.array([1.0, 1.0])
+    x = np.array([0.6, 0.4])
+    cert = certify(P, q, None, None, x, A=A, b=b, lb=lb, ub=ub, y=np.array([-0.4]), z_box=np.array([-0.2, 0.0]))
+    assert cert.passed and cert.dual_residual == pytest.approx(0.0, abs=1e-15)
+    assert cert.lower_bound == pytest.approx(cert.objective)
+    other = certify(P, q, None, None, np.array([0.7, 0.3]), A=A, b=b, lb=lb, ub=ub)  # feasible, not optimal
+    assert not other.passed
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_residuals_equal_qpsolvers_and_the_bound_holds_for_any_multipliers(seed):
+    """On random feasible QPs: our residuals are qpsolvers' (``Solution.primal_residual`` ...), and the
+    lower bound is below the exact optimum whatever nonnegative multipliers are given (weak duality)."""
+    rng = np.random.default_rng(seed)
+    n, m = 5, 6
+    M = rng.normal(size=(n, n))
+    P = M @ M.T + 0.1 * np.eye(n)
+    q = rng.normal(size=n)
+    G = rng.normal(size=(m, n))
+    h = rng.uniform(0.1, 1.0, m)  # x = 0 feasible
+    lb, ub = -np.ones(n), np.ones(n)
+    solution = qpsolvers.solve_problem(qpsolvers.Problem(P, q, G, h, lb=lb, ub=ub), solver="daqp")
+    assert solution.found
+    cert = certify(P, q, G, h, solution.x, lb=lb, ub=ub, z=solution.z, z_box=solution.z_box)
+    assert cert.passed
+    assert cert.primal_residual == pytest.approx(solution.primal_residual(), abs=1e-14)
+    assert cert.dual_residual == pytest.approx(solution.dual_residual(), abs=1e-12)
+    assert cert.duality_gap == pytest.approx(solution.duality_gap(), abs=1e-12)
+    f_star = float(solution.x @ (0.5 * P @ solution.x) + q @ solution.x)
+    for _ in range(20):
+        x = np.clip(rng.normal(size=n) * 0.3, lb, ub)
+        if (G @ x > h).any():
+            continue
+        for z in (rng.uniform(0, 2, m), np.zeros(m)):
+            bound = certify(P, q, G, h, x, lb=lb, ub=ub, z=z, recover=False).lower_bound
+            assert bound <= f_star + 1e-9
+            curved = certify(P, q, G, h, x, lb=lb, ub=ub, z=z, curvature=np.linalg.eigvalsh(P)[0], recover=False)
+            assert curved.lower_bound <= f_star + 1e-9 and curved.lower_bound >= bound - 1e-12
+
+
+def test_level_tolerance_catches_a_slack_above_a_zero_optimum():
+    """A slack-level QP min ½w² s.t. g − w ≤ 0 (x = [g, w], g ∈ [−1, 1]): the optimum needs no slack.
+
+    An answer keeping w = 2.1e-5 (ProxQP's suboptimal "solved" answer of issue 23, in spirit) has an
+    objective error of only 2.2e-10, but a slack 2.1e-5 above the optimum: the level tolerance, in
+    the level's own units, sees it; 1e-7 passes.
+    """
+    P = np.diag([0.0, 1.0])
+    q = np.zeros(2)
+    G = np.array([[1.0, -1.0]])
+    h = np.array([0.0])
+    lb, ub = np.array([-1.0, 0.0]), np.array([1.0, 10.0])
+    tol = Tolerances(level=1e-6)
+    for w, ok in ((2.1e-5, False), (1e-7, True)):
+        x = np.array([w, w])  # the row binds: g = w
+        cert = certify(P, q, G, h, x, lb=lb, ub=ub, level_value=0.5 * w * w, tolerances=tol)
+        assert cert.passed is ok, (w, cert.reason)
+        assert cert.objective == pytest.approx(0.5 * w * w)
+    loose = certify(P, q, G, h, np.array([2.1e-5, 2.1e-5]), lb=lb, ub=ub, tolerances=Tolerances(gap=1e-9))
+    assert loose.passed  # the plain relative gap would have accepted it
+
+
+def test_modulus_judges_the_distance_to_the_optimum():
+    P, q = np.eye(2), np.array([-1.0, -1.0])  # optimum (1, 1) in the box [−2, 2]²
+    lb, ub = -2 * np.ones(2), 2 * np.ones(2)
+    near = certify(P, q, None, None, np.array([1.0, 1.0 + 1e-8]), lb=lb, ub=ub, modulus=1.0)
+    far = certify(P, q, None, None, np.array([1.0, 1.0 + 1e-4]), lb=lb, ub=ub, modulus=1.0)
+    assert near.passed and not far.passed and "distance" in far.reason
+
+
+def test_upper_bound_of_a_known_feasible_point():
+    P, q, G, h = _halfline()
+    cert = certify(P, q, G, h, np.array([0.2]), z=np.array([0.0]), feasible_objective=-0.375)
+    assert not cert.passed and "known feasible point" in cert.reason and cert.upper_bound == -0.375
+
+
+def test_non_finite_answer_and_bad_tolerances():
+    P, q, G, h = _halfline()
+    cert = certify(P, q, G, h, np.array([math.nan]))
+    assert not cert.passed and cert.reason == "non-finite answer"
+    with pytest.raises(ValueError, match="'level'"):
+        Tolerances(level=0.0)
