@@ -14,6 +14,7 @@ from typing import Any
 from rich.table import Table
 from rich.text import Text
 
+from compare.analysis.avoidability import report_lines
 from compare.analysis.metrics import GROUPS
 from compare.analysis.results import load_summary
 
@@ -294,6 +295,7 @@ def render_sweep_report(sweep_dir: Path, command: str | None = None) -> Path:
         " 5.5.4 (formula (1)), with the human speed estimated from the sensing; negative = the arm could not stop"
         " before contact if the person kept coming (compare/analysis/iso15066.py).",
     ]
+    out += report_lines(summary)  # avoidable / unavoidable obstacle violations (oracle)
     failed = summary.get("failed_runs") or []
     if failed:
         out += ["", "## Failed runs", ""] + [f"- {line}" for line in failed[:50]]

@@ -21,6 +21,7 @@ from typing import Any
 
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
 
+from compare.analysis.avoidability import has_oracle, oracle_sweep_summary
 from compare.analysis.results import (
     SWEEP_SUMMARY_FILE,
     collect_sweep,
@@ -55,7 +56,7 @@ def sweep_jobs(
     skipped = 0
     for i in range(n):
         run_dir = sweep_run_dir(out_dir, i)
-        if is_finished(run_dir, names):
+        if is_finished(run_dir, names) and (not config.oracle.enabled or has_oracle(run_dir)):
             skipped += 1
             continue
         jobs.append(Job(_seeded(config, config.scenario.seed + i, methods), config_text, run_dir))
@@ -130,6 +131,11 @@ def run_sweep(
     }
     if failures:
         summary["failed_runs"] = failures
+    split = oracle_sweep_summary(out_dir)
+    if split is not None:  # avoidable / unavoidable obstacle violations (compare.analysis.avoidability)
+        summary["oracle"] = split["oracle"]
+        for name, extra in split["methods"].items():
+            summary["methods"].setdefault(name, {}).update(extra)
     write_json_atomic(out_dir / SWEEP_SUMMARY_FILE, summary)
     if report:
         try:
