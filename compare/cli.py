@@ -10,9 +10,12 @@ import logging
 import os
 import sys
 from pathlib import Path
-from typing import Annotated
+from typing import TYPE_CHECKING, Annotated
 
 import typer
+
+if TYPE_CHECKING:
+    from compare.config import Config
 
 os.environ.setdefault("MUJOCO_GL", "egl")
 
@@ -87,6 +90,20 @@ OracleOpt = Annotated[
 ]
 
 
+def _select_methods(cfg: Config, methods: list[str] | None) -> Config:
+    """``cfg`` with only ``methods`` (and their settings) when given; raises ConfigError."""
+    if not methods:
+        return cfg
+    from compare.config import parse_config
+
+    data = cfg.model_dump(mode="python")
+    data["methods"] = {
+        "names": list(methods),
+        "settings": {k: v for k, v in cfg.methods.settings.items() if k in methods},
+    }
+    return parse_config(data)
+
+
 def _with_oracle(overrides: dict[str, object], oracle: bool | None) -> dict[str, object]:
     if oracle is not None:
         overrides["oracle.enabled"] = oracle
@@ -114,15 +131,7 @@ def run(
     overrides = _with_oracle(_overrides(duration, time_scale, sensing, simulation, drive), oracle)
     try:
         cfg, text = load_config(config, overrides)
-        if methods:
-            from compare.config import parse_config
-
-            data = cfg.model_dump(mode="python")
-            data["methods"] = {
-                "names": list(methods),
-                "settings": {k: v for k, v in cfg.methods.settings.items() if k in methods},
-            }
-            cfg = parse_config(data)
+        cfg = _select_methods(cfg, methods)
     except ConfigError as exc:
         _fail(str(exc))
         return
@@ -224,7 +233,7 @@ def critical_speed(
 ) -> None:
     """Sweep the person's approach speed on a case's geometry: each method's critical speed."""
     from compare.campaign.critical_speed import run_critical_speed
-    from compare.config import ConfigError, load_config, parse_config
+    from compare.config import ConfigError, load_config
 
     overrides = _with_oracle(_overrides(duration, time_scale, sensing or "geometric", simulation, drive), oracle)
     try:
@@ -233,14 +242,7 @@ def critical_speed(
         _fail(f"--speeds: comma-separated numbers expected, got '{speeds}'")
         return
     try:
-        cfg, _ = load_config(config, overrides)
-        if methods:
-            data = cfg.model_dump(mode="python")
-            data["methods"] = {
-                "names": list(methods),
-                "settings": {k: v for k, v in cfg.methods.settings.items() if k in methods},
-            }
-            cfg = parse_config(data)
+        cfg = _select_methods(load_config(config, overrides)[0], methods)
         result = run_critical_speed(cfg, out, values, seeds, spread_deg, shift_s, workers=workers, progress=not quiet)
     except ConfigError as exc:
         _fail(str(exc))
