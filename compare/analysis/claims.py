@@ -503,7 +503,7 @@ def claims_report(paths: Sequence[Path], labels: Sequence[str] | None = None) ->
 
     A run directory gives one column (the config's own speeds, stated in the label); a
     critical-speed directory one column with each method at its own critical speed (read from
-    ``claims_at_critical.json``).
+    ``claims_at_critical.json``; "none held" and the slowest swept speed when no speed held).
 
     Raises:
         FileNotFoundError: A path is neither kind of directory.
@@ -526,7 +526,9 @@ def claims_report(paths: Sequence[Path], labels: Sequence[str] | None = None) ->
             for name, entry in stored.items():
                 v = entry.get("speed_mps")
                 claims = [_claim_from_dict(c) for c in entry.get("claims") or []]
-                prefix = f"[{v:.2g} m/s] " if v is not None else ""
+                prefix = ""
+                if v is not None:
+                    prefix = f"[{v:.2g} m/s] " if entry.get("critical") else f"[none held; {v:.2g} m/s] "
                 per_method[name] = [Claim(c.key, c.claim, c.holds, prefix + c.measured, c.values) for c in claims] or [
                     Claim("critical", "critical speed", False, "no speed held", {})
                 ]

@@ -26,6 +26,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 from matplotlib.axes import Axes
+from matplotlib.figure import Figure
 
 from compare.analysis.claims import activated
 from compare.analysis.plots import (
@@ -72,7 +73,7 @@ def _frame(ax: Axes, ylabel: str | None, col: int) -> None:
         ax.set_ylabel(ylabel)
 
 
-def _fig_ee_error(data: list[tuple[str, pd.DataFrame]], ctx: Any, path: Path) -> Path:
+def _fig_ee_error(data: list[tuple[str, pd.DataFrame]], ctx: Any) -> Figure:
     fig, axes = _grid(1, len(data), 2.8)
     for col, (name, steps) in enumerate(data):
         ax = axes[0, col]
@@ -86,10 +87,10 @@ def _fig_ee_error(data: list[tuple[str, pd.DataFrame]], ctx: Any, path: Path) ->
     fig.suptitle("Fig. 3 (case 1): end-effector position error")
     if len(data):
         axes[0, 0].legend(fontsize="small", loc="upper right")
-    return _save(fig, path)
+    return fig
 
 
-def _fig_distances(data: list[tuple[str, pd.DataFrame]], ctx: Any, path: Path, title: str) -> Path:
+def _fig_distances(data: list[tuple[str, pd.DataFrame]], ctx: Any, title: str) -> Figure:
     tasks = ctx.group("obstacles")
     fig, axes = _grid(len(tasks), len(data), 1.9)
     for col, (name, steps) in enumerate(data):
@@ -118,10 +119,10 @@ def _fig_distances(data: list[tuple[str, pd.DataFrame]], ctx: Any, path: Path, t
         axes[-1, col].set_xlabel("t [s]")
     fig.suptitle(title)
     axes[0, 0].legend(fontsize="x-small", loc="upper right")
-    return _save(fig, path)
+    return fig
 
 
-def _fig_joints(data: list[tuple[str, pd.DataFrame]], ctx: Any, path: Path, title: str) -> Path:
+def _fig_joints(data: list[tuple[str, pd.DataFrame]], ctx: Any, title: str) -> Figure:
     tasks = ctx.group("joint_limits")
     fig, axes = _grid(len(tasks), len(data), 1.8)
     for col, (name, steps) in enumerate(data):
@@ -138,10 +139,10 @@ def _fig_joints(data: list[tuple[str, pd.DataFrame]], ctx: Any, path: Path, titl
                 ax.set_title(name)
         axes[-1, col].set_xlabel("t [s]")
     fig.suptitle(title)
-    return _save(fig, path)
+    return fig
 
 
-def _fig_ee_walls(data: list[tuple[str, pd.DataFrame]], ctx: Any, path: Path) -> Path:
+def _fig_ee_walls(data: list[tuple[str, pd.DataFrame]], ctx: Any) -> Figure:
     from compare.analysis.metrics import SetTaskInfo
 
     walls = ctx.group("walls")
@@ -156,6 +157,8 @@ def _fig_ee_walls(data: list[tuple[str, pd.DataFrame]], ctx: Any, path: Path) ->
             if row == 0:
                 ax.set_title(name)
         for wall in walls:
+            if f"sigma:{wall.name}" not in steps.columns:
+                continue
             info = SetTaskInfo(wall.name, "walls", -np.inf, wall.safety_lower, wall.safety_upper, np.inf)
             found = wall_axis(steps, info)
             if found is None:
@@ -165,10 +168,10 @@ def _fig_ee_walls(data: list[tuple[str, pd.DataFrame]], ctx: Any, path: Path) ->
             _band(axes[a, col], t, activated(steps, wall), ACTIVE_STYLE)
         axes[-1, col].set_xlabel("t [s]")
     fig.suptitle("Fig. 8 (case 2): end-effector position and the virtual walls")
-    return _save(fig, path)
+    return fig
 
 
-def _fig_ee_path(data: list[tuple[str, pd.DataFrame]], ctx: Any, config: Any, path: Path) -> Path:
+def _fig_ee_path(data: list[tuple[str, pd.DataFrame]], ctx: Any, config: Any) -> Figure:
     """Top view of the EE path while the person is in, the waypoints and the person."""
     from compare.sensing.person import Person
     from compare.sensing.scene import load_workcell
@@ -198,7 +201,7 @@ def _fig_ee_path(data: list[tuple[str, pd.DataFrame]], ctx: Any, config: Any, pa
             ax.set_ylabel("y [m]")
             ax.legend(fontsize="x-small", loc="lower left")
     fig.suptitle("Case 1, top view: end-effector path while the person is in (× waypoints)")
-    return _save(fig, path)
+    return fig
 
 
 def _circle(xy: Sequence[float], r: float, color: str, label: str) -> Any:
@@ -207,22 +210,25 @@ def _circle(xy: Sequence[float], r: float, color: str, label: str) -> Any:
     return Circle((xy[0], xy[1]), r, color=color, alpha=0.3, label=label)
 
 
-def plot_paper_figures(results_dir: Path) -> list[Path]:
-    """The paper-style figures of a case-1 or case-2 run directory (module docstring); [] otherwise."""
+def paper_figures(results_dir: Path) -> dict[str, Figure]:
+    """The paper-style figures of a case-1 or case-2 run directory (module docstring), by file stem.
+
+    Empty for a run that is not a scripted case (or whose ``config.toml`` does not load).
+    """
     from compare.analysis.claims import context_from_config
     from compare.config import ConfigError, load_config
 
     results_dir = Path(results_dir)
     if not (results_dir / "config.toml").is_file():
-        return []
+        return {}
     try:
         config, _ = load_config(results_dir / "config.toml")
     except ConfigError as exc:
         log.warning("paper figures: %s", exc)
-        return []
+        return {}
     ctx = context_from_config(config)
     if ctx is None:
-        return []
+        return {}
     data = []
     for name in load_summary(results_dir).get("methods") or {}:
         try:
@@ -230,25 +236,30 @@ def plot_paper_figures(results_dir: Path) -> list[Path]:
         except FileNotFoundError:
             continue
     if not data:
-        return []
-    out = results_dir / PLOTS_DIR
+        return {}
     if ctx.kind == "case1":
-        jobs = [
-            lambda: _fig_ee_error(data, ctx, out / "paper_fig3_ee_error.png"),
-            lambda: _fig_distances(data, ctx, out / "paper_fig4_distances.png", "Fig. 4 (case 1): distances"),
-            lambda: _fig_joints(data, ctx, out / "paper_fig5_joints.png", "Fig. 5 (case 1): joints and thresholds"),
-            lambda: _fig_ee_path(data, ctx, config, out / "paper_ee_path.png"),
-        ]
+        builders = {
+            "paper_fig3_ee_error": lambda: _fig_ee_error(data, ctx),
+            "paper_fig4_distances": lambda: _fig_distances(data, ctx, "Fig. 4 (case 1): distances"),
+            "paper_fig5_joints": lambda: _fig_joints(data, ctx, "Fig. 5 (case 1): joints and thresholds"),
+            "paper_ee_path": lambda: _fig_ee_path(data, ctx, config),
+        }
     else:
-        jobs = [
-            lambda: _fig_ee_walls(data, ctx, out / "paper_fig8_ee_walls.png"),
-            lambda: _fig_distances(data, ctx, out / "paper_fig9_distances.png", "Fig. 9 (case 2): distances"),
-            lambda: _fig_joints(data, ctx, out / "paper_fig10_joints.png", "Fig. 10 (case 2): joints and thresholds"),
-        ]
-    paths = []
-    for job in jobs:
+        builders = {
+            "paper_fig8_ee_walls": lambda: _fig_ee_walls(data, ctx),
+            "paper_fig9_distances": lambda: _fig_distances(data, ctx, "Fig. 9 (case 2): distances"),
+            "paper_fig10_joints": lambda: _fig_joints(data, ctx, "Fig. 10 (case 2): joints and thresholds"),
+        }
+    figures = {}
+    for name, build in builders.items():
         try:
-            paths.append(job())
+            figures[name] = build()
         except Exception as exc:  # one bad figure must not cost the others
-            log.warning("paper figure failed: %s", exc)
-    return paths
+            log.warning("paper figure %s failed: %s", name, exc)
+    return figures
+
+
+def plot_paper_figures(results_dir: Path) -> list[Path]:
+    """Write :func:`paper_figures` of a run directory to ``plots/<name>.png``; returns the files."""
+    out = Path(results_dir) / PLOTS_DIR
+    return [_save(fig, out / f"{name}.png") for name, fig in paper_figures(results_dir).items()]

@@ -28,6 +28,7 @@ def plot_critical_speed(out_dir: Path) -> Path:
     fig, axes = _figure(height_in=4.8, width_in=9.0)
     ax = axes[0, 0]
     colors = _colors(list(result))
+    speeds = detail.get("speeds_mps") or list(TORSO_RANGE_MPS)
     for name, entry in result.items():
         color = colors[name]
         xs = [r["speed_mps"] for r in detail.get("runs", []) if name in r["methods"]]
@@ -38,7 +39,7 @@ def plot_critical_speed(out_dir: Path) -> Path:
         curve = [(v, d) for v, d in entry["curve"] if d is not None]
         crit = entry.get("safety_mps")
         phys = entry.get("physical_mps")
-        label = f"{name} (critical: safety {_speed(crit)}, physical {_speed(phys)})"
+        label = f"{name} (critical: safety {_speed(crit, speeds)}, physical {_speed(phys, speeds)})"
         if curve:
             ax.plot(*zip(*curve, strict=True), marker="o", markersize=4, color=color, label=label)
     oracle = detail.get("oracle")
@@ -51,19 +52,24 @@ def plot_critical_speed(out_dir: Path) -> Path:
                 linestyle="--",
                 marker="s",
                 markersize=3,
-                label=f"clairvoyant oracle (critical {_speed(oracle.get('safety_mps'))})",
+                label=f"clairvoyant oracle (critical {_speed(oracle.get('safety_mps'), speeds)})",
             )
     thresholds = _thresholds(out_dir)
     if thresholds[0] is not None:
         ax.axhline(thresholds[0], label=f"safety threshold {thresholds[0]:g} m", **SAFETY_STYLE)
     if thresholds[1] is not None:
         ax.axhline(thresholds[1], label=f"physical threshold {thresholds[1]:g} m", **PHYSICAL_STYLE)
+    gain = detail.get("obstacle_gain_per_s")
+    if gain and thresholds[0] is not None:
+        fine = np.geomspace(min(speeds), max(speeds), 60)
+        lag = np.maximum(thresholds[0] - _torso_to_hand(fine) / gain, 0.0)
+        ax.plot(fine, lag, color="0.3", linestyle=":", linewidth=1.2, label=f"σ_s − v_hand/K (K = {gain:g} 1/s)")
     bounds = detail.get("kinematic_bound_mps") or {}
     for k, (cp, v) in enumerate(sorted(bounds.items(), key=lambda kv: kv[1])):
         ax.axvline(v, color="0.45", linestyle=(0, (4, 2 + 2 * k)), linewidth=1.0)
         ax.annotate(
             f"{cp} retreat ≤ {v:.2f} m/s",
-            (v, 1.0),
+            (v, 1.0 - 0.22 * k),
             xycoords=("data", "axes fraction"),
             rotation=90,
             va="top",
@@ -72,9 +78,7 @@ def plot_critical_speed(out_dir: Path) -> Path:
             color="0.35",
         )
     ax.set_xscale("log")
-    lo, hi = TORSO_RANGE_MPS
-    speeds = detail.get("speeds_mps") or [lo, hi]
-    ax.set_xlim(min(speeds) / 1.15, max(max(speeds), max(bounds.values(), default=hi)) * 1.15)
+    ax.set_xlim(min(speeds) / 1.15, max(max(speeds), max(bounds.values(), default=max(speeds))) * 1.15)
     ax.set_xticks(speeds)
     ax.set_xticklabels([f"{v:.2g}" for v in speeds], fontsize="small")
     ax.minorticks_off()
@@ -88,12 +92,15 @@ def plot_critical_speed(out_dir: Path) -> Path:
     ax.grid(alpha=0.3)
     ax.legend(fontsize="x-small", loc="lower left")
     n_dirs = len(detail.get("directions") or [])
-    ax.set_title(f"{detail.get('scenario', '')}: critical approach speed ({n_dirs} directions per speed)")
+    per = f"{n_dirs} direction{'s' if n_dirs != 1 else ''} per speed"
+    ax.set_title(f"{detail.get('scenario', '')}: critical approach speed ({per}, {detail.get('sensing', '?')} sensing)")
     return _save(fig, out_dir / PLOT_FILE)
 
 
-def _speed(v: float | None) -> str:
-    return "none" if v is None else f"{v:.2g} m/s"
+def _speed(v: float | None, speeds: list[float]) -> str:
+    if v is None:
+        return "none"
+    return f"≥ {v:.2g} m/s (all held)" if v >= max(speeds) - 1e-12 else f"{v:.2g} m/s"
 
 
 def _torso_to_hand(x: np.ndarray) -> np.ndarray:

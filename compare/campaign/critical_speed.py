@@ -25,7 +25,13 @@ failed, the top speed when none failed. ``DIR/critical_speed.json`` (DESIGN §7)
 holds the rest: speeds, hand speeds, directions, every run, the kinematic bound, the oracle's curve
 (with ``--oracle``), the command and versions. ``critical_speed.png`` plots it;
 ``claims_at_critical.json`` holds the paper's claims (:mod:`compare.analysis.claims`) measured on
-each method's seed-0 run at its critical speed.
+each method's seed-0 run at its critical speed (at the slowest swept speed when none held).
+
+**Reactive lag.** A velocity-level set-based obstacle task with gain K asks the control point
+for :math:`\dot\sigma = K(\sigma_s - \sigma)` (TPIK: the task inserted with the safety threshold as
+its target, eq. 7; HQP: the bound :math:`J\dot q \ge -K(\sigma - \sigma_s)`), with no feed-forward of the
+person's motion. A person point closing in at speed v then holds σ at :math:`\sigma_s - v/K` once the
+task acts: the plot draws :math:`\sigma_s - v_{hand}/K` for comparison.
 
 **Kinematic bound.** At the configuration of the arm when the person starts to approach, the
 fastest a control point c can move along the approach direction u within the joint velocity limits
@@ -475,6 +481,7 @@ def _write_results(
         "directions": [{"seed": d.seed, "angle_deg": math.degrees(d.angle_rad), "shift_s": d.shift_s} for d in dirs],
         "sensing": config.scenario.sensing,
         "kinematic_bound_mps": bounds,
+        "obstacle_gain_per_s": _obstacle_gain(config, robot),
         "oracle": oracle_curve,
         "runs": runs,
         "failed_runs": failures,
@@ -492,6 +499,12 @@ def _write_results(
     except Exception as exc:  # plots must never lose the results
         log.warning("critical-speed plot failed: %s", exc)
     return result
+
+
+def _obstacle_gain(config: Config, robot: robots.Robot) -> float | None:
+    """Gain K of the obstacle tasks [1/s] (the smallest, when they differ)."""
+    gains = [t.gain for t in config.build_hierarchy(robot).set_tasks if isinstance(t, ObstacleDistanceTask)]
+    return min(gains) if gains else None
 
 
 def _oracle_curve(runs: Sequence[dict[str, Any]], n_dirs: int) -> dict[str, Any] | None:
@@ -512,20 +525,26 @@ def _oracle_curve(runs: Sequence[dict[str, Any]], n_dirs: int) -> dict[str, Any]
 
 
 def _write_claims(out_dir: Path, result: dict[str, Any], plan: Sequence[_Run]) -> None:
-    """The paper's claims on each method's seed-0 run at its critical (safety) speed."""
+    """The paper's claims on each method's seed-0 run at its critical (safety) speed.
+
+    When no swept speed held (critical speed ``None``) the claims are measured at the slowest
+    swept speed instead, with ``"critical": false``.
+    """
     from compare.analysis.claims import claims_for_run
 
     out: dict[str, Any] = {}
+    slowest = min((r.speed for r in plan), default=None)
     for name, entry in result.items():
-        v = entry["safety_mps"]
+        v = entry["safety_mps"] if entry["safety_mps"] is not None else slowest
         run = next((r for r in plan if r.direction.seed == 0 and v is not None and math.isclose(r.speed, v)), None)
         if run is None or not (run.run_dir / "summary.json").is_file():
-            out[name] = {"speed_mps": v, "run": None, "claims": []}
+            out[name] = {"speed_mps": v, "critical": entry["safety_mps"] is not None, "run": None, "claims": []}
             continue
         claims = claims_for_run(run.run_dir, [name]).get(name, [])
         out[name] = {
             "speed_mps": v,
             "hand_speed_mps": hand_speed(v),
+            "critical": entry["safety_mps"] is not None,
             "run": run.run_dir.relative_to(out_dir).as_posix(),
             "claims": [c.to_dict() for c in claims],
         }

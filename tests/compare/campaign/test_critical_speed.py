@@ -150,6 +150,11 @@ def test_critical_speed_two_speeds_end_to_end(tmp_path, jaco):
     assert (out / "critical_speed.png").stat().st_size > 10_000
     claims = json.loads((out / "claims_at_critical.json").read_text())
     assert claims["tpik"]["speed_mps"] == result["tpik"]["safety_mps"]
+    table = CliRunner().invoke(app, ["claims", str(out), "--out", str(tmp_path / "claims.md")])
+    assert table.exit_code == 0, table.output
+    text = (tmp_path / "claims.md").read_text()
+    assert "each method's critical speed" in text and "| tpik |" in text
+    assert json.loads((tmp_path / "claims.json").read_text())
     stamp = (out / "runs" / "v0.300-s0" / "summary.json").stat().st_mtime_ns
     assert CliRunner().invoke(app, args).exit_code == 0
     assert (out / "runs" / "v0.300-s0" / "summary.json").stat().st_mtime_ns == stamp  # resumed, not redone
