@@ -18,6 +18,7 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_valida
 import robots
 from tpik.exceptions import TpikError
 from tpik.hierarchy import Hierarchy
+from tpik.tasks import ObstacleDistanceTask
 
 
 class ConfigError(ValueError):
@@ -555,11 +556,13 @@ def parse_config(data: dict[str, Any], robot: robots.Robot | None = None) -> Con
         raise ConfigError(_format_validation_error(exc)) from None
     robot = robot or robots.load("jaco2")
     try:
-        config.build_hierarchy(robot)
+        hierarchy = config.build_hierarchy(robot)
     except TpikError as exc:
         raise ConfigError(f"levels: {exc}") from None
     except robots.RobotError as exc:
         raise ConfigError(f"levels: {exc}") from None
+    if config.oracle.enabled and not any(isinstance(t, ObstacleDistanceTask) for t in hierarchy.set_tasks):
+        raise ConfigError("oracle.enabled: the hierarchy has no obstacle_distance task for the oracle to keep")
     _check_methods(config, robot)
     return config
 

@@ -194,3 +194,5 @@ def test_oracle_settings_are_checked():
         parse_config({"levels": LEVELS, "oracle": {"avoidable_only": True}})
     with pytest.raises(ConfigError, match="unknown QP solver"):
         parse_config({"levels": LEVELS, "oracle": {"solver": "nope"}})
+    with pytest.raises(ConfigError, match="oracle.enabled: the hierarchy has no obstacle_distance task"):
+        parse_config({"levels": [LEVELS[0], LEVELS[3]], "oracle": {"enabled": True}})
