@@ -12,8 +12,10 @@ Case 1 (Sec. IV-B, Figs. 3–5):
 
 * ``c1_obstacle_tasks``: the wrist and hand obstacle tasks (second and third control points)
   activate while the person is in, and only those two;
-* ``c1_arm_stops``: the arm stops while they are active: from 1 s after the first activation to
-  the person leaving, the EE moves at a mean speed below 1 cm/s and reaches no waypoint;
+* ``c1_arm_stops``: the arm stops while they are active: from 1 s after the person has arrived and
+  a task has activated to the person leaving, the EE makes no progress (median over 1 s windows of
+  its net displacement below 2 cm/s; chatter in place is path, not progress) and reaches no
+  waypoint (the position error stays high, Fig. 3);
 * ``c1_distances``: every control point stays beyond the obstacle safety threshold (0.35 m);
 * ``c1_joint4_limit``: the joint-4 limit task activates and joint 4 stays within its safety
   thresholds;
@@ -46,8 +48,10 @@ from compare.analysis.metrics import VIOLATION_TOLERANCE, margins
 
 SETTLE_S = 1.0
 """Time after the first obstacle activation before "the arm stops" is measured [s]."""
-STOPPED_SPEED_MPS = 0.01
-"""Mean EE speed below which the arm counts as stopped [m/s]."""
+STOPPED_SPEED_MPS = 0.02
+"""EE progress (median over 1 s windows of the net displacement) below which the arm has stopped [m/s]."""
+STOP_WINDOW_S = 1.0
+"""Window of the net EE displacement [s]: a controller chattering in place makes path, no progress."""
 DEACTIVATION_GRACE_S = 2.0
 """Time after the person's last keyframe within which the obstacle tasks must be inactive [s]."""
 
@@ -309,21 +313,36 @@ def _c1_arm_stops(steps: pd.DataFrame, ctx: ClaimContext) -> Claim:
     first = _first_obstacle_activation(steps, ctx)
     if first is None:
         return Claim("c1_arm_stops", text, False, "no obstacle task activated", {})
-    t0, t1 = first + SETTLE_S, ctx.person.t_leave
+    t0, t1 = max(first, ctx.person.t_in) + SETTLE_S, ctx.person.t_leave
     if t1 <= t0:
         return Claim("c1_arm_stops", text, False, f"first activation at {first:.1f} s, too late to stop", {})
     mask = _window(steps, t0, t1)
     path = _ee_path_m(steps, mask)
     speed = path / (t1 - t0)
+    ee = np.column_stack([_col(steps, f"ee_{a}") for a in "xyz"])[mask]
+    t = _col(steps, "t")[mask]
+    net = []  # net EE displacement over each second of the window [m/s]: progress, not chatter
+    for start in np.arange(t0, t1 - STOP_WINDOW_S + 1e-9, STOP_WINDOW_S):
+        inside = np.flatnonzero((t >= start) & (t <= start + STOP_WINDOW_S))
+        if inside.size > 1:
+            net.append(float(np.linalg.norm(ee[inside[-1]] - ee[inside[0]])) / STOP_WINDOW_S)
+    progress = float(np.median(net)) if net else 0.0
     wp = steps["waypoint"].to_numpy()[mask] if "waypoint" in steps.columns else np.zeros(1)
     switches = int(np.count_nonzero(wp[1:] != wp[:-1])) if wp.size > 1 else 0
-    holds = speed < STOPPED_SPEED_MPS and switches == 0
+    holds = progress < STOPPED_SPEED_MPS and switches == 0
     return Claim(
         "c1_arm_stops",
         text,
         holds,
-        f"EE moved {path:.2f} m in {t0:.1f}–{t1:.1f} s ({100.0 * speed:.1f} cm/s), {switches} waypoint switches",
-        {"ee_path_m": path, "mean_speed_mps": speed, "waypoint_switches": switches, "window_s": [t0, t1]},
+        f"{t0:.1f}–{t1:.1f} s: EE progress {100.0 * progress:.1f} cm/s (median of 1 s), path"
+        f" {100.0 * speed:.1f} cm/s; {switches} waypoint switches",
+        {
+            "ee_path_m": path,
+            "mean_speed_mps": speed,
+            "median_progress_mps": progress,
+            "waypoint_switches": switches,
+            "window_s": [t0, t1],
+        },
     )
 
 

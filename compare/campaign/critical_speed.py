@@ -473,6 +473,13 @@ def _write_results(
         result[name] = {"safety_mps": critical(safety), "physical_mps": critical(physical), "curve": curve}
     oracle_curve = _oracle_curve(runs, len(dirs))
     write_json_atomic(out_dir / CRITICAL_SPEED_FILE, to_jsonable(result))
+    previous: dict[str, Any] = {}
+    if (out_dir / DETAIL_FILE).is_file():  # a resumed or re-aggregated sweep adds to what was run
+        try:
+            previous = json.loads((out_dir / DETAIL_FILE).read_text(encoding="utf-8"))
+        except ValueError:
+            previous = {}
+    this_command = command or " ".join(shlex.quote(a) for a in sys.argv)
     detail = {
         "scenario": config.scenario.name,
         "kind": config.scenario.kind,
@@ -485,9 +492,9 @@ def _write_results(
         "oracle": oracle_curve,
         "runs": runs,
         "failed_runs": failures,
-        "wall_time_s": wall_s,
-        "runs_executed": executed,
-        "command": command or " ".join(shlex.quote(a) for a in sys.argv),
+        "wall_time_s": wall_s + float(previous.get("wall_time_s") or 0.0),
+        "runs_executed": executed + int(previous.get("runs_executed") or 0),
+        "command": previous.get("command", this_command) if executed == 0 else this_command,
         "versions": run_versions(),
     }
     write_json_atomic(out_dir / DETAIL_FILE, to_jsonable(detail))

@@ -86,8 +86,16 @@ def test_case1_each_claim_fails_on_its_own_defect():
 
     moving = steps.assign(ee_x=0.05 * steps.t)  # keeps going at 5 cm/s
     stops = _by_key(moving, ctx)["c1_arm_stops"]
-    assert not stops.holds and stops.values["mean_speed_mps"] == pytest.approx(0.05, rel=1e-3)
-    assert stops.values["window_s"] == pytest.approx([4.0, 6.0])  # 1 s after the first activation (3 s)
+    assert not stops.holds and stops.values["median_progress_mps"] == pytest.approx(0.05, rel=1e-3)
+    assert stops.values["window_s"] == pytest.approx([4.0, 6.0])  # 1 s after arrival and activation (3 s)
+    creeping = steps.assign(ee_x=np.where(steps.t < 4.5, 0.5 * steps.t, 2.25))  # moves 0.5 s, then still
+    slow = _by_key(creeping, ctx)["c1_arm_stops"]
+    assert not slow.holds  # one of the two 1 s windows progressed by 0.25 m: median 0.125 m/s
+    chatter = steps.assign(ee_x=0.32 + 0.02 * np.sin(2 * np.pi * 5 * steps.t))  # 5 Hz, ±2 cm, in place
+    shaking = _by_key(chatter, ctx)["c1_arm_stops"]
+    assert shaking.holds and shaking.values["mean_speed_mps"] > 0.3  # lots of path, no progress
+    around = moving.assign(waypoint=np.where(moving.t < 5.0, 1, 0))
+    assert not _by_key(around.assign(ee_x=steps.ee_x), ctx)["c1_arm_stops"].holds  # reached a waypoint
 
     close = steps.assign(**{"truth:obstacle_link_6": np.where(steps.t.between(4, 4.5), 0.34, 0.9)})
     dist = _by_key(close, ctx)["c1_distances"]
