@@ -152,7 +152,8 @@ def test_critical_speed_two_speeds_end_to_end(tmp_path, jaco):
     crit = result["tpik"]["safety_mps"]
     assert claims["tpik"]["critical"] is (crit is not None)
     assert claims["tpik"]["speed_mps"] == pytest.approx(crit if crit is not None else 0.3)  # else the slowest
-    assert {c["key"] for c in claims["tpik"]["claims"]} == {"c2_inside_box", "c2_distances", "c2_joint_limits", "c2_returns"}
+    keys = {c["key"] for c in claims["tpik"]["claims"]}
+    assert keys == {"c2_inside_box", "c2_distances", "c2_joint_limits", "c2_returns"}
     table = CliRunner().invoke(app, ["claims", str(out), "--out", str(tmp_path / "claims.md")])
     assert table.exit_code == 0, table.output
     text = (tmp_path / "claims.md").read_text()
