@@ -395,7 +395,7 @@ class ClairvoyantOracle:
         self.qp_calls += 1
         try:
             solution = qpsolvers.solve_problem(problem, solver=cfg.solver)
-        except (ValueError, ArithmeticError, qpsolvers.SolverError) as exc:
+        except (ValueError, ArithmeticError, qpsolvers.QPError) as exc:  # a failed QP: keep the best plan
             log.debug("oracle QP raised %s", exc)
             solution = None
         x = None if solution is None or not solution.found else solution.x
