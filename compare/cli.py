@@ -13,7 +13,7 @@ import os
 import sys
 from collections.abc import Callable
 from pathlib import Path
-from typing import Annotated, Any, TypeVar
+from typing import TYPE_CHECKING, Annotated, Any, TypeVar
 
 import typer
 
@@ -21,6 +21,9 @@ from compare.exceptions import CompareError
 from qp_baseline.exceptions import HqpError
 from robots.exceptions import RobotError
 from tpik.exceptions import TpikError
+
+if TYPE_CHECKING:
+    from compare.config import Config
 
 os.environ.setdefault("MUJOCO_GL", "egl")
 
@@ -143,6 +146,34 @@ DriveOpt = Annotated[
         help="Override scenario.drive of dynamic simulation: decoupled (inverse dynamics) | servo (MJCF P servos).",
     ),
 ]
+OracleOpt = Annotated[
+    bool | None,
+    typer.Option(
+        "--oracle/--no-oracle",
+        help="Override oracle.enabled: the clairvoyant reference that splits obstacle violations into"
+        " avoidable / unavoidable.",
+    ),
+]
+
+
+def _select_methods(cfg: Config, methods: list[str] | None) -> Config:
+    """``cfg`` with only ``methods`` (and their settings) when given; raises ConfigError."""
+    if not methods:
+        return cfg
+    from compare.config import parse_config
+
+    data = cfg.model_dump(mode="python")
+    data["methods"] = {
+        "names": list(methods),
+        "settings": {k: v for k, v in cfg.methods.settings.items() if k in methods},
+    }
+    return parse_config(data)
+
+
+def _with_oracle(overrides: dict[str, object], oracle: bool | None) -> dict[str, object]:
+    if oracle is not None:
+        overrides["oracle.enabled"] = oracle
+    return overrides
 
 
 @app.command()
@@ -158,6 +189,7 @@ def run(
     plots: Annotated[bool, typer.Option(help="Write the plots after the run.")] = True,
     quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress bar.")] = False,
     overwrite: OverwriteRunOpt = False,
+    oracle: OracleOpt = None,
 ) -> None:
     """Run one scenario with every selected method; write summary.json, per-step tables, plots.
 
@@ -169,17 +201,10 @@ def run(
     from compare.config import ConfigError, load_config
     from compare.run import run_scenario
 
+    overrides = _with_oracle(_overrides(duration, time_scale, sensing, simulation, drive), oracle)
     try:
-        cfg, text = load_config(config, _overrides(duration, time_scale, sensing, simulation, drive))
-        if methods:
-            from compare.config import parse_config
-
-            data = cfg.model_dump(mode="python")
-            data["methods"] = {
-                "names": list(methods),
-                "settings": {k: v for k, v in cfg.methods.settings.items() if k in methods},
-            }
-            cfg = parse_config(data)
+        cfg, text = load_config(config, overrides)
+        cfg = _select_methods(cfg, methods)
     except ConfigError as exc:
         _fail(str(exc))
         return
@@ -238,6 +263,7 @@ def sweep(
             "(run, method) pairs are kept, missing ones run; another config, plant, seed or version is refused.",
         ),
     ] = False,
+    oracle: OracleOpt = None,
 ) -> None:
     """Run a randomized batch in parallel; re-running the same command resumes it.
 
@@ -250,10 +276,9 @@ def sweep(
     from compare.campaign.sweep import run_sweep
     from compare.config import ConfigError, load_config
 
+    overrides = _overrides(duration, time_scale, sensing or "geometric", simulation, drive, seed)
     try:
-        cfg, text = load_config(
-            config, _overrides(duration, time_scale, sensing or "geometric", simulation, drive, seed)
-        )
+        cfg, text = load_config(config, _with_oracle(overrides, oracle))
     except ConfigError as exc:
         _fail(str(exc))
         return
@@ -275,6 +300,81 @@ def sweep(
         return
     typer.echo(f"sweep summary: {out_dir}/sweep_summary.json ({summary.get('runs', n)} runs)")
     typer.echo(f"sweep report:  {out_dir}/sweep_report.md")
+
+
+@app.command("critical-speed")
+def critical_speed(
+    config: ConfigArg,
+    out: Annotated[Path, typer.Option("--out", "-o", help="Output directory (critical_speed.json, plot, runs/).")],
+    methods: MethodsOpt = None,
+    speeds: Annotated[
+        str | None,
+        typer.Option(
+            "--speeds", help="Torso approach speeds [m/s], comma-separated (default: 12 log-spaced in 0.1-1.6)."
+        ),
+    ] = None,
+    seeds: Annotated[int, typer.Option("--seeds", min=1, help="Directions per speed (seed 0: the case's own).")] = 3,
+    spread_deg: Annotated[float, typer.Option("--spread-deg", help="Largest turn of the person's path [deg].")] = 20.0,
+    shift_s: Annotated[float, typer.Option("--shift-s", help="Largest time shift of the person's motion [s].")] = 2.0,
+    workers: Annotated[int, typer.Option("--workers", "-w", min=1, help="Parallel worker processes.")] = 1,
+    duration: DurationOpt = None,
+    time_scale: ScaleOpt = None,
+    sensing: Annotated[
+        str | None, typer.Option("--sensing", help="depth | geometric (default geometric, as sweeps).")
+    ] = None,
+    simulation: SimulationOpt = None,
+    drive: DriveOpt = None,
+    oracle: OracleOpt = None,
+    quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress bar.")] = False,
+) -> None:
+    """Sweep the person's approach speed on a case's geometry: each method's critical speed."""
+    from compare.campaign.critical_speed import run_critical_speed
+    from compare.config import ConfigError, load_config
+
+    overrides = _with_oracle(_overrides(duration, time_scale, sensing or "geometric", simulation, drive), oracle)
+    try:
+        values = None if speeds is None else [float(v) for v in speeds.split(",") if v.strip()]
+    except ValueError:
+        _fail(f"--speeds: comma-separated numbers expected, got '{speeds}'")
+        return
+    try:
+        cfg = _select_methods(load_config(config, overrides)[0], methods)
+        result = run_critical_speed(cfg, out, values, seeds, spread_deg, shift_s, workers=workers, progress=not quiet)
+    except ConfigError as exc:
+        _fail(str(exc))
+        return
+    for name, entry in result.items():
+        typer.echo(
+            f"{name}: critical approach speed safety {entry['safety_mps']} m/s, physical {entry['physical_mps']} m/s"
+        )
+    typer.echo(f"results: {out}/critical_speed.json   plot: {out}/critical_speed.png")
+
+
+@app.command()
+def claims(
+    results: Annotated[
+        list[Path], typer.Argument(help="Run directories (summary.json) and/or critical-speed directories.")
+    ],
+    out: Annotated[Path | None, typer.Option("--out", "-o", help="Write the table (Markdown) and a .json.")] = None,
+    label: Annotated[
+        list[str] | None, typer.Option("--label", help="Column label per RESULTS entry (default: derived).")
+    ] = None,
+) -> None:
+    """The paper's claims of Sec. IV measured per method: one table for runs and critical speeds."""
+    from compare.analysis.claims import claims_report
+
+    try:
+        text, data = claims_report(results, label)
+    except (FileNotFoundError, ValueError) as exc:
+        _fail(str(exc))
+        return
+    typer.echo(text)
+    if out is not None:
+        import json
+
+        out.parent.mkdir(parents=True, exist_ok=True)
+        out.write_text(text + "\n", encoding="utf-8")
+        out.with_suffix(".json").write_text(json.dumps(data, indent=2) + "\n", encoding="utf-8")
 
 
 @app.command()

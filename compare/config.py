@@ -25,6 +25,7 @@ from compare.exceptions import CompareError
 from qp_baseline.exceptions import HqpError
 from tpik.exceptions import TpikError
 from tpik.hierarchy import Hierarchy
+from tpik.tasks import ObstacleDistanceTask
 
 
 class ConfigError(CompareError, ValueError):
@@ -463,6 +464,58 @@ class SolverLimitConfig(_Strict):
         return float(self.time_limit_s) if self.time_limit_s is not None else self.period_fraction * float(dt)
 
 
+class OracleConfig(_Strict):
+    r"""The clairvoyant reference controller (``[oracle]``, :mod:`compare.campaign.oracle`).
+
+    A receding-horizon optimiser over joint velocities that knows the person's whole future
+    motion; it runs once per scenario (the person does not react to the arm) and splits every
+    method's obstacle violations into avoidable and unavoidable (DESIGN §5, §7).
+
+    Attributes:
+        enabled: Compute the oracle for each run (``summary.json`` gets ``oracle`` and every
+            method ``obstacle_violations``).
+        horizon_s: Look-ahead T [s] (≥ 0.5 s).
+        knot_s: Plan resolution h [s]: piecewise-constant joint velocities over N = ⌈T/h⌉ knots.
+        replan_period_s: Time between two optimisations [s] (the plan is followed in between).
+        sqp_iterations: Linearise-and-solve iterations per optimisation (sequential QP).
+        trust_region_rad_s: Largest change of a knot velocity per iteration [rad/s].
+        margin_cap_m: The oracle stops pushing once every control point is this far beyond its
+            safety threshold at every knot of the horizon [m]; it then holds still.
+        secondary_weight: μ: weight of the mean per-knot minimum margin next to the overall
+            minimum (the primary objective).
+        solver: qpsolvers backend of the QPs (one of the project's HQP backends).
+        avoidable_only: Random family only: redraw a scenario until the oracle holds the
+            safety threshold in it (the avoidable family; ``configs/random_avoidable.toml``).
+        max_draws: Draws tried per run before giving up (the last draw is then kept, marked).
+        keep_steps: Also cache the oracle's per-step table (large; for investigating a seed).
+    """
+
+    enabled: bool = False
+    horizon_s: float = Field(1.0, ge=0.5, le=5.0)
+    knot_s: float = Field(0.1, gt=0.0, le=0.5)
+    replan_period_s: float = Field(0.05, gt=0.0, le=0.5)
+    sqp_iterations: int = Field(2, ge=1, le=20)
+    trust_region_rad_s: float = Field(0.4, gt=0.0, le=10.0)
+    margin_cap_m: float = Field(0.25, gt=0.0, le=5.0)
+    secondary_weight: float = Field(0.1, ge=0.0, le=10.0)
+    solver: str = "daqp"
+    avoidable_only: bool = False
+    max_draws: int = Field(50, ge=1, le=10000)
+    keep_steps: bool = False
+
+    @model_validator(mode="after")
+    def _consistent(self) -> OracleConfig:
+        if self.knot_s > self.horizon_s:
+            raise ValueError(f"knot_s ({self.knot_s:g}) must be <= horizon_s ({self.horizon_s:g})")
+        if self.avoidable_only and not self.enabled:
+            raise ValueError("avoidable_only needs enabled = true (the draws are filtered by the oracle)")
+        from qp_baseline.hqp import available_qp_solvers
+
+        if self.solver not in available_qp_solvers():
+            raise ValueError(f"unknown QP solver '{self.solver}'; available: {', '.join(available_qp_solvers())}")
+        return self
+
+
 class LevelConfig(_Strict):
     """One priority level, highest first; task tables are checked by :meth:`tpik.Hierarchy.from_description`.
 
@@ -656,6 +709,7 @@ class Config(_Strict):
     iso15066: Iso15066Config = Field(default_factory=Iso15066Config)
     extensions: ExtensionsConfig = Field(default_factory=ExtensionsConfig)
     solver_limit: SolverLimitConfig = Field(default_factory=SolverLimitConfig)
+    oracle: OracleConfig = Field(default_factory=OracleConfig)
 
     def hierarchy_description(self) -> list[dict[str, Any]]:
         """The levels as the plain description :meth:`Hierarchy.from_description` takes."""
@@ -750,10 +804,12 @@ def parse_config(data: dict[str, Any], robot: robots.Robot | None = None) -> Con
         hardware = config.hardware.model_copy(update={"joint_names": tuple(robot.joint_names)})
         config = config.model_copy(update={"hardware": hardware})
     try:
-        config.build_hierarchy(robot)
+        hierarchy = config.build_hierarchy(robot)
     except (TpikError, robots.RobotError) as exc:
         message = str(exc)
         raise ConfigError(message if message.startswith("levels") else f"levels: {message}") from None
+    if config.oracle.enabled and not any(isinstance(t, ObstacleDistanceTask) for t in hierarchy.set_tasks):
+        raise ConfigError("oracle.enabled: the hierarchy has no obstacle_distance task for the oracle to keep")
     _check_methods(config, robot)
     _check_cameras(config, robot)
     return config

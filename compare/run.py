@@ -13,6 +13,7 @@ from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 
 import robots
 from compare.analysis import iso15066, preflight
+from compare.analysis.avoidability import split_obstacle_violations
 from compare.analysis.metrics import RunMeta, SetTaskInfo, compute_summary
 from compare.analysis.results import ResultsWriter
 from compare.campaign.random_scenario import realize
@@ -240,7 +241,9 @@ def run_scenario(
     """
     robot = config.load_robot()
     with open_results(config, Path(out_dir), config_text, robot, overwrite, make_plots) as writer:
-        config = realize(config, robot)
+        config, oracle = _realize_with_oracle(config, robot, Path(out_dir))
+        if oracle is not None:
+            writer.set_run_info("oracle", oracle)
         columns = (
             TextColumn("[bold]{task.description:<12}"),
             BarColumn(),
@@ -257,11 +260,34 @@ def run_scenario(
                     log.exception("method %s aborted", method)
                     writer.add_error(method, f"{type(exc).__name__}: {exc}")
                     continue
+                if oracle is not None:
+                    result["summary"]["obstacle_violations"] = split_obstacle_violations(result["summary"], oracle)
                 writer.add_method(method, result["summary"], result["steps"])
                 log.info("%s done in %.1f s", method, time.perf_counter() - t0)
         if make_plots:
             write_plots(Path(out_dir))
         return writer.summary
+
+
+ORACLE_CACHE_DIR = "oracle"
+"""Sub-directory of a run directory caching its oracle runs (``<key>.json``)."""
+
+
+def _realize_with_oracle(config: Config, robot: robots.Robot, out_dir: Path) -> tuple[Config, dict[str, Any] | None]:
+    """The concrete scenario and, with ``[oracle] enabled``, its oracle entry (cached in ``out_dir``)."""
+    if not config.oracle.enabled:
+        return realize(config, robot), None
+    from compare.campaign.oracle import cached_oracle
+
+    cache = out_dir / ORACLE_CACHE_DIR
+    if config.oracle.avoidable_only and config.scenario.kind == "random":
+        from compare.campaign.avoidable import realize_avoidable
+
+        config, run = realize_avoidable(config, robot, cache)
+    else:
+        config = realize(config, robot)
+        run = cached_oracle(config, robot, cache)
+    return config, run.entry
 
 
 def view_scenario(config: Config, method: str) -> None:

@@ -429,6 +429,9 @@ def plot_run(results_dir: Path) -> list[Path]:
         path = plot_comparison(methods, out / "comparison.png", title)
         if path is not None:
             paths.append(path)
+        from compare.analysis.paper_figures import plot_paper_figures  # the methods side by side
+
+        paths += plot_paper_figures(results_dir)
     return paths
 
 

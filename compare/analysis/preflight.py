@@ -41,10 +41,11 @@ def step_columns(nq: int, n_set_tasks: int, n_obstacle_tasks: int, n_control_poi
     """Columns of a per-step table (:mod:`compare.loop.closed_loop`, ISO/TS 15066, faults).
 
     9 timing/EE columns, q and q̇ per joint, σ and active per set task, the ground truth of each
-    obstacle task, measured and true distance per control point, 6 status columns, the 4 ISO
-    columns per control point (fault flags, only with ``[faults]``, are not counted).
+    obstacle task, measured and true distance, ``occluded`` and ``camera`` per control point, 6
+    status columns, the 4 ISO columns per control point (fault flags, only with ``[faults]``, are
+    not counted).
     """
-    return 9 + 2 * nq + 2 * n_set_tasks + n_obstacle_tasks + 2 * n_control_points + 6 + 4 * n_control_points
+    return 9 + 2 * nq + 2 * n_set_tasks + n_obstacle_tasks + 4 * n_control_points + 6 + 4 * n_control_points
 
 
 def run_bytes(steps: int, columns: int, methods: int, plots: bool) -> int:

@@ -15,6 +15,7 @@ from rich.table import Table
 from rich.text import Text
 
 from compare.analysis.atomic_files import write_text_atomic
+from compare.analysis.avoidability import report_lines
 from compare.analysis.metrics import GROUPS, group_summary, summary_groups
 from compare.analysis.results import REPORT_FILE, SWEEP_REPORT_FILE, load_summary
 from compare.analysis.statistics import rate_value
@@ -402,6 +403,7 @@ def render_sweep_report(sweep_dir: Path, command: str | None = None) -> Path:
         " before contact if the person kept coming (compare/analysis/iso15066.py).",
     ]
     out += _paired_section(summary.get("paired") or {})
+    out += report_lines(summary)  # avoidable / unavoidable obstacle violations (oracle)
     failed = summary.get("failed_runs") or []
     if failed:
         out += ["", "## Failed runs", ""] + [f"- {line}" for line in failed[:50]]

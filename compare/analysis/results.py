@@ -382,6 +382,13 @@ class ResultsWriter:
         self._write()
         return steps_path
 
+    def set_run_info(self, key: str, value: Any) -> None:
+        """Store a run-level entry of ``summary.json`` beside ``methods`` (e.g. ``oracle``)."""
+        if key in ("methods", "errors"):
+            raise ValueError(f"'{key}' is written by add_method/add_error")
+        self._summary[key] = to_jsonable(value)
+        self._write()
+
     def add_error(self, name: str, message: str) -> None:
         """Record that method ``name`` failed, keeping every other method's results."""
         self._summary.setdefault("errors", {})[name] = str(message)

@@ -33,6 +33,7 @@ import pandas as pd
 from scipy import stats
 
 from compare.analysis.results import RUNS_DIR, load_steps, load_summary, write_json_atomic
+from compare.analysis.statistics import mcnemar, rate
 
 FIGURE = "camera_comparison.png"
 RESULT = "camera_comparison.json"
@@ -74,14 +75,6 @@ def _occluded_share(run_dir: Path, method: str) -> float:
     return float(steps[cols].to_numpy(dtype=bool).any(axis=1).mean())
 
 
-def _rate(flags: np.ndarray) -> dict[str, Any]:
-    k, n = int(flags.sum()), int(flags.size)
-    if n == 0:
-        return {"count": 0, "runs": 0, "rate": None, "ci95": [None, None]}
-    ci = stats.binomtest(k, n).proportion_ci(confidence_level=0.95, method="wilson")
-    return {"count": k, "runs": n, "rate": k / n, "ci95": [float(ci.low), float(ci.high)]}
-
-
 def _times(x: np.ndarray) -> dict[str, float | None]:
     if x.size == 0:
         return {"mean": None, "median": None, "p95": None, "max": None}
@@ -107,9 +100,8 @@ def compare_sweeps(one_dir: Path, two_dir: Path) -> dict[str, Any]:
     for method, rows in paired.groupby("method", sort=False):
         v1 = rows["violation_one"].to_numpy(dtype=bool)
         v2 = rows["violation_two"].to_numpy(dtype=bool)
-        only_one, only_two = int(np.count_nonzero(v1 & ~v2)), int(np.count_nonzero(~v1 & v2))
-        discordant = only_one + only_two
-        mcnemar = float(stats.binomtest(only_one, discordant, 0.5).pvalue) if discordant else 1.0
+        test = mcnemar(v1, v2)
+        only_one, only_two = test["a_only"], test["b_only"]
         t1 = rows["physical_time_s_one"].to_numpy(dtype=float)
         t2 = rows["physical_time_s_two"].to_numpy(dtype=float)
         diff = t1 - t2
@@ -117,11 +109,11 @@ def compare_sweeps(one_dir: Path, two_dir: Path) -> dict[str, Any]:
         out["methods"][str(method)] = {
             "paired_runs": len(rows),
             "violation": {
-                "one": _rate(v1),
-                "two": _rate(v2),
+                "one": rate(int(v1.sum()), v1.size),
+                "two": rate(int(v2.sum()), v2.size),
                 "only_one": only_one,
                 "only_two": only_two,
-                "mcnemar_p": mcnemar,
+                "mcnemar_p": test["p_value"],
             },
             "physical_time_s": {"one": _times(t1), "two": _times(t2), "wilcoxon_p": wilcoxon},
             "occluded_share": {

@@ -51,12 +51,20 @@ _APPROACH_M = 0.25
 _HAND_Z_M = (0.15, 1.3)
 
 
-def realize(config: Config, robot: robots.Robot | None = None) -> Config:
-    """Return a concrete scenario for ``config.scenario.seed`` (identity for scripted kinds)."""
+def realize(config: Config, robot: robots.Robot | None = None, draw: int = 0) -> Config:
+    """Return a concrete scenario for ``config.scenario.seed`` (identity for scripted kinds).
+
+    Args:
+        config: The scenario family.
+        robot: The arm (default the Jaco²).
+        draw: Which draw of this seed: 0 is the seed's own, k > 0 an independent redraw
+            (``numpy.random.default_rng([seed, k])``; the avoidable family redraws).
+    """
     if config.scenario.kind != "random":
         return config
     robot = robot or config.load_robot()
-    rng = np.random.default_rng(config.scenario.seed)
+    seed = config.scenario.seed
+    rng = np.random.default_rng(seed if draw == 0 else [seed, draw])
     rc = config.random
     hierarchy = config.build_hierarchy(robot)
     set_tasks = hierarchy.set_tasks

@@ -34,6 +34,7 @@ from typing import Any
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
 
 from compare.analysis.atomic_files import remove_stale_temporaries, write_text_atomic
+from compare.analysis.avoidability import has_oracle, oracle_sweep_summary
 from compare.analysis.exceptions import ResultsConflict
 from compare.analysis.preflight import check_output_dir
 from compare.analysis.results import (
@@ -107,6 +108,8 @@ def sweep_jobs(
                     )
                 done = finished_methods(run_dir, summary)
                 todo = [m for m in names if m not in done]
+        if not todo and config.oracle.enabled and not has_oracle(run_dir):
+            todo, overwrite = list(names), True  # finished, but its oracle entry is missing: run it again whole
         if not todo:
             skipped += 1
             continue
@@ -235,6 +238,11 @@ def _execute(
     }
     if failures:
         summary["failed_runs"] = failures
+    split = oracle_sweep_summary(out_dir)
+    if split is not None:  # avoidable / unavoidable obstacle violations (compare.analysis.avoidability)
+        summary["oracle"] = split["oracle"]
+        for name, extra in split["methods"].items():
+            summary["methods"].setdefault(name, {}).update(extra)
     write_json_atomic(out_dir / SWEEP_SUMMARY_FILE, summary)
     if report:
         try:

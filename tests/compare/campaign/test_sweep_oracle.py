@@ -1,0 +1,47 @@
+"""A sweep with the oracle on: per-run oracle entries, the split, and the report's section."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+from typer.testing import CliRunner
+
+from compare.cli import app
+
+CONFIGS = Path(__file__).resolve().parents[3] / "configs"
+
+
+@pytest.mark.slow
+def test_sweep_with_oracle_splits_obstacle_violations(tmp_path):
+    out = tmp_path / "sweep"
+    base = ["sweep", str(CONFIGS / "random.toml"), "--n", "2", "--workers", "1", "--out", str(out)]
+    base += ["--duration", "4", "-m", "tpik"]
+    assert CliRunner().invoke(app, base).exit_code == 0  # first without the oracle
+    run0 = out / "runs" / "00000" / "summary.json"
+    assert "oracle" not in json.loads(run0.read_text())
+    res = CliRunner().invoke(app, [*base, "--oracle"])  # resumed with the oracle: the runs are redone
+    assert res.exit_code == 0, res.output
+    for run in sorted((out / "runs").iterdir()):
+        summary = json.loads((run / "summary.json").read_text())
+        oracle = summary["oracle"]
+        assert isinstance(oracle["held_safety"], bool) and oracle["min_distance_m"] > 0
+        assert list((run / "oracle").glob("*.json"))  # cached
+        tpik = summary["methods"]["tpik"]
+        episodes = tpik["obstacles"]["violations"]
+        expected = (
+            {"avoidable": episodes, "unavoidable": 0}
+            if oracle["held_safety"]
+            else {
+                "avoidable": 0,
+                "unavoidable": episodes,
+            }
+        )
+        assert tpik["obstacle_violations"] == expected
+    sweep = json.loads((out / "sweep_summary.json").read_text())
+    assert sweep["oracle"]["runs"] == 2
+    split = sweep["methods"]["tpik"]["obstacle_violations"]
+    assert set(split["avoidable"]) == {"count", "runs", "rate", "ci95"} and split["avoidable"]["runs"] == 2
+    report = (out / "sweep_report.md").read_text()
+    assert "## Obstacle violations against the clairvoyant oracle" in report
