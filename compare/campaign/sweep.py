@@ -34,7 +34,7 @@ from typing import Any
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
 
 from compare.analysis.atomic_files import remove_stale_temporaries, write_text_atomic
-from compare.analysis.avoidability import has_oracle, oracle_sweep_summary
+from compare.analysis.avoidability import oracle_sweep_summary
 from compare.analysis.exceptions import ResultsConflict
 from compare.analysis.preflight import check_output_dir
 from compare.analysis.results import (
@@ -108,8 +108,6 @@ def sweep_jobs(
                     )
                 done = finished_methods(run_dir, summary)
                 todo = [m for m in names if m not in done]
-        if not todo and config.oracle.enabled and not has_oracle(run_dir):
-            todo, overwrite = list(names), True  # finished, but its oracle entry is missing: run it again whole
         if not todo:
             skipped += 1
             continue

@@ -21,7 +21,11 @@ def test_sweep_with_oracle_splits_obstacle_violations(tmp_path):
     assert CliRunner().invoke(app, base).exit_code == 0  # first without the oracle
     run0 = out / "runs" / "00000" / "summary.json"
     assert "oracle" not in json.loads(run0.read_text())
-    res = CliRunner().invoke(app, [*base, "--oracle"])  # resumed with the oracle: the runs are redone
+    # The oracle is part of the sweep's configuration: adding it to a finished sweep is refused ...
+    refused = CliRunner().invoke(app, [*base, "--oracle"])
+    assert refused.exit_code == 2 and "oracle.enabled false → true" in refused.output
+    assert "oracle" not in json.loads(run0.read_text())  # ... and nothing was touched
+    res = CliRunner().invoke(app, [*base, "--oracle", "--overwrite"])  # on purpose: the runs are redone
     assert res.exit_code == 0, res.output
     for run in sorted((out / "runs").iterdir()):
         summary = json.loads((run / "summary.json").read_text())
