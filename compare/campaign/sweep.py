@@ -39,6 +39,7 @@ from compare.analysis.exceptions import ResultsConflict
 from compare.analysis.preflight import check_output_dir
 from compare.analysis.results import (
     CONFIG_FILE,
+    PLOTS_DIR,
     STEPS_DIR,
     SUMMARY_FILE,
     SWEEP_SUMMARY_FILE,
@@ -126,6 +127,7 @@ def prepare_sweep_dir(config: Config, out_dir: Path, n: int, names: list[str], o
     if overwrite:
         clear_sweep(out_dir)
     remove_stale_temporaries(out_dir)
+    remove_stale_temporaries(out_dir / PLOTS_DIR)  # a plot killed mid-write
     old = load_manifest(out_dir)
     new = make_manifest(config, n, names)
     if old is not None:

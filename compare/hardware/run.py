@@ -37,7 +37,7 @@ from compare.hardware.exceptions import StartRefused
 from compare.hardware.replay import open_recording
 from compare.hardware.ros_io import RosRobotIO
 from compare.hardware.safety import start_problems
-from compare.loop.closed_loop import ObstacleSource, control_points, run_loop
+from compare.loop.closed_loop import ObstacleSource, control_points, run_loop, warm_up_solver
 from compare.methods import make_method
 from tpik.hierarchy import Hierarchy
 from tpik.tasks import ObstacleDistanceTask
@@ -283,7 +283,9 @@ def run_hardware(
     io = RosRobotIO(hw, robot.v_max, sc.dt, use_depth=use_depth, dry_run=dry_run, replay=recording)  # needs camera pose
     # The results directory is checked (and locked) before anything is sent to the arm.
     writer = open_results(config, Path(out_dir), config_text, robot, overwrite, make_plots, duration, [method])
+    unguarded = solver
     solver = guard_solver(solver, config.solver_limit, sc.dt, realtime=True)  # the loop never waits past it
+    warmup_steps = 0
     alignment: AlignmentResidual | None = None
     state = Interrupted()
     with _signals(io, state):
@@ -300,6 +302,9 @@ def run_hardware(
             reading = io.read_joints()
             if reading is None:
                 raise StartRefused("joint states stopped during start-up")
+            # Untimed solves at the start state, as in simulation: the first calls of a fresh
+            # process (lazy imports, compiled kernels) never reach the arm's first control steps.
+            warmup_steps = warm_up_solver(unguarded, hierarchy, robot, reading.q, sc.dt)
             kin = robot.kinematics(reading.q)
             if obstacles is not None:
                 first = obstacles.update(io.now(), kin)
@@ -339,7 +344,8 @@ def run_hardware(
             getattr(solver, "close", lambda: None)()
 
     steps = out.steps.drop(columns=[c for c in out.steps.columns if c.startswith(("truth:", "dist_true:"))])
-    summary = compute_summary(steps, run_meta(config, method, hierarchy, robot, out, "depth" if use_depth else "none"))
+    sensing = "depth" if use_depth else "none"
+    summary = compute_summary(steps, run_meta(config, method, hierarchy, robot, out, sensing, warmup_steps))
     cps = control_points(hierarchy, robot)
     measured = [steps[f"dist_meas:{cp}"].to_numpy(dtype=float) for cp in cps if f"dist_meas:{cp}" in steps]
     summary["min_obstacle_distance_m"] = [_finite_min(d) for d in measured]

@@ -202,6 +202,8 @@ class StandIn:
             "scene_t": [],
             "q": [],
             "overruns": [],
+            "truth_t": [],  # monotonic time of each ground-truth sample [s]
+            "truth_m": [],  # ground-truth obstacle distance per control point [m]
         }
         self.truth_min: dict[str, float] = {}
         self._snapshot = mujoco.MjData(world.io.model) if world.render_depth is not None else None
@@ -234,8 +236,11 @@ class StandIn:
             self.scene_t += io.dt
             q = io.read_joints().q
         if self.world.truth is not None:
-            for cp, d in self.world.truth(self._robot.kinematics(q)).items():
+            distances = self.world.truth(self._robot.kinematics(q))
+            for cp, d in distances.items():
                 self.truth_min[cp] = min(self.truth_min.get(cp, math.inf), float(d))
+            self.record["truth_t"].append(time.monotonic())
+            self.record["truth_m"].append({cp: float(d) for cp, d in distances.items()})
         self.record["scene_t"].append(self.scene_t)
         self.record["q"].append(q.tolist())
 
@@ -445,6 +450,11 @@ def main(argv: list[str] | None = None) -> int:
     )
     args = parser.parse_args(argv)
     logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
+    # A stop asked for while the scene is still being built (e.g. the bridge refused its start at
+    # once) is remembered and honoured as soon as the node exists, so the record is still written.
+    early_stop = threading.Event()
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(sig, lambda *_: early_stop.set())
     overrides: dict[str, object] = {}
     if args.time_scale is not None:
         overrides["scenario.time_scale"] = args.time_scale
@@ -492,6 +502,8 @@ def main(argv: list[str] | None = None) -> int:
     )
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, lambda *_: node.stop())
+    if early_stop.is_set():
+        node.stop()
     duration = args.duration if args.duration is not None else config.scenario.sim_time_s
     try:
         node.run(duration)
