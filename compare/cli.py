@@ -25,8 +25,6 @@ from tpik.exceptions import TpikError
 if TYPE_CHECKING:
     from compare.config import Config
 
-os.environ.setdefault("MUJOCO_GL", "egl")
-
 USER_ERRORS: tuple[type[Exception], ...] = (CompareError, TpikError, RobotError, HqpError)
 """The error roots of the packages: what a user mistake raises (config, method, settings, files)."""
 

@@ -71,3 +71,15 @@ def test_ablation_runs_every_deviation_on_disjoint_seeds_and_reports_the_statist
     report = (out / "sweep_report.md").read_text()
     assert "Wilson 95 %" in report and "exact McNemar" in report and "Step accounting" in report
     assert "McNemar" in (out / "ablation.md").read_text()
+
+
+def test_the_harness_renders_headless_without_mujoco_gl_set():
+    """Without MUJOCO_GL MuJoCo's GLFW default aborts a headless process (no traceback, exit 134)."""
+    import os
+    import subprocess
+    import sys
+
+    env = {k: v for k, v in os.environ.items() if k not in ("MUJOCO_GL", "DISPLAY", "PYOPENGL_PLATFORM")}
+    code = "import compare.cli, mujoco; print(mujoco.GLContext.__module__)"  # the backend MuJoCo chose
+    done = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=120)
+    assert done.returncode == 0 and done.stdout.strip() == "mujoco.egl", done.stderr[-2000:]
