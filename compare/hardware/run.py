@@ -273,6 +273,11 @@ def run_hardware(
     obstacle_tasks = [t for t in hierarchy.set_tasks if isinstance(t, ObstacleDistanceTask)]
     if obstacle_tasks and not hw.use_depth:
         raise StartRefused("the hierarchy has obstacle tasks but hardware.use_depth is false")
+    if len(config.sensor.cameras) > 1:
+        raise StartRefused(
+            f"{len(config.sensor.cameras)} cameras in [[sensor.cameras]]: the hardware bridge reads one depth "
+            "topic (hardware.depth_topic); fusing several cameras is simulation-only for now (docs/sensing.md)"
+        )
     use_depth = hw.use_depth and bool(obstacle_tasks)
     duration = float(duration_s) if duration_s is not None else sc.sim_time_s
     solver = make_method(method, robot, config.methods.settings.get(method))
