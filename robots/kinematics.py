@@ -2,8 +2,10 @@
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from typing import TYPE_CHECKING
 
+import numba
 import numpy as np
 import pinocchio as pin
 
@@ -13,6 +15,30 @@ if TYPE_CHECKING:
     from robots.robot import Robot
 
 _LWA = pin.ReferenceFrame.LOCAL_WORLD_ALIGNED
+
+
+@numba.njit(cache=True, nogil=True)
+def _shift_jacobians(J_world: np.ndarray, support: np.ndarray, out: np.ndarray) -> None:
+    r"""Position Jacobians of points from the joint Jacobians in the world frame, into ``out[f, 1:4]``.
+
+    Column j of ``J_world`` (pinocchio's ``data.J`` after ``computeJointJacobians``) is the
+    spatial velocity :math:`(v_O, \omega)` of joint j at the world origin; the velocity of the
+    point p = ``out[f, 0, :3]`` is :math:`v_O + \omega \times p`, for the joints that move
+    the frame (``support[f, j]``), zero for the others (LOCAL_WORLD_ALIGNED linear rows).
+    """
+    n = J_world.shape[1]
+    for f in range(out.shape[0]):
+        p0, p1, p2 = out[f, 0, 0], out[f, 0, 1], out[f, 0, 2]
+        for j in range(n):
+            if support[f, j]:
+                w0, w1, w2 = J_world[3, j], J_world[4, j], J_world[5, j]
+                out[f, 1, j] = J_world[0, j] + (w1 * p2 - w2 * p1)
+                out[f, 2, j] = J_world[1, j] + (w2 * p0 - w0 * p2)
+                out[f, 3, j] = J_world[2, j] + (w0 * p1 - w1 * p0)
+            else:
+                out[f, 1, j] = 0.0
+                out[f, 2, j] = 0.0
+                out[f, 3, j] = 0.0
 
 
 class Kinematics:
@@ -110,6 +136,27 @@ class Kinematics:
             return jac
         self._check()
         return jac
+
+    def fill_frames(self, names: Sequence[str], out: np.ndarray) -> None:
+        """Origin and position Jacobian of each frame into ``out`` (F, 4, n), in one pass.
+
+        ``out[f, 0, :3]`` is :meth:`frame_position` of ``names[f]`` [m], ``out[f, 1:4]`` its
+        :meth:`position_jacobian` [m/rad] (computed in compiled code from the joint Jacobians,
+        equal to pinocchio's to round-off). A subclass with its own kinematics gets the
+        per-frame methods.
+        """
+        if type(self) is not Kinematics:
+            for f, name in enumerate(names):
+                out[f, 0, :3] = self.frame_position(name)
+                out[f, 1:4] = self.position_jacobian(name)
+            return
+        self._check()
+        robot = self.robot
+        ids, support = robot.frame_support(names)
+        oMf = self._data.oMf
+        for f, fid in enumerate(ids):
+            out[f, 0, :3] = oMf[fid].translation
+        _shift_jacobians(self._data.J, support, out)
 
     def joint_origins(self) -> np.ndarray:
         """Origins of the joint frames 1..n in the base frame [m]. Shape (n, 3)."""

@@ -7,6 +7,7 @@ returned here is expressed in it.
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 
 import mujoco
 import numpy as np
@@ -75,6 +76,7 @@ class Robot:
         self.frame_names = tuple(self._short(n) for n in self._frame_ids)
         # Lookups by either spelling in one dict access (called many times per control step).
         self._frame_by_any_name: dict[str, tuple[int, int]] = {}
+        self._support_cache: dict[tuple[str, ...], tuple[list[int], np.ndarray]] = {}
         for full, fid in self._frame_ids.items():
             entry = (fid, self._frame_joint[full])
             self._frame_by_any_name[full] = entry
@@ -147,6 +149,25 @@ class Robot:
         self.frame_id(name)  # raises UnknownFrame listing the frames
         prefix = self.spec.prefix
         return name if name.startswith(prefix) else prefix + name
+
+    def frame_support(self, names: Sequence[str]) -> tuple[list[int], np.ndarray]:
+        """Pinocchio frame ids of ``names`` and, per frame, which joints' velocities move it (F, n) bool.
+
+        Cached per tuple of names (used by :meth:`Kinematics.fill_frames`).
+        """
+        key = tuple(names)
+        cached = self._support_cache.get(key)
+        if cached is None:
+            model = self.pin_model
+            ids = [self.frame_id(name) for name in key]
+            support = np.zeros((len(key), self.nq), dtype=np.bool_)
+            for f, fid in enumerate(ids):
+                for jid in model.supports[model.frames[fid].parentJoint]:
+                    if jid > 0:
+                        idx, nv = model.joints[jid].idx_v, model.joints[jid].nv
+                        support[f, idx : idx + nv] = True
+            cached = self._support_cache[key] = (ids, support)
+        return cached
 
     def frame_joint(self, name: str) -> int:
         """1-based number of the joint whose motion moves the frame's origin last."""
