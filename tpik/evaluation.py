@@ -189,13 +189,22 @@ class TaskEvaluation:
         self.all_jacobians = jacobians == "all"
         self.set_tasks: tuple[SetTask, ...] = tuple(t for t in tasks if isinstance(t, SetTask))
         self.eq_tasks: tuple[Task, ...] = tuple(t for t in tasks if not isinstance(t, SetTask))
-        frames: dict[str, int] = {}
-
-        def frame(name: str) -> int:
-            return frames.setdefault(name, len(frames))
-
+        self._frames: dict[str, int] = {}
         level_of = dict(zip([id(t) for t in tasks], levels if levels is not None else [0] * len(tasks), strict=True))
-        S = len(self.set_tasks)
+        self._layout_set_tasks(robot, level_of)
+        self._layout_eq_tasks(level_of)
+        self.frame_names = tuple(self._frames)
+        self.frames = np.zeros((len(self._frames), 4, n))
+        self._set_direct = {s: type(self.set_tasks[s]).compute_state is SetTask.compute_state for s in self._python_set}
+        self.fused = not (self._python_set and not self.all_jacobians)
+
+    def _frame(self, name: str) -> int:
+        """Index of a frame in :attr:`frames` (added at first use)."""
+        return self._frames.setdefault(name, len(self._frames))
+
+    def _layout_set_tasks(self, robot: Robot, level_of: dict[int, int]) -> None:
+        """Codes, thresholds and buffers of the set tasks (read once)."""
+        n, S = self.nq, len(self.set_tasks)
         self.set_i = np.full((S, 4), KIND_PYTHON, dtype=np.int64)
         self.set_in = np.zeros((S, _SET_IN))
         self.set_out = np.zeros((S, SET_JAC + n))
@@ -214,40 +223,38 @@ class TaskEvaluation:
             if exact is JointLimitTask and isinstance(task, JointLimitTask):
                 self.set_i[s, :3] = (KIND_JOINT, task.joint - 1, 0)
             elif exact is VirtualWallTask and isinstance(task, VirtualWallTask):
-                self.set_i[s, :3] = (KIND_WALL, frame(task.frame), 0)
+                self.set_i[s, :3] = (KIND_WALL, self._frame(task.frame), 0)
                 self.set_in[s, _N : _N + 3] = task.normal
                 self.set_in[s, _D] = task.offset
             elif exact is ObstacleDistanceTask and isinstance(task, ObstacleDistanceTask):
                 j = robot.frame_joint(task.frame) if task.joint is None else int(task.joint)
                 if not 1 <= j <= n:
                     raise ValueError(f"joint must be in 1..{n}, got {j}")
-                self.set_i[s, :3] = (KIND_OBSTACLE, frame(task.frame), j - 1)
+                self.set_i[s, :3] = (KIND_OBSTACLE, self._frame(task.frame), j - 1)
                 self._obstacles.append((s, task))
             else:
                 self._python_set.append(s)
+
+    def _layout_eq_tasks(self, level_of: dict[int, int]) -> None:
+        """Row ranges, codes and buffers of the equality tasks (read once)."""
         self.eq_ptr = np.zeros(len(self.eq_tasks) + 1, dtype=np.int64)
         for e, eq_task in enumerate(self.eq_tasks):
             self.eq_ptr[e + 1] = self.eq_ptr[e] + eq_task.dim
-        E = len(self.eq_tasks)
+        E, M = len(self.eq_tasks), int(self.eq_ptr[-1])
         self.eq_i = np.full((E, 3), KIND_PYTHON, dtype=np.int64)
         self.eq_i[:, 2] = self.eq_ptr[:-1]  # every task's first row (Python-evaluated ones too)
         self.eq_in = np.zeros((E, 7))
-        self.eq_level = np.zeros(int(self.eq_ptr[-1]), dtype=np.int64)
-        for e, eq_task in enumerate(self.eq_tasks):
-            self.eq_level[self.eq_ptr[e] : self.eq_ptr[e + 1]] = level_of[id(eq_task)]
-        self.eq_out = np.zeros((int(self.eq_ptr[-1]), EQ_JAC + n))
+        self.eq_level = np.zeros(M, dtype=np.int64)
+        self.eq_out = np.zeros((M, EQ_JAC + self.nq))
         self._python_eq: list[int] = []
         self._positions: list[tuple[int, PositionTask]] = []
         for e, eq_task in enumerate(self.eq_tasks):
+            self.eq_level[self.eq_ptr[e] : self.eq_ptr[e + 1]] = level_of[id(eq_task)]
             if type(eq_task) is PositionTask and isinstance(eq_task, PositionTask):
-                self.eq_i[e] = (KIND_POSITION, frame(eq_task.frame), self.eq_ptr[e])
+                self.eq_i[e] = (KIND_POSITION, self._frame(eq_task.frame), self.eq_ptr[e])
                 self._positions.append((e, eq_task))
             else:
                 self._python_eq.append(e)
-        self.frame_names = tuple(frames)
-        self.frames = np.zeros((len(frames), 4, n))
-        self._set_direct = {s: type(self.set_tasks[s]).compute_state is SetTask.compute_state for s in self._python_set}
-        self.fused = not (self._python_set and not self.all_jacobians)
 
     @property
     def set_gain(self) -> np.ndarray:

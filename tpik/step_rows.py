@@ -200,6 +200,22 @@ def tpik_step(
     iout[OUT_STATUS] = status
     iout[OUT_EVALUATED] = evaluated
     iout[OUT_HOW] = how
+    _write_outputs(qdot, active, lams, scale, cand_task, level_map, iout, fout)
+
+
+@numba.njit(cache=True, nogil=True)
+def _write_outputs(
+    qdot: np.ndarray,
+    active: np.ndarray,
+    lams: np.ndarray,
+    scale: float,
+    cand_task: np.ndarray,
+    level_map: np.ndarray,
+    iout: np.ndarray,
+    fout: np.ndarray,
+) -> None:
+    """The search's results into the output buffers of :func:`tpik_step`."""
+    n, C, L = qdot.shape[0], cand_task.shape[0], level_map.shape[0]
     for c in range(C):
         iout[6 + c] = cand_task[c]
         iout[6 + C + c] = 1 if active[c] else 0
