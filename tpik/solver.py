@@ -361,7 +361,7 @@ class TpikSolver:
             raise TpikError(f"{self.name}: expected a tpik Hierarchy, got {type(hierarchy).__name__}")
         levels = [li for li, level in enumerate(hierarchy.levels) for _ in level.tasks]
         tasks = [task for level in hierarchy.levels for task in level.tasks]
-        evaluation = TaskEvaluation(tasks, self.robot, levels, jacobians="candidates")
+        evaluation = TaskEvaluation(tasks, self.robot, levels, jacobians="candidates", compiled_origins=True)
         n_set, n_levels = len(evaluation.set_tasks), len(hierarchy.levels)
         iout = np.zeros(6 + 2 * n_set + n_levels, dtype=np.int64)
         fout = np.zeros(self.nq + 1 + n_levels)
