@@ -23,8 +23,12 @@ mode's cascade, the admissibility checks, the selection, :math:`\dot q = A^Tz` a
 velocity scaling — is one numba-compiled call (:func:`search_modes`): at these sizes (R ≈ 6,
 n = 7) the cost of the step is Python call overhead, not arithmetic, so the search costs about
 as much as one NumPy call per step whatever the number of modes (``docs/benchmarks.md``).
-The task evaluation stays in Python (:mod:`tpik.solver`), so the solver keeps no knowledge of
-any task type.
+The task evaluation is the shared compiled pass of :mod:`tpik.evaluation` (the same for TPIK,
+HQP and mink); :mod:`tpik.step_rows` stacks its rows and calls :func:`search_modes` in the same
+compiled call. Each part is its own compiled function (:func:`_gram`, :func:`_layout`,
+:func:`_exhaustive`, :func:`_greedy`, :func:`_scaled_velocity`; per level :func:`_nsb_level`,
+:func:`_ss_level`): a call between compiled functions costs nanoseconds, so the split costs
+nothing measurable (``docs/benchmarks.md``, "TPIK speed").
 """
 
 from __future__ import annotations

@@ -290,6 +290,7 @@ class TaskEvaluation:
         """The Python part of :meth:`evaluate`: frames, obstacle points, targets, gains, Python-evaluated tasks."""
         kin.fill_frames(self.frame_names, self.frames, self.compiled_origins)
         set_in = self.set_in
+        # The tasks' own arrays, read without the copy their public properties make (same package).
         for s, ob in self._obstacles:
             point = ob._obstacle
             if point is None:

@@ -48,11 +48,12 @@ One control step (DESIGN §3):
    Uniform scaling keeps every sign of step 3 and only slows the convergence of the active tasks
    to their thresholds, so it never makes a set-based task cross.
 
-Steps 2–4 run in one compiled call in the row space of the tasks (:mod:`tpik.cascade`); the
-NSB term of a level is solved once per subset of its candidates and shared by every mode, and
-modes are tried level-major so that ties resolve the same way everywhere. This module keeps the
-task evaluation (step 1) and knows no task type: it reads σ, J and the thresholds through the
-:class:`~tpik.tasks.task.SetTask` interface. Above
+Step 1 is the shared task evaluation of every method (:class:`tpik.evaluation.TaskEvaluation`:
+the built-in task types compiled, any other task through its own ``compute_state``); the rows
+of step 1 and steps 2–4 run in one compiled call in the row space of the tasks
+(:func:`tpik.step_rows.tpik_step`, :mod:`tpik.cascade`); the NSB term of a level is solved
+once per subset of its candidates and shared by every mode, and modes are tried level-major so
+that ties resolve the same way everywhere. This module knows no task type. Above
 ``max_exhaustive_candidates`` candidates, the 2^|C| enumeration is replaced by *greedy release*:
 start from S = C and repeatedly drop the one task whose removal gives the best admissible mode,
 while that improves the selection rule: O(|C|²) cascades. Every mode it returns passes step 3,
