@@ -25,7 +25,7 @@ import numba
 import numpy as np
 
 from robots import Kinematics
-from tpik.evaluation import SET_GAIN, SET_JAC, SET_SAFE_HI, SET_SAFE_LO, SET_SIGMA, TaskEvaluation
+from tpik.evaluation import SET_GAIN, SET_JAC, SET_SAFE_HI, SET_SAFE_LO, SET_SIGMA, TaskEvaluation, warm_up
 from tpik.exceptions import InvalidTaskState
 from tpik.reference import ControlReference
 from tpik.tasks import SetTask
@@ -110,6 +110,10 @@ class SetRowBuilder:
         self.hold_at_zero = hold_at_zero
         self._empty = SetRows(np.zeros((0, self.nq)), np.zeros(0), np.zeros(0, dtype=int), np.zeros(0))
         self._evaluation: TaskEvaluation | None = None  # built at the first step (needs the robot)
+        warm_up(self.nq)  # the compiled evaluation is loaded now, not at the first control step
+        if not _stack_rows.signatures:
+            empty = np.zeros((0, SET_JAC + self.nq))
+            _stack_rows(empty, np.zeros((0, 13)), 0.01, True, False, empty, np.zeros(0), np.zeros(0, dtype=np.int64))
 
     def build(self, kin: Kinematics, dt: float) -> SetRows:
         """Evaluate every task once at ``kin`` and stack its finite bounds.

@@ -252,3 +252,22 @@ class Kinematics:
 
     def __repr__(self) -> str:
         return f"Kinematics(robot={self.robot.name!r}, q={np.round(self.q, 4).tolist()})"
+
+
+def warm_up(nq: int) -> None:
+    """Load the compiled kernels of :meth:`Kinematics.fill_frames` into this process (cache or compile).
+
+    Called when a solver is built, so that no control step pays for it; later calls return at once.
+    """
+    if _shift_jacobians.signatures and _frame_origins.signatures:
+        return
+    out = np.zeros((1, 4, nq))
+    _shift_jacobians(np.zeros((6, nq), order="F"), np.zeros((1, nq), dtype=np.bool_), out)  # pinocchio's data.J
+    for writeable in (False, True):  # a snapshot's q is read-only
+        q = np.zeros(nq)
+        q.flags.writeable = writeable
+        chain_i = np.zeros((2, 3), dtype=np.int64)
+        chain_i[1, 1] = 2
+        chain_f = np.zeros((2, 12))
+        chain_f[1, [0, 4, 8]] = 1.0
+        _frame_origins(q, chain_i, chain_f, np.ones(1, dtype=np.int64), np.zeros((1, 3)), out)

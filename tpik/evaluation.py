@@ -373,6 +373,28 @@ class TaskEvaluation:
         return None
 
 
+def warm_up(nq: int) -> None:
+    """Load the compiled pass (and the frame kernels) into this process: no control step pays for it."""
+    from robots.kinematics import warm_up as warm_up_frames
+
+    warm_up_frames(nq)
+    if evaluate_compiled.signatures:
+        return
+    for writeable in (False, True):  # a snapshot's q is read-only; mink's configuration.q is not
+        q = np.zeros(nq)
+        q.flags.writeable = writeable
+        evaluate_compiled(
+            q,
+            np.zeros((1, 4, nq)),
+            np.zeros((0, 4), dtype=np.int64),
+            np.zeros((0, _SET_IN)),
+            np.zeros((0, SET_JAC + nq)),
+            np.zeros((0, 3), dtype=np.int64),
+            np.zeros((0, 7)),
+            np.zeros((0, EQ_JAC + nq)),
+        )
+
+
 __all__ = [
     "EQ_ERROR",
     "EQ_FEEDFORWARD",
@@ -388,4 +410,5 @@ __all__ = [
     "SET_SIGMA",
     "TaskEvaluation",
     "evaluate_compiled",
+    "warm_up",
 ]

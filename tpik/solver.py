@@ -93,6 +93,7 @@ from tpik.hierarchy import Hierarchy
 from tpik.reference import ControlReference
 from tpik.step_result import SolveStatus, StepResult, failed
 from tpik.step_rows import OUT_CANDIDATES, OUT_EVALUATED, OUT_HOW, OUT_LEVELS, OUT_ROWS, OUT_STATUS, tpik_step
+from tpik.step_rows import warm_up as warm_up_step
 
 VARIANTS: tuple[str, ...] = ("nsb", "ss")
 """Solver variants; the first is the default."""
@@ -350,6 +351,7 @@ class TpikSolver:
         self._plan_for: Hierarchy | None = None
         self._plan: _Plan | None = None
         warm_up()  # the compiled mode search is loaded now, not at the first control step
+        warm_up_step(self.nq)  # and the compiled step (evaluation, rows, frame kernels)
 
     def __repr__(self) -> str:
         return f"TpikSolver(name={self.name!r}, settings={self.settings})"

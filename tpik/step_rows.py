@@ -227,6 +227,36 @@ def _write_outputs(
     fout[n] = scale
 
 
+def warm_up(nq: int) -> None:
+    """Load :func:`tpik_step` (and the shared evaluation) into this process: no control step pays for it."""
+    from tpik.evaluation import warm_up as warm_up_evaluation
+
+    warm_up_evaluation(nq)
+    if tpik_step.signatures:
+        return
+    q = np.zeros(nq)
+    q.flags.writeable = False  # as a snapshot's
+    for evaluate in (True, False):
+        tpik_step(
+            q,
+            np.zeros((0, 4, nq)),
+            np.zeros((0, 4), dtype=np.int64),
+            np.zeros((0, 13)),
+            np.zeros((0, SET_JAC + nq)),
+            np.zeros((0, 3), dtype=np.int64),
+            np.zeros((0, 7)),
+            np.zeros((0, EQ_JAC + nq)),
+            np.zeros(0, dtype=np.int64),
+            evaluate,
+            0.01,
+            np.zeros(6, dtype=np.bool_),
+            np.ones(nq + 3),
+            6,
+            np.zeros(6, dtype=np.int64),
+            np.zeros(nq + 1),
+        )
+
+
 __all__ = [
     "OUT_CANDIDATES",
     "OUT_EVALUATED",

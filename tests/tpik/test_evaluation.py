@@ -111,3 +111,23 @@ def test_position_without_target_raises(jaco):
     ev = TaskEvaluation([PositionTask("ee", "end_effector")], jaco)
     with pytest.raises(TargetNotSet):
         ev.evaluate(jaco.kinematics(jaco.home))
+
+
+@pytest.mark.parametrize("method", ["tpik", "hqp-daqp", "mink"])
+def test_building_a_solver_loads_every_kernel_its_step_uses(jaco, method):
+    """Warm-up: the first control step after the solver is built compiles (or loads) nothing new."""
+    from compare.bench.solver_cases import apply_state, case2_hierarchy, case2_states
+    from compare.methods import make_method
+    from qp_baseline.set_rows import _stack_rows
+    from robots.kinematics import _frame_origins, _shift_jacobians
+    from tpik.evaluation import evaluate_compiled
+    from tpik.step_rows import tpik_step
+
+    kernels = (tpik_step, evaluate_compiled, _shift_jacobians, _frame_origins, _stack_rows)
+    solver = make_method(method, jaco)
+    before = [len(k.signatures) for k in kernels]
+    state = case2_states(jaco)[2]
+    hierarchy = case2_hierarchy(jaco)
+    apply_state(hierarchy, state)
+    assert solver.solve(hierarchy, jaco.kinematics(state.q), 0.01).ok
+    assert [len(k.signatures) for k in kernels] == before
