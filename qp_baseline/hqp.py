@@ -100,6 +100,7 @@ from qp_baseline.polish import polish
 from qp_baseline.set_rows import SetRowBuilder
 from qp_baseline.time_limits import TimeLimited
 from robots import Kinematics, Robot
+from tpik.evaluation import EQ_ERROR, EQ_FEEDFORWARD, EQ_JAC, TaskEvaluation
 from tpik.exceptions import InvalidTaskState
 from tpik.hierarchy import Hierarchy
 from tpik.reference import ControlReference
@@ -480,6 +481,7 @@ class HqpSolver(TimeLimited):
                     set_tasks.append(task)
                     set_level.append(k)
         self._levels = levels
+        self._eq_evaluation = TaskEvaluation([t for lv in levels for t in lv.eq_tasks], self.robot)
         self._set_tasks = tuple(set_tasks)
         self._set_level = tuple(set_level)
         self._rows = SetRowBuilder(self._set_tasks, n, self.reference)
@@ -508,11 +510,15 @@ class HqpSolver(TimeLimited):
         """
         finite = True
         reference = self.reference
+        ev = self._eq_evaluation  # the shared task evaluation (tpik.evaluation): σ̃, σ̇_d, J per row
+        ev.evaluate(kin)
+        e = 0
         for lv in self._levels:
             for task, sl in zip(lv.eq_tasks, lv.eq_slices, strict=True):
-                state = task.compute_state(kin)
-                lv.J[sl] = state.jacobian
-                lv.r[sl] = reference.equality(task, state, dt)
+                block = ev.eq_out[ev.eq_ptr[e] : ev.eq_ptr[e + 1]]
+                lv.J[sl] = block[:, EQ_JAC:]
+                lv.r[sl] = block[:, EQ_FEEDFORWARD] + reference.gain(task, dt) * block[:, EQ_ERROR]  # eq. 2
+                e += 1
             if lv.r.size:
                 finite = finite and bool(np.isfinite(lv.r).all() and np.isfinite(lv.J).all())
         if not finite:

@@ -11,20 +11,67 @@ A finite upper rate gives the row :math:`J\dot q \le \dot\sigma_u`, a finite low
 its threshold no faster than its reference; past it, it may not move further out (mink's
 ``CollisionAvoidanceLimit`` and ``ConfigurationLimit`` behave the same way). Coming back is then
 the business of a soft task (:mod:`qp_baseline.mink_peer`).
+
+σ and J come from the shared task evaluation (:class:`tpik.evaluation.TaskEvaluation`, the
+same pass TPIK uses); the rows are stacked in one compiled call (:func:`_stack_rows`).
 """
 
 from __future__ import annotations
 
-import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 
+import numba
 import numpy as np
 
 from robots import Kinematics
+from tpik.evaluation import SET_GAIN, SET_JAC, SET_SAFE_HI, SET_SAFE_LO, SET_SIGMA, TaskEvaluation, warm_up
 from tpik.exceptions import InvalidTaskState
 from tpik.reference import ControlReference
 from tpik.tasks import SetTask
+
+
+@numba.njit(cache=True, nogil=True)
+def _stack_rows(
+    set_out: np.ndarray,
+    set_in: np.ndarray,
+    dt: float,
+    gain_cap: bool,
+    hold: bool,
+    G: np.ndarray,
+    h: np.ndarray,
+    owner: np.ndarray,
+) -> int:
+    r"""Rows :math:`J\dot q \le \dot\sigma_u`, :math:`-J\dot q \le -\dot\sigma_l` of every finite σ, task by task.
+
+    The rates are :func:`tpik.reference.rate_bounds`' (K capped at 1/dt with ``gain_cap``);
+    ``hold`` relaxes them to :math:`\max(0, \dot\sigma_u)`, :math:`\min(0, \dot\sigma_l)`.
+
+    Returns:
+        The number of rows written into ``G``, ``h``, ``owner``.
+    """
+    r = 0
+    for s in range(set_out.shape[0]):
+        sigma = set_out[s, SET_SIGMA]
+        if not np.isfinite(sigma):
+            continue
+        k = set_in[s, SET_GAIN]
+        if gain_cap:
+            k_max = 1.0 / dt
+            k = k if k < k_max else k_max
+        lo = k * (set_in[s, SET_SAFE_LO] - sigma)
+        hi = k * (set_in[s, SET_SAFE_HI] - sigma)
+        if hi < np.inf:  # J q̇ ≤ hi
+            G[r] = set_out[s, SET_JAC:]
+            h[r] = (hi if hi >= 0.0 else 0.0) if hold else hi
+            owner[r] = s
+            r += 1
+        if lo > -np.inf:  # −J q̇ ≤ −lo
+            G[r] = -set_out[s, SET_JAC:]
+            h[r] = -(lo if lo <= 0.0 else 0.0) if hold else -lo
+            owner[r] = s
+            r += 1
+    return r
 
 
 @dataclass(frozen=True)
@@ -62,6 +109,11 @@ class SetRowBuilder:
         self.reference = reference
         self.hold_at_zero = hold_at_zero
         self._empty = SetRows(np.zeros((0, self.nq)), np.zeros(0), np.zeros(0, dtype=int), np.zeros(0))
+        self._evaluation: TaskEvaluation | None = None  # built at the first step (needs the robot)
+        warm_up(self.nq)  # the compiled evaluation is loaded now, not at the first control step
+        if not _stack_rows.signatures:
+            empty = np.zeros((0, SET_JAC + self.nq))
+            _stack_rows(empty, np.zeros((0, 13)), 0.01, True, False, empty, np.zeros(0), np.zeros(0, dtype=np.int64))
 
     def build(self, kin: Kinematics, dt: float) -> SetRows:
         """Evaluate every task once at ``kin`` and stack its finite bounds.
@@ -72,33 +124,23 @@ class SetRowBuilder:
         """
         if not self.tasks:
             return self._empty
-        rows: list[np.ndarray] = []
-        bounds: list[float] = []
-        owner: list[int] = []
-        sigma = np.empty(len(self.tasks))
-        hold = self.hold_at_zero
-        ref = self.reference
-        for i, task in enumerate(self.tasks):
-            state = task.compute_state(kin)
-            s = float(state.value[0])
-            sigma[i] = s
-            if not math.isfinite(s):
-                continue
-            lo, hi = ref.set_rates(task, s, dt)
-            jac = state.jacobian[0]
-            if hi < math.inf:  # J q̇ ≤ hi
-                rows.append(jac)
-                bounds.append(max(hi, 0.0) if hold else hi)
-                owner.append(i)
-            if lo > -math.inf:  # −J q̇ ≤ −lo
-                rows.append(-jac)
-                bounds.append(-min(lo, 0.0) if hold else -lo)
-                owner.append(i)
-            if not np.isfinite(jac).all():
-                raise InvalidTaskState(f"task '{task.name}': jacobian has non-finite entries")
-        if not rows:
+        ev = self._evaluation
+        if ev is None:
+            ev = self._evaluation = TaskEvaluation(self.tasks, kin.robot)
+            S = len(self.tasks)
+            self._G, self._h, self._owner = np.empty((2 * S, self.nq)), np.empty(2 * S), np.empty(2 * S, dtype=np.int64)
+        ev.evaluate(kin)
+        count = _stack_rows(
+            ev.set_out, ev.set_in, float(dt), self.reference.gain_cap, self.hold_at_zero, self._G, self._h, self._owner
+        )
+        sigma = ev.set_out[:, SET_SIGMA].copy()
+        if not np.isfinite(self._G[:count]).all():
+            for i in self._owner[:count].tolist():
+                if not np.isfinite(ev.set_out[i, SET_JAC:]).all():
+                    raise InvalidTaskState(f"task '{self.tasks[i].name}': jacobian has non-finite entries")
+        if count == 0:
             return SetRows(self._empty.G, self._empty.h, self._empty.owner, sigma)
-        return SetRows(np.array(rows), np.array(bounds), np.array(owner), sigma)
+        return SetRows(self._G[:count].copy(), self._h[:count].copy(), self._owner[:count].copy(), sigma)
 
 
 __all__ = ["SetRowBuilder", "SetRows"]

@@ -2,8 +2,11 @@
 
 from __future__ import annotations
 
+import math
+from collections.abc import Sequence
 from typing import TYPE_CHECKING
 
+import numba
 import numpy as np
 import pinocchio as pin
 
@@ -13,6 +16,80 @@ if TYPE_CHECKING:
     from robots.robot import Robot
 
 _LWA = pin.ReferenceFrame.LOCAL_WORLD_ALIGNED
+
+
+@numba.njit(cache=True, nogil=True)
+def _frame_origins(
+    q: np.ndarray,
+    chain_i: np.ndarray,
+    chain_f: np.ndarray,
+    frame_parent: np.ndarray,
+    frame_t: np.ndarray,
+    out: np.ndarray,
+) -> None:
+    r"""Frame origins ``out[f, 0, :3]`` by forward kinematics of a chain of single-axis revolute joints.
+
+    Joint i (1-based, parent ``chain_i[i, 0]``, axis ``chain_i[i, 1]`` ∈ {0, 1, 2}, q index
+    ``chain_i[i, 2]``): :math:`{}^oR_i = {}^oR_{p}\,R^{pl}_i\,R_{axis}(q)`,
+    :math:`{}^op_i = {}^op_p + {}^oR_p\,t^{pl}_i` (``chain_f[i]``: the placement rotation,
+    row-major, then its translation); a frame's origin is :math:`{}^op_j + {}^oR_j\,t_f`.
+    Pinocchio's ``forwardKinematics`` to round-off, without a Python call per frame.
+    """
+    nj = chain_i.shape[0]
+    R = np.empty((nj, 3, 3))
+    p = np.zeros((nj, 3))
+    for a in range(3):
+        for b in range(3):
+            R[0, a, b] = 1.0 if a == b else 0.0
+    M = np.empty((3, 3))
+    for i in range(1, nj):
+        par, axis = chain_i[i, 0], chain_i[i, 1]
+        c, s = math.cos(q[chain_i[i, 2]]), math.sin(q[chain_i[i, 2]])
+        for a in range(3):
+            acc = p[par, a]
+            for b in range(3):
+                acc += R[par, a, b] * chain_f[i, 9 + b]
+                m = 0.0
+                for k in range(3):
+                    m += R[par, a, k] * chain_f[i, 3 * k + b]
+                M[a, b] = m
+            p[i, a] = acc
+        u, v = (axis + 1) % 3, (axis + 2) % 3  # rotation about `axis` mixes columns u and v
+        for a in range(3):
+            R[i, a, axis] = M[a, axis]
+            R[i, a, u] = c * M[a, u] + s * M[a, v]
+            R[i, a, v] = -s * M[a, u] + c * M[a, v]
+    for f in range(frame_parent.shape[0]):
+        j = frame_parent[f]
+        for a in range(3):
+            acc = p[j, a]
+            for b in range(3):
+                acc += R[j, a, b] * frame_t[f, b]
+            out[f, 0, a] = acc
+
+
+@numba.njit(cache=True, nogil=True)
+def _shift_jacobians(J_world: np.ndarray, support: np.ndarray, out: np.ndarray) -> None:
+    r"""Position Jacobians of points from the joint Jacobians in the world frame, into ``out[f, 1:4]``.
+
+    Column j of ``J_world`` (pinocchio's ``data.J`` after ``computeJointJacobians``) is the
+    spatial velocity :math:`(v_O, \omega)` of joint j at the world origin; the velocity of the
+    point p = ``out[f, 0, :3]`` is :math:`v_O + \omega \times p`, for the joints that move
+    the frame (``support[f, j]``), zero for the others (LOCAL_WORLD_ALIGNED linear rows).
+    """
+    n = J_world.shape[1]
+    for f in range(out.shape[0]):
+        p0, p1, p2 = out[f, 0, 0], out[f, 0, 1], out[f, 0, 2]
+        for j in range(n):
+            if support[f, j]:
+                w0, w1, w2 = J_world[3, j], J_world[4, j], J_world[5, j]
+                out[f, 1, j] = J_world[0, j] + (w1 * p2 - w2 * p1)
+                out[f, 2, j] = J_world[1, j] + (w2 * p0 - w0 * p2)
+                out[f, 3, j] = J_world[2, j] + (w0 * p1 - w1 * p0)
+            else:
+                out[f, 1, j] = 0.0
+                out[f, 2, j] = 0.0
+                out[f, 3, j] = 0.0
 
 
 class Kinematics:
@@ -111,6 +188,34 @@ class Kinematics:
         self._check()
         return jac
 
+    def fill_frames(self, names: Sequence[str], out: np.ndarray, compiled_origins: bool = False) -> None:
+        """Origin and position Jacobian of each frame into ``out`` (F, 4, n), in one pass.
+
+        ``out[f, 0, :3]`` is :meth:`frame_position` of ``names[f]`` [m], ``out[f, 1:4]`` its
+        :meth:`position_jacobian` [m/rad], computed in compiled code from the joint Jacobians
+        (pinocchio's to round-off, ~1e-16). The origins are pinocchio's own (bit for bit), or
+        with ``compiled_origins`` (a chain of revolute joints, :meth:`Robot.revolute_chain`)
+        from compiled forward kinematics (to round-off, no Python call per frame). A subclass
+        with its own kinematics gets the per-frame methods.
+        """
+        if type(self) is not Kinematics:
+            for f, name in enumerate(names):
+                out[f, 0, :3] = self.frame_position(name)
+                out[f, 1:4] = self.position_jacobian(name)
+            return
+        self._check()
+        robot = self.robot
+        ids, support = robot.frame_support(names)
+        chain = robot.revolute_chain() if compiled_origins else None
+        if chain is None:
+            oMf = self._data.oMf
+            for f, fid in enumerate(ids):
+                out[f, 0, :3] = oMf[fid].translation
+        else:
+            frame_parent, frame_t = robot.frame_placements(names)
+            _frame_origins(self.q, chain[0], chain[1], frame_parent, frame_t, out)
+        _shift_jacobians(self._data.J, support, out)
+
     def joint_origins(self) -> np.ndarray:
         """Origins of the joint frames 1..n in the base frame [m]. Shape (n, 3)."""
         self._check()
@@ -147,3 +252,22 @@ class Kinematics:
 
     def __repr__(self) -> str:
         return f"Kinematics(robot={self.robot.name!r}, q={np.round(self.q, 4).tolist()})"
+
+
+def warm_up(nq: int) -> None:
+    """Load the compiled kernels of :meth:`Kinematics.fill_frames` into this process (cache or compile).
+
+    Called when a solver is built, so that no control step pays for it; later calls return at once.
+    """
+    if _shift_jacobians.signatures and _frame_origins.signatures:
+        return
+    out = np.zeros((1, 4, nq))
+    _shift_jacobians(np.zeros((6, nq), order="F"), np.zeros((1, nq), dtype=np.bool_), out)  # pinocchio's data.J
+    for writeable in (False, True):  # a snapshot's q is read-only
+        q = np.zeros(nq)
+        q.flags.writeable = writeable
+        chain_i = np.zeros((2, 3), dtype=np.int64)
+        chain_i[1, 1] = 2
+        chain_f = np.zeros((2, 12))
+        chain_f[1, [0, 4, 8]] = 1.0
+        _frame_origins(q, chain_i, chain_f, np.ones(1, dtype=np.int64), np.zeros((1, 3)), out)

@@ -7,6 +7,7 @@ returned here is expressed in it.
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 
 import mujoco
 import numpy as np
@@ -75,6 +76,9 @@ class Robot:
         self.frame_names = tuple(self._short(n) for n in self._frame_ids)
         # Lookups by either spelling in one dict access (called many times per control step).
         self._frame_by_any_name: dict[str, tuple[int, int]] = {}
+        self._support_cache: dict[tuple[str, ...], tuple[list[int], np.ndarray]] = {}
+        self._placement_cache: dict[tuple[str, ...], tuple[np.ndarray, np.ndarray]] = {}
+        self._chain: tuple[np.ndarray, np.ndarray] | None | bool = False  # not built yet
         for full, fid in self._frame_ids.items():
             entry = (fid, self._frame_joint[full])
             self._frame_by_any_name[full] = entry
@@ -147,6 +151,63 @@ class Robot:
         self.frame_id(name)  # raises UnknownFrame listing the frames
         prefix = self.spec.prefix
         return name if name.startswith(prefix) else prefix + name
+
+    def frame_support(self, names: Sequence[str]) -> tuple[list[int], np.ndarray]:
+        """Pinocchio frame ids of ``names`` and, per frame, which joints' velocities move it (F, n) bool.
+
+        Cached per tuple of names (used by :meth:`Kinematics.fill_frames`).
+        """
+        key = tuple(names)
+        cached = self._support_cache.get(key)
+        if cached is None:
+            model = self.pin_model
+            ids = [self.frame_id(name) for name in key]
+            support = np.zeros((len(key), self.nq), dtype=np.bool_)
+            for f, fid in enumerate(ids):
+                for jid in model.supports[model.frames[fid].parentJoint]:
+                    if jid > 0:
+                        idx, nv = model.joints[jid].idx_v, model.joints[jid].nv
+                        support[f, idx : idx + nv] = True
+            cached = self._support_cache[key] = (ids, support)
+        return cached
+
+    def revolute_chain(self) -> tuple[np.ndarray, np.ndarray] | None:
+        """The joints as single-axis revolute joints for compiled forward kinematics, or None.
+
+        Per pinocchio joint i (0 = the universe): ``(parent, axis 0/1/2, q index)`` and its
+        placement in the parent (rotation row-major, translation), shape (nj, 3) int and (nj, 12);
+        None when a joint is not a revolute joint about x, y or z (:meth:`Kinematics.fill_frames`
+        then reads the frames from pinocchio). Built once.
+        """
+        if self._chain is False:
+            model = self.pin_model
+            axes = {"JointModelRX": 0, "JointModelRY": 1, "JointModelRZ": 2}
+            chain_i = np.zeros((model.njoints, 3), dtype=np.int64)
+            chain_f = np.zeros((model.njoints, 12))
+            ok = model.nq == model.nv
+            for i in range(1, model.njoints):
+                joint = model.joints[i]
+                axis = axes.get(joint.shortname())
+                if axis is None:
+                    ok = False
+                    break
+                placement = model.jointPlacements[i]
+                chain_i[i] = (model.parents[i], axis, joint.idx_q)
+                chain_f[i, :9] = np.asarray(placement.rotation).ravel()
+                chain_f[i, 9:] = placement.translation
+            self._chain = (chain_i, chain_f) if ok else None
+        return self._chain  # type: ignore[return-value]
+
+    def frame_placements(self, names: Sequence[str]) -> tuple[np.ndarray, np.ndarray]:
+        """Parent joint and origin in that joint's frame [m] of each frame, (F,) int and (F, 3). Cached."""
+        key = tuple(names)
+        cached = self._placement_cache.get(key)
+        if cached is None:
+            frames = [self.pin_model.frames[self.frame_id(name)] for name in key]
+            parent = np.array([f.parentJoint for f in frames], dtype=np.int64)
+            offset = np.array([np.asarray(f.placement.translation) for f in frames]).reshape(len(key), 3)
+            cached = self._placement_cache[key] = (parent, offset)
+        return cached
 
     def frame_joint(self, name: str) -> int:
         """1-based number of the joint whose motion moves the frame's origin last."""

@@ -23,8 +23,12 @@ mode's cascade, the admissibility checks, the selection, :math:`\dot q = A^Tz` a
 velocity scaling — is one numba-compiled call (:func:`search_modes`): at these sizes (R ≈ 6,
 n = 7) the cost of the step is Python call overhead, not arithmetic, so the search costs about
 as much as one NumPy call per step whatever the number of modes (``docs/benchmarks.md``).
-The task evaluation stays in Python (:mod:`tpik.solver`), so the solver keeps no knowledge of
-any task type.
+The task evaluation is the shared compiled pass of :mod:`tpik.evaluation` (the same for TPIK,
+HQP and mink); :mod:`tpik.step_rows` stacks its rows and calls :func:`search_modes` in the same
+compiled call. Each part is its own compiled function (:func:`_gram`, :func:`_layout`,
+:func:`_exhaustive`, :func:`_greedy`, :func:`_scaled_velocity`; per level :func:`_nsb_level`,
+:func:`_ss_level`): a call between compiled functions costs nanoseconds, so the split costs
+nothing measurable (``docs/benchmarks.md``, "TPIK speed").
 """
 
 from __future__ import annotations
@@ -49,6 +53,14 @@ velocity non-finite; a row of ``A`` (or its Gram matrix) non-finite (nothing sol
 
 _MAX_TABLE_CANDIDATES = 8
 """The NSB term is cached per (level, subset) when no level has more candidates than this."""
+
+# Argument bundles of the compiled functions (numba ignores the annotations).
+_Layout = tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]  # eq_ptr, eq_rows, cand_ptr, cand_row
+_Params = tuple[np.ndarray, bool, bool, bool, float, float]  # e, star_from_error, ss, compensate, vnorm, tol
+_Cache = tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]  # t_has, t_y, t_c, t_lam
+_Work = tuple[np.ndarray, np.ndarray, np.ndarray]  # iw, fw, mw
+_Problem = tuple[np.ndarray, np.ndarray, _Layout, np.ndarray, _Params, _Cache, _Work]  # G, x, ..., cand_side
+_Checks = tuple[float, bool, bool]  # admissibility tolerance, return_rate, largest_norm
 
 
 @numba.njit(cache=True, nogil=True)
@@ -147,6 +159,114 @@ def _own_solution(
 
 
 @numba.njit(cache=True, nogil=True)
+def _nsb_level(
+    G: np.ndarray,
+    x: np.ndarray,
+    li: int,
+    sub: int,
+    m: int,
+    n_p: int,
+    params: tuple[np.ndarray, bool, bool, bool, float, float],
+    cache: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray],
+    work: tuple[np.ndarray, np.ndarray, np.ndarray],
+    z: np.ndarray,
+) -> float:
+    r"""NSB (eq. 4) of level ``li``: :math:`\dot q_K = J_K^\# x_K = A_K^T y` added to ``z``.
+
+    The term does not depend on the levels above, so it is taken from (or stored in) the cache
+    per (level, subset ``sub`` of the level's candidates). Leaves :math:`w = L^{-1}G_{PK}y` in
+    the workspace for the projection (:func:`_cascade`).
+
+    Returns:
+        λ of the level.
+    """
+    e, _, _, _, vnorm, tol = params
+    t_has, t_y, t_c, t_lam = cache
+    iw, fw, mw = work
+    K, P = iw[0], iw[1]
+    r, y, gP, w, c_own = fw[0], fw[1], fw[2], fw[4], fw[5]
+    S, Lc, scratch = mw[0], mw[1], mw[3]
+    if sub < t_has.shape[1]:
+        if not t_has[li, sub]:
+            t_lam[li, sub] = _own_solution(G, x, e, K, m, vnorm, tol, S, r, scratch, t_y[li, sub], t_c[li, sub])
+            t_has[li, sub] = True
+        yv, cv, lam = t_y[li, sub], t_c[li, sub], t_lam[li, sub]
+    else:
+        lam = _own_solution(G, x, e, K, m, vnorm, tol, S, r, scratch, y, c_own)
+        yv, cv = y, c_own
+    for b in range(m):
+        z[K[b]] += yv[b]
+    if n_p > 0:
+        for t in range(n_p):
+            gP[t] = cv[P[t]]
+        forward(Lc, gP, n_p, w)
+    return lam
+
+
+@numba.njit(cache=True, nogil=True)
+def _ss_level(
+    G: np.ndarray,
+    x: np.ndarray,
+    m: int,
+    n_p: int,
+    params: tuple[np.ndarray, bool, bool, bool, float, float],
+    work: tuple[np.ndarray, np.ndarray, np.ndarray],
+    z: np.ndarray,
+) -> float:
+    r"""Compensated (SS) level: :math:`B = J_K N`, :math:`BB^T = G_{KK} - W^TW`, :math:`W = L^{-1}G_{PK}`.
+
+    The reference is compensated for the motion of the levels above,
+    :math:`x_K - J_K\dot q_{above}`; :math:`B^Ty` is added to ``z`` and
+    :math:`w = W y` left in the workspace for the projection (:func:`_cascade`).
+
+    Returns:
+        λ of the level.
+    """
+    e, star_from_error, _, _, vnorm, tol = params
+    iw, fw, mw = work
+    R = G.shape[0]
+    K, P = iw[0], iw[1]
+    r, y, gP, w = fw[0], fw[1], fw[2], fw[4]
+    S, Lc, W, scratch = mw[0], mw[1], mw[2], mw[3]
+    for a in range(m):
+        ka = K[a]
+        acc = x[ka]
+        for j in range(R):
+            if z[j] != 0.0:
+                acc -= G[ka, j] * z[j]
+        r[a] = acc
+    if n_p > 0:
+        for a in range(m):
+            for t in range(n_p):
+                gP[t] = G[P[t], K[a]]
+            forward(Lc, gP, n_p, W[a])
+        for a in range(m):
+            for b in range(m):
+                acc = G[K[a], K[b]]
+                for t in range(n_p):
+                    acc -= W[a, t] * W[b, t]
+                S[a, b] = acc
+    else:
+        for a in range(m):
+            for b in range(m):
+                S[a, b] = G[K[a], K[b]]
+    sn2 = 0.0
+    for a in range(m):
+        v = e[K[a]] if star_from_error else r[a]
+        sn2 += v * v
+    lam = gram_dls_star(S, r, m, math.sqrt(sn2) / vnorm, tol, scratch, y)
+    if n_p > 0:
+        for t in range(n_p):
+            acc = 0.0
+            for b in range(m):
+                acc += W[b, t] * y[b]
+            w[t] = acc
+    for b in range(m):
+        z[K[b]] += y[b]
+    return lam
+
+
+@numba.njit(cache=True, nogil=True)
 def _cascade(
     G: np.ndarray,
     x: np.ndarray,
@@ -160,11 +280,12 @@ def _cascade(
 ) -> None:
     r"""Solve one mode through every level into ``z`` (row coordinates) and ``lams`` (λ per level).
 
-    A level is solved in the compensated (SS) form when ``ss`` is set, or when ``compensate``
-    is set and the mode inserts one of the level's candidates; else by eq. 4 (NSB). σ* of a
-    level's damping is the norm of its rows of ``e`` (over ‖q̇‖_max) in eq. 4, and in the
-    compensated form that of ``e`` when ``star_from_error`` is set, else that of the
-    compensated reference :math:`x_K - J_K\dot q_{above}` (``e`` is ``x`` then).
+    A level is solved in the compensated (SS) form (:func:`_ss_level`) when ``ss`` is set, or
+    when ``compensate`` is set and the mode inserts one of the level's candidates; else by eq. 4
+    (NSB, :func:`_nsb_level`). σ* of a level's damping is the norm of its rows of ``e`` (over
+    ‖q̇‖_max) in eq. 4, and in the compensated form that of ``e`` when ``star_from_error`` is
+    set, else that of the compensated reference :math:`x_K - J_K\dot q_{above}` (``e`` is ``x``
+    then). Each level's term is then projected on the null space of the rows above.
 
     ``params`` is (e, star_from_error, ss, compensate, ‖q̇‖_max, rank tolerance). ``layout`` is
     (eq_ptr, eq_rows, cand_ptr, cand_row): each level's equality rows and candidates.
@@ -172,18 +293,14 @@ def _cascade(
     candidates), shared across modes; ``t_has`` with zero columns disables it (too many
     subsets to tabulate). ``work`` is (iw (2, R) int, fw (6, R), mw (4, R, R)) workspaces.
     """
-    e, star_from_error, ss, compensate, vnorm, tol = params
+    _, _, ss, compensate, _, tol = params
     eq_ptr, eq_rows, cand_ptr, cand_row = layout
-    t_has, t_y, t_c, t_lam = cache
     iw, fw, mw = work
-    R = G.shape[0]
     n_levels = eq_ptr.shape[0] - 1
-    last = n_levels - 1
-    tol2 = tol * tol
     K, P = iw[0], iw[1]
-    r, y, gP, u, w, c_own = fw[0], fw[1], fw[2], fw[3], fw[4], fw[5]
-    S, Lc, W, scratch = mw[0], mw[1], mw[2], mw[3]
-    for j in range(R):
+    w, u = fw[4], fw[3]
+    Lc = mw[1]
+    for j in range(G.shape[0]):
         z[j] = 0.0
     n_p = 0
     for li in range(n_levels):
@@ -192,67 +309,17 @@ def _cascade(
             lams[li] = 0.0
             continue
         if not (ss or (compensate and sub != 0)):
-            # NSB (eq. 4): q̇_K = J_K^# x_K = A_Kᵀ y, then projected on the null space above.
-            if sub < t_has.shape[1]:
-                if not t_has[li, sub]:
-                    t_lam[li, sub] = _own_solution(G, x, e, K, m, vnorm, tol, S, r, scratch, t_y[li, sub], t_c[li, sub])
-                    t_has[li, sub] = True
-                yv, cv, lam = t_y[li, sub], t_c[li, sub], t_lam[li, sub]
-            else:
-                lam = _own_solution(G, x, e, K, m, vnorm, tol, S, r, scratch, y, c_own)
-                yv, cv = y, c_own
-            for b in range(m):
-                z[K[b]] += yv[b]
-            if n_p > 0:
-                for t in range(n_p):
-                    gP[t] = cv[P[t]]
-                forward(Lc, gP, n_p, w)
+            lam = _nsb_level(G, x, li, sub, m, n_p, params, cache, work, z)
         else:
-            # SS, or an inserted set task under `compensate`: B = J_K N, BBᵀ = G_KK − WᵀW with
-            # W = L⁻¹ G_PK; the reference is compensated for the motion of the levels above.
-            for a in range(m):
-                ka = K[a]
-                acc = x[ka]
-                for j in range(R):
-                    if z[j] != 0.0:
-                        acc -= G[ka, j] * z[j]
-                r[a] = acc
-            if n_p > 0:
-                for a in range(m):
-                    for t in range(n_p):
-                        gP[t] = G[P[t], K[a]]
-                    forward(Lc, gP, n_p, W[a])
-                for a in range(m):
-                    for b in range(m):
-                        acc = G[K[a], K[b]]
-                        for t in range(n_p):
-                            acc -= W[a, t] * W[b, t]
-                        S[a, b] = acc
-            else:
-                for a in range(m):
-                    for b in range(m):
-                        S[a, b] = G[K[a], K[b]]
-            sn2 = 0.0
-            for a in range(m):
-                v = e[K[a]] if star_from_error else r[a]
-                sn2 += v * v
-            lam = gram_dls_star(S, r, m, math.sqrt(sn2) / vnorm, tol, scratch, y)
-            if n_p > 0:
-                for t in range(n_p):
-                    acc = 0.0
-                    for b in range(m):
-                        acc += W[b, t] * y[b]
-                    w[t] = acc
-            for b in range(m):
-                z[K[b]] += y[b]
+            lam = _ss_level(G, x, m, n_p, params, work, z)
         if n_p > 0:
             # Remove the part of A_Kᵀ y in the span of the rows above: A_Pᵀ G_PP⁻¹ G_PK y.
             backward(Lc, w, n_p, u)
             for t in range(n_p):
                 z[P[t]] -= u[t]
         lams[li] = lam
-        if li < last:
-            n_p = _add_rows(G, K, m, P, n_p, Lc, w, tol2)
+        if li < n_levels - 1:
+            n_p = _add_rows(G, K, m, P, n_p, Lc, w, tol * tol)
 
 
 @numba.njit(cache=True, nogil=True)
@@ -371,7 +438,39 @@ def search_modes(
     n_levels = 0 if R == 0 else row_level[R - 1] + 1
     qdot = np.zeros(n)
     lams = np.zeros(n_levels)
-    # ---- Gram matrix; a non-finite row shows here.
+    G, finite = _gram(A)  # a non-finite row shows here
+    layout, cand_side = _layout(row_level, row_side, n_levels)
+    n_cand = cand_side.shape[0]
+    active = np.zeros(n_cand, dtype=np.bool_)
+    if not finite:
+        return qdot, active, lams, STATUS_NON_FINITE_ROWS, 0, SEARCH_NONE, 1.0
+    params = (e, star_from_error, ss, compensate, velocity_norm_max, rank_tol)
+    cache = _nsb_cache(layout[2], n_levels, R, ss)
+    work = (np.empty((2, R), dtype=np.int64), np.empty((6, R)), np.empty((4, R, R)))
+    best_z = np.zeros(R)
+    problem = (G, x, layout, cand_side, params, cache, work)
+    checks = (admissibility_tol, return_rate, largest_norm)
+    if n_cand == 0:
+        _cascade(G, x, layout, np.zeros(0, dtype=np.bool_), params, cache, work, best_z, lams)
+        found, evaluated, how = True, 1, SEARCH_NONE
+    elif n_cand <= max_exhaustive:
+        found, evaluated = _exhaustive(problem, checks, best_z, lams, active)
+        how = SEARCH_EXHAUSTIVE
+    else:
+        found, evaluated = _greedy(problem, checks, best_z, lams, active)
+        how = SEARCH_GREEDY
+    if not found:
+        return qdot, active, lams, STATUS_NO_FINITE_MODE, evaluated, how, 1.0
+    scale = _scaled_velocity(A, best_z, inv_v_max, qdot)
+    if not math.isfinite(scale):
+        return qdot, active, lams, STATUS_NON_FINITE_VELOCITY, evaluated, how, 1.0
+    return qdot, active, lams, STATUS_OK, evaluated, how, scale
+
+
+@numba.njit(cache=True, nogil=True)
+def _gram(A: np.ndarray) -> tuple[np.ndarray, bool]:
+    """:math:`G = AA^T` and whether every entry is finite."""
+    R, n = A.shape
     G = np.empty((R, R))
     finite = True
     for i in range(R):
@@ -383,14 +482,19 @@ def search_modes(
             G[j, i] = acc
             if not math.isfinite(acc):
                 finite = False
+    return G, finite
+
+
+@numba.njit(cache=True, nogil=True)
+def _layout(
+    row_level: np.ndarray, row_side: np.ndarray, n_levels: int
+) -> tuple[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray], np.ndarray]:
+    """(eq_ptr, eq_rows, cand_ptr, cand_row) of :func:`_cascade` and each candidate's side."""
+    R = row_level.shape[0]
     n_cand = 0
     for i in range(R):
         if row_side[i] != 0.0:
             n_cand += 1
-    active = np.zeros(n_cand, dtype=np.bool_)
-    if not finite:
-        return qdot, active, lams, STATUS_NON_FINITE_ROWS, 0, SEARCH_NONE, 1.0
-    # ---- layout: equality rows and candidates per level.
     eq_ptr = np.zeros(n_levels + 1, dtype=np.int64)
     cand_ptr = np.zeros(n_levels + 1, dtype=np.int64)
     eq_rows = np.empty(R - n_cand, dtype=np.int64)
@@ -414,125 +518,147 @@ def search_modes(
             eq_ptr[li + 1] = eq_ptr[li]
         if cand_ptr[li + 1] < cand_ptr[li]:
             cand_ptr[li + 1] = cand_ptr[li]
-    # ---- workspaces and the NSB cache per (level, subset of the level's candidates).
-    iw = np.empty((2, R), dtype=np.int64)
-    fw = np.empty((6, R))
-    mw = np.empty((4, R, R))
-    gz = np.empty(R)
-    z = np.empty(R)
-    best_z = np.zeros(R)
-    trial_lams = np.zeros(n_levels)
-    in_mode = np.zeros(n_cand, dtype=np.bool_)
+    return (eq_ptr, eq_rows, cand_ptr, cand_row), cand_side
+
+
+@numba.njit(cache=True, nogil=True)
+def _nsb_cache(
+    cand_ptr: np.ndarray, n_levels: int, R: int, ss: bool
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Empty NSB cache per (level, subset of the level's candidates); no columns if too many subsets."""
     max_level_cands = 0
     for li in range(n_levels):
         max_level_cands = max(max_level_cands, cand_ptr[li + 1] - cand_ptr[li])
     n_sub = 1 << max_level_cands if (not ss and max_level_cands <= _MAX_TABLE_CANDIDATES) else 0
     t_has = np.zeros((n_levels, n_sub), dtype=np.bool_)
-    t_y = np.empty((n_levels, n_sub, R))
-    t_c = np.empty((n_levels, n_sub, R))
-    t_lam = np.empty((n_levels, n_sub))
-    layout = (eq_ptr, eq_rows, cand_ptr, cand_row)
-    params = (e, star_from_error, ss, compensate, velocity_norm_max, rank_tol)
-    cache = (t_has, t_y, t_c, t_lam)
-    work = (iw, fw, mw)
+    return t_has, np.empty((n_levels, n_sub, R)), np.empty((n_levels, n_sub, R)), np.empty((n_levels, n_sub))
 
-    evaluated = 0
-    how = SEARCH_NONE
-    found = False
-    best_norm2 = math.nan
-    best_active = 0
-    if n_cand == 0:
-        _cascade(G, x, layout, in_mode, params, cache, work, best_z, lams)
-        evaluated = 1
+
+@numba.njit(cache=True, nogil=True)
+def _exhaustive(
+    problem: _Problem, checks: _Checks, best_z: np.ndarray, lams: np.ndarray, active: np.ndarray
+) -> tuple[bool, int]:
+    """Every mode, level-major (the first level's subsets vary slowest, each level's in binary order).
+
+    ``problem`` is (G, x, layout, cand_side, params, cache, work), ``checks`` (admissibility
+    tolerance, return_rate, largest_norm). The best admissible mode goes into ``best_z``,
+    ``lams``, ``active``.
+
+    Returns:
+        (whether an admissible finite mode was found, modes solved).
+    """
+    G, x, layout, cand_side, params, cache, work = problem
+    adm_tol, return_rate, largest_norm = checks
+    cand_ptr, cand_row = layout[2], layout[3]
+    n_cand, R, n_levels = cand_row.shape[0], G.shape[0], lams.shape[0]
+    in_mode = np.zeros(n_cand, dtype=np.bool_)
+    z, gz, trial_lams = np.empty(R), np.empty(R), np.zeros(n_levels)
+    found, evaluated, best_norm2, best_active = False, 0, math.nan, 0
+    for code in range(1 << n_cand):
+        # Decode level-major: the last level's subset is the lowest digit.
+        rest = code
+        n_in = 0
+        for li in range(n_levels - 1, -1, -1):
+            width = cand_ptr[li + 1] - cand_ptr[li]
+            bits = rest & ((1 << width) - 1)
+            rest >>= width
+            for j in range(width):
+                on = (bits >> j) & 1 == 1
+                in_mode[cand_ptr[li] + j] = on
+                if on:
+                    n_in += 1
+        _cascade(G, x, layout, in_mode, params, cache, work, z, trial_lams)
+        evaluated += 1
+        norm2, admissible = _check(G, z, x, in_mode, cand_row, cand_side, adm_tol, return_rate, gz)
+        if not math.isfinite(norm2) or not admissible:
+            continue
+        if found and not _better(norm2, n_in, best_norm2, best_active, largest_norm):
+            continue
         found = True
-    elif n_cand <= max_exhaustive:
-        how = SEARCH_EXHAUSTIVE
-        for code in range(1 << n_cand):
-            # Decode level-major: the last level's subset is the lowest digit.
-            rest = code
-            n_in = 0
-            for li in range(n_levels - 1, -1, -1):
-                width = cand_ptr[li + 1] - cand_ptr[li]
-                bits = rest & ((1 << width) - 1)
-                rest >>= width
-                for j in range(width):
-                    on = (bits >> j) & 1 == 1
-                    in_mode[cand_ptr[li] + j] = on
-                    if on:
-                        n_in += 1
+        best_norm2, best_active = norm2, n_in
+        best_z[:] = z
+        lams[:] = trial_lams
+        active[:] = in_mode
+    return found, evaluated
+
+
+@numba.njit(cache=True, nogil=True)
+def _greedy(
+    problem: _Problem, checks: _Checks, best_z: np.ndarray, lams: np.ndarray, active: np.ndarray
+) -> tuple[bool, int]:
+    """Greedy release from S = C: drop, one at a time, the task whose removal gives the best admissible mode.
+
+    Stops when no removal improves the selection rule; O(|C|²) cascades. Arguments and result
+    as :func:`_exhaustive`.
+    """
+    G, x, layout, cand_side, params, cache, work = problem
+    adm_tol, return_rate, largest_norm = checks
+    cand_row = layout[3]
+    n_cand, R, n_levels = cand_row.shape[0], G.shape[0], lams.shape[0]
+    in_mode = np.ones(n_cand, dtype=np.bool_)
+    z, gz, trial_lams = np.empty(R), np.empty(R), np.zeros(n_levels)
+    _cascade(G, x, layout, in_mode, params, cache, work, z, trial_lams)
+    evaluated = 1
+    norm2, _ = _check(G, z, x, in_mode, cand_row, cand_side, adm_tol, return_rate, gz)
+    found, best_norm2, best_active = False, math.nan, 0
+    if math.isfinite(norm2):  # S = C is always admissible
+        found, best_norm2, best_active = True, norm2, n_cand
+        best_z[:] = z
+        lams[:] = trial_lams
+        active[:] = True
+    step_z, step_lams, step_active = np.empty(R), np.empty(n_levels), np.zeros(n_cand, dtype=np.bool_)
+    while found and best_active > 0:
+        step_found, step_norm2 = False, math.nan
+        for drop in range(n_cand):
+            if not active[drop]:
+                continue
+            in_mode[:] = active
+            in_mode[drop] = False
             _cascade(G, x, layout, in_mode, params, cache, work, z, trial_lams)
             evaluated += 1
-            norm2, admissible = _check(G, z, x, in_mode, cand_row, cand_side, admissibility_tol, return_rate, gz)
+            norm2, admissible = _check(G, z, x, in_mode, cand_row, cand_side, adm_tol, return_rate, gz)
             if not math.isfinite(norm2) or not admissible:
                 continue
-            if found and not _better(norm2, n_in, best_norm2, best_active, largest_norm):
+            if step_found and not _better(norm2, best_active - 1, step_norm2, best_active - 1, largest_norm):
                 continue
-            found = True
-            best_norm2, best_active = norm2, n_in
-            best_z[:] = z
-            lams[:] = trial_lams
-            active[:] = in_mode
-    else:
-        how = SEARCH_GREEDY
-        in_mode[:] = True
-        _cascade(G, x, layout, in_mode, params, cache, work, z, trial_lams)
-        evaluated = 1
-        norm2, _ = _check(G, z, x, in_mode, cand_row, cand_side, admissibility_tol, return_rate, gz)
-        if math.isfinite(norm2):  # S = C is always admissible
-            found = True
-            best_norm2, best_active = norm2, n_cand
-            best_z[:] = z
-            lams[:] = trial_lams
-            active[:] = True
-        step_z = np.empty(R)
-        step_lams = np.empty(n_levels)
-        step_active = np.zeros(n_cand, dtype=np.bool_)
-        while found and best_active > 0:
-            step_found = False
-            step_norm2 = math.nan
-            for drop in range(n_cand):
-                if not active[drop]:
-                    continue
-                in_mode[:] = active
-                in_mode[drop] = False
-                _cascade(G, x, layout, in_mode, params, cache, work, z, trial_lams)
-                evaluated += 1
-                norm2, admissible = _check(G, z, x, in_mode, cand_row, cand_side, admissibility_tol, return_rate, gz)
-                if not math.isfinite(norm2) or not admissible:
-                    continue
-                if step_found and not _better(norm2, best_active - 1, step_norm2, best_active - 1, largest_norm):
-                    continue
-                step_found = True
-                step_norm2 = norm2
-                step_z[:] = z
-                step_lams[:] = trial_lams
-                step_active[:] = in_mode
-            if not step_found or not _better(step_norm2, best_active - 1, best_norm2, best_active, largest_norm):
-                break
-            best_norm2, best_active = step_norm2, best_active - 1
-            best_z[:] = step_z
-            lams[:] = step_lams
-            active[:] = step_active
-    if not found:
-        return qdot, active, lams, STATUS_NO_FINITE_MODE, evaluated, how, 1.0
-    # ---- q̇ = Aᵀz, then one scale factor into the joint velocity limits (direction kept).
+            step_found, step_norm2 = True, norm2
+            step_z[:] = z
+            step_lams[:] = trial_lams
+            step_active[:] = in_mode
+        if not step_found or not _better(step_norm2, best_active - 1, best_norm2, best_active, largest_norm):
+            break
+        best_norm2, best_active = step_norm2, best_active - 1
+        best_z[:] = step_z
+        lams[:] = step_lams
+        active[:] = step_active
+    return found, evaluated
+
+
+@numba.njit(cache=True, nogil=True)
+def _scaled_velocity(A: np.ndarray, z: np.ndarray, inv_v_max: np.ndarray, qdot: np.ndarray) -> float:
+    r""":math:`\dot q = A^Tz` into ``qdot``, scaled by one factor into the joint velocity limits (direction kept).
+
+    Returns:
+        The scale factor (≤ 1); NaN, with ``qdot`` zeroed, when q̇ is not finite.
+    """
+    R, n = A.shape
     ratio = 0.0
     for k in range(n):
         acc = 0.0
         for i in range(R):
-            acc += best_z[i] * A[i, k]
+            acc += z[i] * A[i, k]
         qdot[k] = acc
         rel = abs(acc * inv_v_max[k])
         if not math.isfinite(rel):
             qdot[:] = 0.0
-            return qdot, active, lams, STATUS_NON_FINITE_VELOCITY, evaluated, how, 1.0
+            return math.nan
         ratio = max(ratio, rel)
     scale = 1.0
     if ratio > 1.0:
         scale = 1.0 / ratio
         for k in range(n):
             qdot[k] *= scale
-    return qdot, active, lams, STATUS_OK, evaluated, how, scale
+    return scale
 
 
 def warm_up() -> None:

@@ -85,6 +85,63 @@ def min_eigenvalue(S: np.ndarray, m: int) -> float:
 
 
 @numba.njit(cache=True, nogil=True)
+def jacobi_eigh(S: np.ndarray, m: int, A: np.ndarray, evals: np.ndarray, U: np.ndarray) -> None:
+    r"""Eigenvalues (ascending) and eigenvectors (columns of ``U``) of the symmetric block ``S[:m, :m]``.
+
+    Cyclic Jacobi rotations (Golub & Van Loan, Alg. 8.5.3) until the off-diagonal part is at
+    round-off of the diagonal: for the small blocks of a cascade level (m ≤ ~12) it needs a few
+    sweeps and no allocation, where LAPACK's ``eigh`` costs a call and its workspaces. Jacobi is
+    at least as accurate (small eigenvalues to high relative accuracy); ``A`` is a workspace
+    (≥ m × m), overwritten.
+    """
+    for i in range(m):
+        for j in range(m):
+            A[i, j] = S[i, j]
+            U[i, j] = 1.0 if i == j else 0.0
+    for _ in range(60):
+        off = 0.0
+        diag = 0.0
+        for i in range(m):
+            diag += A[i, i] * A[i, i]
+            for j in range(i + 1, m):
+                off += A[i, j] * A[i, j]
+        if off <= 1e-34 * diag or off == 0.0:
+            break
+        for p in range(m - 1):
+            for q in range(p + 1, m):
+                apq = A[p, q]
+                if apq == 0.0:
+                    continue
+                tau = (A[q, q] - A[p, p]) / (2.0 * apq)
+                t = (1.0 if tau >= 0.0 else -1.0) / (abs(tau) + math.sqrt(1.0 + tau * tau))
+                c = 1.0 / math.sqrt(1.0 + t * t)
+                sn = t * c
+                for k in range(m):  # A <- A J (columns p, q)
+                    akp, akq = A[k, p], A[k, q]
+                    A[k, p] = c * akp - sn * akq
+                    A[k, q] = sn * akp + c * akq
+                for k in range(m):  # A <- Jᵀ A (rows p, q)
+                    apk, aqk = A[p, k], A[q, k]
+                    A[p, k] = c * apk - sn * aqk
+                    A[q, k] = sn * apk + c * aqk
+                A[p, q] = 0.0
+                A[q, p] = 0.0
+                for k in range(m):  # U <- U J
+                    ukp, ukq = U[k, p], U[k, q]
+                    U[k, p] = c * ukp - sn * ukq
+                    U[k, q] = sn * ukp + c * ukq
+    for i in range(m):
+        evals[i] = A[i, i]
+    for i in range(1, m):  # insertion sort, columns of U along
+        j = i
+        while j > 0 and evals[j - 1] > evals[j]:
+            evals[j - 1], evals[j] = evals[j], evals[j - 1]
+            for k in range(m):
+                U[k, j - 1], U[k, j] = U[k, j], U[k, j - 1]
+            j -= 1
+
+
+@numba.njit(cache=True, nogil=True)
 def forward(L: np.ndarray, b: np.ndarray, m: int, w: np.ndarray) -> None:
     """Solve ``L w = b`` for the lower-triangular block ``L[:m, :m]`` (into ``w[:m]``)."""
     for j in range(m):
@@ -198,7 +255,9 @@ def gram_dls_star(
         if sigma_min > rank_tol and cholesky_solve(S, lam * lam, r, m, work, y):
             return lam
     # Larger, or (near) singular: eigendecomposition with the rank tolerance.
-    evals, U = np.linalg.eigh(np.ascontiguousarray(S[:m, :m]))
+    evals = np.empty(m)
+    U = np.empty((m, m))
+    jacobi_eigh(S, m, work, evals, U)
     lam = dynamic_damping(math.sqrt(max(evals[0], 0.0)), sigma_star)
     tol2 = rank_tol * rank_tol
     for i in range(m):

@@ -48,11 +48,12 @@ One control step (DESIGN §3):
    Uniform scaling keeps every sign of step 3 and only slows the convergence of the active tasks
    to their thresholds, so it never makes a set-based task cross.
 
-Steps 2–4 run in one compiled call in the row space of the tasks (:mod:`tpik.cascade`); the
-NSB term of a level is solved once per subset of its candidates and shared by every mode, and
-modes are tried level-major so that ties resolve the same way everywhere. This module keeps the
-task evaluation (step 1) and knows no task type: it reads σ, J and the thresholds through the
-:class:`~tpik.tasks.task.SetTask` interface. Above
+Step 1 is the shared task evaluation of every method (:class:`tpik.evaluation.TaskEvaluation`:
+the built-in task types compiled, any other task through its own ``compute_state``); the rows
+of step 1 and steps 2–4 run in one compiled call in the row space of the tasks
+(:func:`tpik.step_rows.tpik_step`, :mod:`tpik.cascade`); the NSB term of a level is solved
+once per subset of its candidates and shared by every mode, and modes are tried level-major so
+that ties resolve the same way everywhere. This module knows no task type. Above
 ``max_exhaustive_candidates`` candidates, the 2^|C| enumeration is replaced by *greedy release*:
 start from S = C and repeatedly drop the one task whose removal gives the best admissible mode,
 while that improves the selection rule: O(|C|²) cascades. Every mode it returns passes step 3,
@@ -85,19 +86,14 @@ from typing import Any, ClassVar
 import numpy as np
 
 from robots import Kinematics, Robot
-from tpik.cascade import (
-    SEARCH_NAMES,
-    STATUS_NO_FINITE_MODE,
-    STATUS_NON_FINITE_ROWS,
-    STATUS_OK,
-    search_modes,
-    warm_up,
-)
+from tpik.cascade import SEARCH_NAMES, STATUS_NO_FINITE_MODE, STATUS_NON_FINITE_ROWS, STATUS_OK, warm_up
+from tpik.evaluation import TaskEvaluation
 from tpik.exceptions import InvalidSettings, InvalidTaskState, TpikError
 from tpik.hierarchy import Hierarchy
 from tpik.reference import ControlReference
 from tpik.step_result import SolveStatus, StepResult, failed
-from tpik.tasks.task import SetTask, Task
+from tpik.step_rows import OUT_CANDIDATES, OUT_EVALUATED, OUT_HOW, OUT_LEVELS, OUT_ROWS, OUT_STATUS, tpik_step
+from tpik.step_rows import warm_up as warm_up_step
 
 VARIANTS: tuple[str, ...] = ("nsb", "ss")
 """Solver variants; the first is the default."""
@@ -289,16 +285,14 @@ def _check_number(key: str, value: object, allow_zero: bool = False) -> None:
         raise InvalidSettings(f"{key}: must be finite and {'>=' if allow_zero else '>'} 0, got {value!r}")
 
 
-_SetEntry = tuple[Any, SetTask, str, float, float, float, float, float]
-"""A set-based task of the plan, thresholds read once: (σ method or None, task, name, gain,
-σ_{a,l}, σ_{a,u}, σ_{s,l}, σ_{s,u}). The method is None when ``compute_state`` is overridden."""
-
-
 @dataclass
-class _LevelPlan:
-    name: str
-    equality: list[Task]
-    set_tasks: list[_SetEntry]
+class _Plan:
+    """What TPIK reads of one hierarchy object, built once: its evaluation and the output buffers."""
+
+    evaluation: TaskEvaluation
+    level_names: tuple[str, ...]
+    iout: np.ndarray
+    fout: np.ndarray
 
 
 class TpikSolver:
@@ -340,49 +334,57 @@ class TpikSolver:
         self._largest_norm = self._selection == "largest_norm"
         self._star_from_error = s.damping_sigma_star == "task_error"
         self.reference = ControlReference(gain_cap=s.gain_cap)
+        self._flags = np.array(
+            [
+                self._ss,
+                s.compensate_set_tasks,
+                self._largest_norm,
+                s.return_rate_condition,
+                self._star_from_error,
+                s.gain_cap,
+            ],
+            dtype=np.bool_,
+        )
+        self._reals = np.concatenate(
+            [self._inv_v_max, [self.velocity_norm_max, s.rank_tolerance, s.admissibility_tolerance]]
+        )
         self._plan_for: Hierarchy | None = None
-        self._plan: list[_LevelPlan] = []
+        self._plan: _Plan | None = None
         warm_up()  # the compiled mode search is loaded now, not at the first control step
+        warm_up_step(self.nq)  # and the compiled step (evaluation, rows, frame kernels)
 
     def __repr__(self) -> str:
         return f"TpikSolver(name={self.name!r}, settings={self.settings})"
 
-    def _compile(self, hierarchy: Hierarchy) -> list[_LevelPlan]:
-        """Sort each level's tasks into equality and set-based ones, once per hierarchy object."""
-        if self._plan_for is hierarchy:
+    def _compile(self, hierarchy: Hierarchy) -> _Plan:
+        """The shared task evaluation and the level of each task, once per hierarchy object."""
+        if self._plan_for is hierarchy and self._plan is not None:
             return self._plan
         if not isinstance(hierarchy, Hierarchy):
             raise TpikError(f"{self.name}: expected a tpik Hierarchy, got {type(hierarchy).__name__}")
-        plan: list[_LevelPlan] = []
-        for level in hierarchy.levels:
-            eq: list[Task] = []
-            st: list[_SetEntry] = []
-            for task in level.tasks:
-                if isinstance(task, SetTask):
-                    th = task.thresholds
-                    # σ and J are read directly unless the task customises its TaskState.
-                    # σ alone first; the Jacobian only for candidates (most set tasks are inactive).
-                    direct = task.compute_value if type(task).compute_state is SetTask.compute_state else None
-                    st.append(
-                        (
-                            direct,
-                            task,
-                            task.name,
-                            task.gain,
-                            th.activation_lower,
-                            th.activation_upper,
-                            th.safety_lower,
-                            th.safety_upper,
-                        )
-                    )
-                else:
-                    eq.append(task)
-            plan.append(_LevelPlan(level.name, eq, st))
-        self._plan_for, self._plan = hierarchy, plan
-        return plan
+        levels = [li for li, level in enumerate(hierarchy.levels) for _ in level.tasks]
+        tasks = [task for level in hierarchy.levels for task in level.tasks]
+        evaluation = TaskEvaluation(tasks, self.robot, levels, jacobians="candidates", compiled_origins=True)
+        n_set, n_levels = len(evaluation.set_tasks), len(hierarchy.levels)
+        iout = np.zeros(6 + 2 * n_set + n_levels, dtype=np.int64)
+        fout = np.zeros(self.nq + 1 + n_levels)
+        names = tuple(level.name for level in hierarchy.levels)
+        self._plan_for, self._plan = hierarchy, _Plan(evaluation, names, iout, fout)
+        return self._plan
+
+    def _check_call(self, kin: Kinematics, dt: float) -> None:
+        n = self.nq
+        if kin.nq != n:
+            raise TpikError(f"{self.name}: kinematics of a {kin.nq}-joint robot given to a solver for {n} joints")
+        if not (type(dt) is float or isinstance(dt, int | float)) or not (math.isfinite(dt) and dt > 0.0):
+            raise TpikError(f"{self.name}: dt must be a finite number > 0 [s], got {dt!r}")
 
     def solve(self, hierarchy: Hierarchy, kin: Kinematics, dt: float) -> StepResult:
         """One control step: joint velocities for ``hierarchy`` at ``kin.q`` over ``dt``.
+
+        Step 1 (every task evaluated once, CLIK references of eq. 2, candidates of eq. 7) is
+        the shared :class:`~tpik.evaluation.TaskEvaluation`; the rows and steps 2–4 are one
+        compiled call (:func:`tpik.step_rows.tpik_step`).
 
         Args:
             hierarchy: Priority levels, highest first (the same object every step).
@@ -404,119 +406,60 @@ class TpikSolver:
                 finite number > 0, or ``hierarchy`` is not a :class:`~tpik.hierarchy.Hierarchy`.
         """
         t0 = time.perf_counter()
-        n = self.nq
-        if kin.nq != n:
-            raise TpikError(f"{self.name}: kinematics of a {kin.nq}-joint robot given to a solver for {n} joints")
-        if not (type(dt) is float or isinstance(dt, int | float)) or not (math.isfinite(dt) and dt > 0.0):
-            raise TpikError(f"{self.name}: dt must be a finite number > 0 [s], got {dt!r}")
+        self._check_call(kin, dt)
         plan = self._compile(hierarchy)
-        reference = self.reference
-        from_error = self._star_from_error
-
-        # ---- 1. evaluate every task once; CLIK references (eq. 2) and candidates (eq. 7).
-        blocks: list[np.ndarray] = []  # the rows of A, level by level
-        x: list[float] = []
-        err: list[float] = []  # per row: the task error σ̃ (σ* of the paper's damping)
-        row_level: list[int] = []  # per row: index among the levels that have rows
-        row_side: list[float] = []  # per row: 0 equality, ±1 candidate past its upper/lower threshold
-        level_names: list[str] = []
-        cand_names: list[str] = []
-        block_names: list[str] = []
-        row_shape = (1, n)
-        inf = math.inf
-        for lp in plan:
-            li = len(level_names)
-            rows_before = len(x)
-            for task in lp.equality:
-                state = task.compute_state(kin)
-                m = state.value.shape[0]
-                if (
-                    state.jacobian.shape != (m, n)
-                    or state.error.shape != (m,)
-                    or state.feedforward.shape != (m,)
-                    or state.desired.shape != (m,)
-                ):
-                    state.validate(task.name, n)  # raises InvalidTaskState naming the array
-                x.extend(reference.equality(task, state, dt).tolist())
-                if from_error:
-                    err.extend(state.error.tolist())
-                row_level.extend([li] * m)
-                row_side.extend([0.0] * m)
-                blocks.append(state.jacobian)
-                block_names.append(task.name)
-            for direct, set_task, name, _gain, act_lower, act_upper, safe_lower, safe_upper in lp.set_tasks:
-                if direct is not None:
-                    sigma = float(direct(kin))
-                    jac = None
-                else:
-                    state = set_task.compute_state(kin)
-                    state.validate(name, n)
-                    sigma, jac = float(state.value[0]), state.jacobian  # shape checked by validate()
-                if act_upper <= sigma < inf:
-                    side, target = 1.0, safe_upper
-                elif -inf < sigma <= act_lower:
-                    side, target = -1.0, safe_lower
-                else:
-                    continue  # inside the activation thresholds, or non-finite σ: inactive
-                if jac is None:
-                    jac = set_task.compute_jacobian(kin)
-                    if jac.shape != row_shape:
-                        raise InvalidTaskState(f"task '{name}': jacobian has shape {jac.shape}, expected (1, {n})")
-                lo_rate, hi_rate = reference.set_rates(set_task, sigma, dt)
-                cand_names.append(name)
-                x.append(hi_rate if side > 0.0 else lo_rate)
-                if from_error:
-                    err.append(target - sigma)
-                row_level.append(li)
-                row_side.append(side)
-                blocks.append(jac)
-                block_names.append(name)
-            if len(x) > rows_before:
-                level_names.append(lp.name)
-        n_cand = len(cand_names)
-        s = self.settings
-        extras: dict[str, Any] = {"candidates": n_cand, "variant": s.variant, "selection": self._selection}
-        if not blocks:
-            # Only set-based tasks, all inside their activation thresholds: nothing to do.
-            extras.update(modes_evaluated=0, search="none", velocity_scale=1.0)
-            return StepResult(np.zeros(n), SolveStatus.OK, (), time.perf_counter() - t0, 0.0, {}, "", extras)
-        A = np.concatenate(blocks, dtype=float) if len(blocks) > 1 else np.ascontiguousarray(blocks[0], dtype=float)
+        ev = plan.evaluation
+        if ev.fused:
+            ev.gather(kin)
+        else:
+            ev.evaluate(kin)
         t1 = time.perf_counter()
-
-        # ---- 2–4. mode search (cascade per mode, admissibility, selection), q̇ and its scaling.
-        x_arr = np.array(x)
-        qdot, inserted, lams, status, evaluated, how, scale = search_modes(
-            A,
-            x_arr,
-            np.array(err) if from_error else x_arr,
-            np.array(row_level, dtype=np.int64),
-            np.array(row_side),
-            self._inv_v_max,
-            self._ss,
-            s.compensate_set_tasks,
-            self._largest_norm,
-            s.return_rate_condition,
-            from_error,
-            self.velocity_norm_max,
-            s.rank_tolerance,
-            s.admissibility_tolerance,
-            s.max_exhaustive_candidates,
+        tpik_step(
+            kin.q,
+            ev.frames,
+            ev.set_i,
+            ev.set_in,
+            ev.set_out,
+            ev.eq_i,
+            ev.eq_in,
+            ev.eq_out,
+            ev.eq_level,
+            ev.fused,
+            float(dt),
+            self._flags,
+            self._reals,
+            self.settings.max_exhaustive_candidates,
+            plan.iout,
+            plan.fout,
         )
         t2 = time.perf_counter()
-        search = SEARCH_NAMES[how]
-        extras["modes_evaluated"] = evaluated
+        return self._result(plan, t0, t1, t2)
+
+    def _result(self, plan: _Plan, t0: float, t1: float, t2: float) -> StepResult:
+        """The :class:`StepResult` of the compiled step's outputs (status, names, reasons)."""
+        ints = plan.iout.tolist()  # one conversion: the rest is Python ints and floats
+        n, s = self.nq, self.settings
+        n_cand = ints[OUT_CANDIDATES]
+        extras: dict[str, Any] = {"candidates": n_cand, "variant": s.variant, "selection": self._selection}
+        if ints[OUT_ROWS] == 0:
+            # Only set-based tasks, all inside their activation thresholds: nothing to do.
+            extras.update(modes_evaluated=0, search="none", velocity_scale=1.0)
+            return StepResult(np.zeros(n), SolveStatus.OK, (), t2 - t0, 0.0, {}, "", extras)
+        status, search = ints[OUT_STATUS], SEARCH_NAMES[ints[OUT_HOW]]
+        extras["modes_evaluated"] = ints[OUT_EVALUATED]
         extras["search"] = search
         if status != STATUS_OK:
-            if status == STATUS_NON_FINITE_ROWS:
-                _raise_non_finite(block_names, blocks)
-                return failed(n, f"{self.name}: the Gram matrix of the task rows overflowed", **extras)
-            if status == STATUS_NO_FINITE_MODE:
-                return failed(n, f"{self.name}: every mode gave a non-finite velocity", **extras)
-            return failed(n, f"{self.name}: the cascade produced a non-finite velocity", **extras)
+            return self._failure(plan, status, extras)
+        fout = plan.fout
+        floats = fout.tolist()
+        scale = floats[n]
         extras["velocity_scale"] = scale
-
-        damping = dict(zip(level_names, lams.tolist(), strict=True))
-        active = tuple(name for name, on in zip(cand_names, inserted.tolist(), strict=True) if on)
+        n_levels = ints[OUT_LEVELS]
+        cands, inserted = ints[6 : 6 + n_cand], ints[6 + n_cand : 6 + 2 * n_cand]
+        levels = ints[6 + 2 * n_cand : 6 + 2 * n_cand + n_levels]
+        set_tasks, names = plan.evaluation.set_tasks, plan.level_names
+        active = tuple(set_tasks[c].name for c, on in zip(cands, inserted, strict=True) if on)
+        damping = dict(zip([names[li] for li in levels], floats[n + 1 : n + 1 + n_levels], strict=True))
         reasons = []
         if scale < 1.0:
             reasons.append(f"velocity scaled by {scale:.3g} to the joint limits")
@@ -525,27 +468,20 @@ class TpikSolver:
             reasons.append(f"damped level(s): {', '.join(damped)}")
         if search == "greedy":
             reasons.append(f"greedy active-set search over {n_cand} candidates")
-        return StepResult(
-            qdot,
-            SolveStatus.DEGRADED if reasons else SolveStatus.OK,
-            active,
-            t1 - t0,
-            t2 - t1,
-            damping,
-            "; ".join(reasons),
-            extras,
-        )
+        status_out = SolveStatus.DEGRADED if reasons else SolveStatus.OK
+        return StepResult(fout[:n].copy(), status_out, active, t1 - t0, t2 - t1, damping, "; ".join(reasons), extras)
 
-
-def _raise_non_finite(names: list[str], blocks: list[np.ndarray]) -> None:
-    """Name the task whose Jacobian has non-finite entries (the slow path of the check).
-
-    Returns without raising when every Jacobian is finite (AAᵀ overflowed): the caller then
-    reports a failed step.
-    """
-    for name, block in zip(names, blocks, strict=True):
-        if not np.isfinite(block).all():
-            raise InvalidTaskState(f"task '{name}': jacobian has non-finite entries")
+    def _failure(self, plan: _Plan, status: int, extras: dict[str, Any]) -> StepResult:
+        """FAILED result of a non-OK search status (or the error naming a non-finite Jacobian)."""
+        n = self.nq
+        if status == STATUS_NON_FINITE_ROWS:
+            bad = plan.evaluation.first_non_finite()
+            if bad is not None:
+                raise InvalidTaskState(f"task '{bad}': jacobian has non-finite entries")
+            return failed(n, f"{self.name}: the Gram matrix of the task rows overflowed", **extras)
+        if status == STATUS_NO_FINITE_MODE:
+            return failed(n, f"{self.name}: every mode gave a non-finite velocity", **extras)
+        return failed(n, f"{self.name}: the cascade produced a non-finite velocity", **extras)
 
 
 def solve_tpik(hierarchy: Hierarchy, kin: Kinematics, dt: float, settings: TpikSettings | None = None) -> StepResult:

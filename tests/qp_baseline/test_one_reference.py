@@ -1,10 +1,11 @@
 """One control reference (DESIGN §3): TPIK, HQP and mink receive the same r for the same hierarchy and state.
 
-Every solver takes its references from :class:`tpik.reference.ControlReference`. The test spies on
-that one place while each solver solves the same step, and checks the numbers each received:
-the equality reference σ̇_d + Kσ̃ of the EE task (gain 500 /s, 1 mm: 0.1 m/s with the gain cap,
-0.5 m/s without) and the rates K(σ_s − σ) of every set task a solver asked for. Then the EE
-velocity each one commands, which is what the reference is for.
+The references are :class:`tpik.reference.ControlReference`'s formulas; TPIK and the QP methods'
+set rows compute them in compiled code from the shared task evaluation (:mod:`tpik.evaluation`).
+The tests check the numbers in each method's rows against ControlReference evaluated in Python
+from each task's own ``compute_state``: the equality reference σ̇_d + Kσ̃ of the EE task (gain
+500 /s, 1 mm: 0.1 m/s with the gain cap, 0.5 m/s without) and the rates K(σ_s − σ) of every set
+task. Then the EE velocity each one commands, which is what the reference is for.
 """
 
 from __future__ import annotations
@@ -18,6 +19,7 @@ from compare.methods import make_method
 from tests.qp_baseline.helpers import DT, joint_limit_level, obstacle_level, position_level, wall_box_level
 from tpik.hierarchy import Hierarchy
 from tpik.reference import ControlReference
+from tpik.step_rows import assemble_rows
 from tpik.tasks import ObstacleDistanceTask
 
 SOLVERS = ("tpik", "hqp-daqp", "mink", "mink-hard")
@@ -36,50 +38,68 @@ def _hierarchy(jaco, kin, gain: float) -> Hierarchy:
     )
 
 
-@pytest.fixture
-def spy(monkeypatch):
-    """Record every reference ControlReference hands out, by task name."""
-    seen: dict[str, dict[str, np.ndarray]] = {"equality": {}, "set": {}}
-    equality, set_rates = ControlReference.equality, ControlReference.set_rates
+def _python_reference(hierarchy: Hierarchy, kin, gain_cap: bool):  # type: ignore[no-untyped-def]
+    """ControlReference's numbers for every task, from each task's own compute_state (the Python path)."""
+    ref = ControlReference(gain_cap=gain_cap)
+    equality, rates = {}, {}
+    for task in hierarchy.tasks:
+        state = task.compute_state(kin)
+        if task.is_set_based:
+            rates[task.name] = ref.set_rates(task, float(state.value[0]), DT)  # type: ignore[arg-type]
+        else:
+            equality[task.name] = ref.equality(task, state, DT)
+    return equality, rates
 
-    def spy_equality(self, task, state, dt):
-        out = equality(self, task, state, dt)
-        seen["equality"][task.name] = np.array(out)
-        return out
 
-    def spy_set_rates(self, task, sigma, dt):
-        out = set_rates(self, task, sigma, dt)
-        seen["set"][task.name] = np.array(out)
-        return out
-
-    monkeypatch.setattr(ControlReference, "equality", spy_equality)
-    monkeypatch.setattr(ControlReference, "set_rates", spy_set_rates)
-    return seen
+EE = "position_end_effector"
 
 
 @pytest.mark.parametrize(("gain_cap", "expected_mps"), [(True, 0.1), (False, 0.5)])
-def test_every_method_receives_the_same_reference_for_the_same_state(jaco, spy, gain_cap, expected_mps):
-    received: dict[str, dict[str, dict[str, np.ndarray]]] = {}
-    for name in SOLVERS:
-        solver = make_method(name, jaco, {"gain_cap": gain_cap})
-        kin = jaco.kinematics(jaco.home)
-        hierarchy = _hierarchy(jaco, kin, gain=500.0)
-        spy["equality"].clear()
-        spy["set"].clear()
-        solver.solve(hierarchy, kin, DT)
-        received[name] = {"equality": dict(spy["equality"]), "set": dict(spy["set"])}
-    ee = "position_end_effector"
-    for name in SOLVERS:  # mink evaluates on MuJoCo's kinematics: same EE position to ~1e-14 m (× 500 /s)
-        np.testing.assert_allclose(received[name]["equality"][ee], [expected_mps, 0.0, 0.0], rtol=1e-9, atol=1e-10)
-    # TPIK asks only for its candidates (past an activation threshold); the QP methods for every task.
-    candidates = set(received["tpik"]["set"])
-    assert {"obstacle_link_6", "obstacle_link_7"} <= candidates
-    for name in SOLVERS[1:]:
-        assert candidates <= set(received[name]["set"])
-        for task in candidates:
-            np.testing.assert_allclose(received[name]["set"][task], received["tpik"]["set"][task], rtol=1e-12)
-    lo, hi = received["tpik"]["set"]["obstacle_link_6"]
+def test_tpik_rows_carry_the_reference(jaco, gain_cap, expected_mps):
+    """TPIK's compiled rows (shared evaluation, eq. 2 and eq. 7) hold ControlReference's numbers."""
+    solver = make_method("tpik", jaco, {"gain_cap": gain_cap})
+    kin = jaco.kinematics(jaco.home)
+    hierarchy = _hierarchy(jaco, kin, gain=500.0)
+    solver.solve(hierarchy, kin, DT)
+    ev = solver._plan.evaluation  # type: ignore[attr-defined]
+    _, x, _, _, side, cand, _ = assemble_rows(
+        ev.set_i, ev.set_in, ev.set_out, ev.eq_i, ev.eq_in, ev.eq_out, ev.eq_level, len(hierarchy.levels), DT, gain_cap
+    )
+    equality, rates = _python_reference(hierarchy, kin, gain_cap)
+    # TPIK's frame origins come from compiled FK: pinocchio's to ~3e-16 m, × 500 /s.
+    np.testing.assert_allclose(x[side == 0.0], equality[EE], rtol=0.0, atol=1e-12)
+    np.testing.assert_allclose(x[side == 0.0], [expected_mps, 0.0, 0.0], rtol=1e-9, atol=1e-10)
+    names = [ev.set_tasks[c].name for c in cand]
+    assert {"obstacle_link_6", "obstacle_link_7"} <= set(names)
+    for name, xr, sd in zip(names, x[side != 0.0], side[side != 0.0], strict=True):
+        lo, hi = rates[name]
+        assert xr == pytest.approx(hi if sd > 0.0 else lo, rel=1e-12)
+    lo, hi = rates["obstacle_link_6"]
     assert lo == pytest.approx(2.0 * (0.35 - 0.37), rel=1e-9) and hi == math.inf
+
+
+@pytest.mark.parametrize("gain_cap", [True, False])
+@pytest.mark.parametrize("name", SOLVERS[1:])
+def test_qp_rows_carry_the_reference(jaco, name, gain_cap):
+    """HQP's and mink's set rows (and HQP's EE reference) hold ControlReference's numbers."""
+    solver = make_method(name, jaco, {"gain_cap": gain_cap})
+    kin = jaco.kinematics(jaco.home)
+    hierarchy = _hierarchy(jaco, kin, gain=500.0)
+    solver.solve(hierarchy, kin, DT)
+    kin = jaco.kinematics(jaco.home)
+    equality, rates = _python_reference(hierarchy, kin, gain_cap)
+    builder = solver._rows  # type: ignore[attr-defined]
+    rows = builder.build(kin, DT)
+    hold = builder.hold_at_zero
+    assert len(rows.h) >= 2 * 3 + 6  # both limits of 3 joints, 6 walls, obstacles in range
+    for g, h, owner in zip(rows.G, rows.h, rows.owner, strict=True):
+        task = builder.tasks[owner]
+        lo, hi = rates[task.name]
+        upper = np.allclose(g, task.compute_jacobian(kin)[0], rtol=0.0, atol=1e-15)
+        want = (max(hi, 0.0) if hold else hi) if upper else (-min(lo, 0.0) if hold else -lo)
+        assert h == pytest.approx(want, rel=1e-9, abs=1e-12), task.name
+    if name.startswith("hqp-"):
+        np.testing.assert_allclose(solver._levels[-1].r, equality[EE], rtol=1e-12)  # type: ignore[attr-defined]
 
 
 @pytest.mark.parametrize("name", SOLVERS)

@@ -121,3 +121,27 @@ def test_partial_jacobian_zeroes_columns_from_control_joint(jaco, frame, joint):
     dq[: joint - 1] = rng.normal(size=joint - 1)
     moved = (jaco.frame_position(q + eps * dq, frame) - jaco.frame_position(q - eps * dq, frame)) / (2 * eps)
     np.testing.assert_allclose(partial @ dq, moved, atol=1e-6)
+
+
+@pytest.mark.parametrize("name", ["jaco2", "panda", "ur5"])
+def test_fill_frames_matches_the_per_frame_queries(name):
+    """The one-pass frame origins and position Jacobians (compiled chain FK) equal pinocchio's per frame."""
+    robot = robots.load(name)
+    assert robot.revolute_chain() is not None  # the compiled path is the one tested
+    frames = list(robot.frame_names)
+    out = np.full((len(frames), 4, robot.nq), np.nan)
+    rng = np.random.default_rng(7)
+    for _ in range(20):
+        kin = robot.kinematics(random_configuration(robot, rng))
+        for compiled in (True, False):
+            kin.fill_frames(frames, out, compiled_origins=compiled)
+            for f, frame in enumerate(frames):
+                np.testing.assert_allclose(out[f, 0, :3], kin.frame_position(frame), rtol=0.0, atol=1e-12)
+                np.testing.assert_allclose(out[f, 1:4], kin.position_jacobian(frame), rtol=0.0, atol=1e-12)
+
+
+def test_fill_frames_of_a_stale_snapshot_raises(jaco):
+    kin = jaco.kinematics(jaco.home)
+    jaco.kinematics(jaco.home)
+    with pytest.raises(robots.StaleKinematics):
+        kin.fill_frames(["link_4"], np.zeros((1, 4, 7)))
