@@ -18,7 +18,6 @@ from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
-from scipy import stats
 
 CONFIDENCE = 0.95
 """Confidence level of every interval."""
@@ -32,6 +31,8 @@ def rate(count: int, runs: int) -> dict[str, Any]:
     count, runs = int(count), int(runs)
     if runs <= 0:
         return {"count": count, "runs": 0, "rate": None, "ci95": None}
+    from scipy import stats  # imported here: scipy.stats costs ~1 s at start-up, and workers never need it
+
     ci = stats.binomtest(count, runs).proportion_ci(confidence_level=CONFIDENCE, method="wilson")
     return {"count": count, "runs": runs, "rate": count / runs, "ci95": [float(ci.low), float(ci.high)]}
 
@@ -62,6 +63,8 @@ def mcnemar(a: Sequence[bool], b: Sequence[bool]) -> dict[str, Any]:
     a_only = int(np.count_nonzero(x & ~y))
     b_only = int(np.count_nonzero(~x & y))
     discordant = a_only + b_only
+    from scipy import stats
+
     p = 1.0 if discordant == 0 else float(stats.binomtest(a_only, discordant, 0.5).pvalue)
     return {
         "runs": int(x.size),
@@ -85,6 +88,8 @@ def bootstrap_median_ci(values: Sequence[float] | np.ndarray, seed: int = 0) -> 
         return None
     if np.all(x == x[0]):
         return [float(x[0]), float(x[0])]
+    from scipy import stats
+
     res = stats.bootstrap(
         (x,),
         np.median,

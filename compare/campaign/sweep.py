@@ -25,6 +25,7 @@ in the directory, plus a ``campaign`` entry: executor, workers, wall time), ``pl
 from __future__ import annotations
 
 import logging
+import os
 import shlex
 import sys
 import time
@@ -211,6 +212,7 @@ def _execute(
     failures: list[str] = []
     columns = (TextColumn("[bold]sweep"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(), TimeRemainingColumn())
     start = time.perf_counter()
+    cpu0 = os.times()
     with Progress(*columns, disable=not progress) as bar:
         task = bar.add_task("runs", total=n, completed=skipped)
 
@@ -222,6 +224,8 @@ def _execute(
 
         runner.run(jobs, done)
     wall = time.perf_counter() - start
+    cpu = _cpu_since(cpu0) if runner.name == "local" else None
+    sim_s = sum(j.config.scenario.sim_time_s * len(j.config.methods.names) for j in jobs)
     if skipped:
         log.info("skipped %d finished runs", skipped)
     summary = write_sweep_summary(out_dir)
@@ -233,6 +237,10 @@ def _execute(
         "pairs_executed": pairs,
         "wall_time_s": wall,
         "wall_time_per_run_s": wall / len(jobs) if jobs else None,
+        # Throughput (docs/benchmarks.md "Campaign throughput"): simulated seconds of the executed
+        # (run, method) pairs per CPU second of this process and its workers (local executor only).
+        "cpu_time_s": cpu,
+        "sim_s_per_cpu_s": sim_s / cpu if cpu else None,
         "command": command or " ".join(shlex.quote(a) for a in sys.argv),
         "plant": _plant(config),
     }
@@ -259,6 +267,21 @@ def _execute(
         except Exception as exc:
             log.warning("sweep report failed: %s", exc)
     return summary
+
+
+def _cpu_since(start: os.times_result) -> float:
+    """CPU time [s] (user + system) of this process and its finished child processes since ``start``."""
+    now = os.times()
+    return (
+        now.user
+        - start.user
+        + now.system
+        - start.system
+        + now.children_user
+        - start.children_user
+        + now.children_system
+        - start.children_system
+    )
 
 
 def _plant(config: Config) -> dict[str, object]:

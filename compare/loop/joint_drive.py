@@ -106,7 +106,7 @@ class DecoupledVelocityDrive:
 
     def step(self, model: mujoco.MjModel, data: mujoco.MjData, command: np.ndarray, substeps: int) -> None:
         """Advance ``substeps`` physics steps, recomputing the torque before each."""
-        qd_c = np.clip(command, self._ctrl_lo, self._ctrl_hi)
+        qd_c = np.minimum(np.maximum(command, self._ctrl_lo), self._ctrl_hi)  # np.clip, without its overhead
         applied = data.qfrc_applied[: self.nq]
         for _ in range(substeps):
             mujoco.mj_step1(model, data)

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 
 import numpy as np
@@ -44,7 +45,8 @@ class WaypointSchedule:
         """Advance the schedule at time ``t`` [s] given the EE position [m]; return the target."""
         if len(self.positions) == 1:
             return self.target
-        close = float(np.linalg.norm(ee_position - self.target)) < self.tolerance_m
+        gap = ee_position - self.target
+        close = math.sqrt(float(gap.dot(gap))) < self.tolerance_m  # np.linalg.norm's own arithmetic, cheaper
         if self._reached_at is None and close:
             self._reached_at = t
             self.reached_count += 1

@@ -99,15 +99,61 @@ def occluded_search(
         frame [m], the number of samples tested, and whether the budget ran out (then the
         distance is the nearest remaining half-line's unconstrained one: conservative).
     """
+    n = _hidden_candidates(depth, box, xn, yn, inv_rr, min_range, max_range, p, radius_hi, work)
+    best = np.inf
+    bx = by = bz = 0.0
+    if n == 0:
+        return best, bx, by, bz, 0, False
+    cand_a, cand_b, cand_d, cand_s0, cand_l2, cand_rr = work[0], work[1], work[2], work[3], work[4], work[5]
+    counts, order = _nearest_first(cand_l2, n, radius_hi)
+    limit = radius_hi
+    lo2 = radius_lo * radius_lo
+    samples = 0
+    for j in range(_BUCKETS):
+        if j * radius_hi / _BUCKETS >= min(best, limit):
+            break
+        for idx in range(counts[j], counts[j + 1]):
+            i = order[idx]
+            bound = min(best, limit)
+            l2 = cand_l2[i]
+            if l2 >= bound * bound:
+                continue
+            a, b, d, s0, rr = cand_a[i], cand_b[i], cand_d[i], cand_s0[i], cand_rr[i]
+            half = np.sqrt((bound * bound - l2) / rr)  # |s − s0| within the current best distance
+            inner = np.sqrt(max(lo2 - l2, 0.0) / rr)  # nearer than radius_lo: seen free for sure
+            hit, off, s, samples, spent = _walk_half_line(
+                a, b, d, s0, inner, half, step, samples, budget, rot, trans, intr, tau, others
+            )
+            if hit:
+                best = np.sqrt(l2 + off * off * rr)
+                bx, by, bz = a * s, b * s, s
+            elif spent:
+                best, bx, by, bz = _unclipped_rest(order, idx, n, work, best, bx, by, bz)
+                return best, bx, by, bz, samples, True
+    return best, bx, by, bz, samples, False
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _hidden_candidates(
+    depth: np.ndarray,
+    box: np.ndarray,
+    xn: np.ndarray,
+    yn: np.ndarray,
+    inv_rr: np.ndarray,
+    min_range: float,
+    max_range: float,
+    p: np.ndarray,
+    radius_hi: float,
+    work: np.ndarray,
+) -> int:
+    """The owner's half-lines hidden behind its surface nearer than ``radius_hi`` to ``p``; returns their number.
+
+    Rows of ``work`` per candidate: a, b, d (its pixel's ray and depth), s0 (depth of the closest
+    approach to ``p``), l² (squared distance of that approach) and |r|² = 1 / ``inv_rr``.
+    """
     v0, v1, u0, u1 = box[0], box[1], box[2], box[3]
     px, py, pz = p[0], p[1], p[2]
     hi2 = radius_hi * radius_hi
-    cand_a = work[0]
-    cand_b = work[1]
-    cand_d = work[2]
-    cand_s0 = work[3]
-    cand_l2 = work[4]
-    cand_rr = work[5]
     n = 0
     for v in range(v0, v1):
         for u in range(u0, u1):
@@ -125,18 +171,23 @@ def occluded_search(
             l2 = dx * dx + dy * dy + dz * dz
             if l2 >= hi2:
                 continue
-            cand_a[n] = a
-            cand_b[n] = b
-            cand_d[n] = d
-            cand_s0[n] = s0
-            cand_l2[n] = l2
-            cand_rr[n] = 1.0 / inv_rr[v, u]
+            work[0, n] = a
+            work[1, n] = b
+            work[2, n] = d
+            work[3, n] = s0
+            work[4, n] = l2
+            work[5, n] = 1.0 / inv_rr[v, u]
             n += 1
-    best = np.inf
-    bx = by = bz = 0.0
-    if n == 0:
-        return best, bx, by, bz, 0, False
-    # Closest half-lines first (counting sort on the line distance).
+    return n
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _nearest_first(cand_l2: np.ndarray, n: int, radius_hi: float) -> tuple[np.ndarray, np.ndarray]:
+    """Counting sort of the candidates on their line distance into ``_BUCKETS`` buckets of ``radius_hi``.
+
+    Returns:
+        Bucket starts (``_BUCKETS`` + 1, the last the total) and the candidates in bucket order.
+    """
     counts = np.zeros(_BUCKETS + 1, dtype=np.int64)
     keys = np.empty(n, dtype=np.int64)
     for i in range(n):
@@ -150,51 +201,62 @@ def occluded_search(
     for i in range(n):
         order[fill[keys[i]]] = i
         fill[keys[i]] += 1
-    limit = radius_hi
-    lo2 = radius_lo * radius_lo
-    samples = 0
-    for j in range(_BUCKETS):
-        if j * radius_hi / _BUCKETS >= min(best, limit):
-            break
-        for idx in range(counts[j], counts[j + 1]):
-            i = order[idx]
-            bound = min(best, limit)
-            l2 = cand_l2[i]
-            if l2 >= bound * bound:
+    return counts, order
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _walk_half_line(
+    a: float,
+    b: float,
+    d: float,
+    s0: float,
+    inner: float,
+    half: float,
+    step: float,
+    samples: int,
+    budget: int,
+    rot: np.ndarray,
+    trans: np.ndarray,
+    intr: np.ndarray,
+    tau: np.ndarray,
+    others: tuple[np.ndarray, ...],
+) -> tuple[bool, float, float, int, bool]:
+    """Samples of one hidden half-line, outward from ``inner`` to ``half`` in depth from s0, both ways.
+
+    Returns:
+        (a sample no other camera sees free was found, its offset and depth s, the samples
+        counted so far, the budget ran out before a hit).
+    """
+    k = 0
+    while True:
+        off = inner + k * step
+        if off >= half:
+            return False, 0.0, 0.0, samples, False
+        for sign in (1.0, -1.0):
+            if sign < 0.0 and off == 0.0:
                 continue
-            a, b, d, s0, rr = cand_a[i], cand_b[i], cand_d[i], cand_s0[i], cand_rr[i]
-            half = np.sqrt((bound * bound - l2) / rr)  # |s − s0| within the current best distance
-            inner = np.sqrt(max(lo2 - l2, 0.0) / rr)  # nearer than radius_lo: seen free for sure
-            k = 0
-            while True:
-                off = inner + k * step
-                if off >= half:
-                    break
-                hit = False
-                for sign in (1.0, -1.0):
-                    if sign < 0.0 and off == 0.0:
-                        continue
-                    s = s0 + sign * off
-                    if s <= d:
-                        continue
-                    samples += 1
-                    if not _seen_free(a * s, b * s, s, rot, trans, intr, tau, others):
-                        best = np.sqrt(l2 + off * off * rr)
-                        bx, by, bz = a * s, b * s, s
-                        hit = True
-                        break
-                if hit:
-                    break
-                if samples >= budget:
-                    # Out of budget: every half-line not searched yet counts unclipped (as with one camera).
-                    for rest in range(idx, n):
-                        r = order[rest]
-                        if cand_l2[r] < best * best:
-                            best = np.sqrt(cand_l2[r])
-                            bx, by, bz = cand_a[r] * cand_s0[r], cand_b[r] * cand_s0[r], cand_s0[r]
-                    return best, bx, by, bz, samples, True
-                k += 1
-    return best, bx, by, bz, samples, False
+            s = s0 + sign * off
+            if s <= d:
+                continue
+            samples += 1
+            if not _seen_free(a * s, b * s, s, rot, trans, intr, tau, others):
+                return True, off, s, samples, False
+        if samples >= budget:
+            return False, 0.0, 0.0, samples, True
+        k += 1
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _unclipped_rest(
+    order: np.ndarray, start: int, n: int, work: np.ndarray, best: float, bx: float, by: float, bz: float
+) -> tuple[float, float, float, float]:
+    """Out of budget: every half-line not searched yet (from ``start`` in ``order``) counts unclipped."""
+    for rest in range(start, n):
+        r = order[rest]
+        if work[4, r] < best * best:
+            best = np.sqrt(work[4, r])
+            bx, by, bz = work[0, r] * work[3, r], work[1, r] * work[3, r], work[3, r]
+    return best, bx, by, bz
 
 
 @numba.njit(cache=True, nogil=True)

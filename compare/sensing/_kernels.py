@@ -69,8 +69,52 @@ def closest_in_boxes(
         the closest measured point.
     """
     k_points = boxes.shape[0]
-    v_lo, v_hi, u_lo, u_hi = depth.shape[0], 0, depth.shape[1], 0
+    n = _collect_valid_pixels(depth, boxes, min_range, max_range, work_v, work_u, work_d)
+    out_d2 = np.full(k_points, np.inf)
+    out_a = np.zeros(k_points)
+    out_b = np.zeros(k_points)
+    out_s = np.zeros(k_points)
+    out_hidden = np.zeros(k_points, dtype=np.bool_)
+    count = np.zeros(k_points, dtype=np.int64)
+    out_e2 = np.full(k_points, np.inf)
+    out_ea = np.zeros(k_points)
+    out_eb = np.zeros(k_points)
+    out_ed = np.zeros(k_points)
+    best = np.empty((5, support))  # rows: d², a, b, s, d of the ``support`` nearest so far
     for k in range(k_points):
+        v0, v1, u0, u1 = boxes[k, 0], boxes[k, 1], boxes[k, 2], boxes[k, 3]
+        px, py, pz = points[k, 0], points[k, 1], points[k, 2]
+        if support == 1:  # plain minimum in registers: the common case, ~3x faster
+            m, ma, mb, ms, md, c, e, ea, eb, ed, ei = _nearest_in_box(
+                work_v, work_u, work_d, n, v0, v1, u0, u1, xn, yn, inv_rr, px, py, pz, measured
+            )
+        else:
+            m, ma, mb, ms, md, c, e, ea, eb, ed, ei = _kth_nearest_in_box(
+                work_v, work_u, work_d, n, v0, v1, u0, u1, xn, yn, inv_rr, px, py, pz, measured, best
+            )
+        if measured and ei >= 0 and not _supported(depth, work_v[ei], work_u[ei], work_d[ei], min_range, max_range):
+            e, ea, eb, ed = _closest_supported(
+                depth, work_v, work_u, work_d, n, v0, v1, u0, u1, xn, yn, px, py, pz, min_range, max_range
+            )
+        count[k] = c
+        out_d2[k], out_a[k], out_b[k], out_s[k], out_hidden[k] = m, ma, mb, ms, ms > md
+        out_e2[k], out_ea[k], out_eb[k], out_ed[k] = e, ea, eb, ed
+    return out_d2, out_a, out_b, out_s, out_hidden, count, out_e2, out_ea, out_eb, out_ed
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _collect_valid_pixels(
+    depth: np.ndarray,
+    boxes: np.ndarray,
+    min_range: float,
+    max_range: float,
+    work_v: np.ndarray,
+    work_u: np.ndarray,
+    work_d: np.ndarray,
+) -> int:
+    """Row, column and depth of every valid pixel of the union of the non-empty boxes; returns their number."""
+    v_lo, v_hi, u_lo, u_hi = depth.shape[0], 0, depth.shape[1], 0
+    for k in range(boxes.shape[0]):
         if boxes[k, 0] < boxes[k, 1] and boxes[k, 2] < boxes[k, 3]:
             v_lo = min(v_lo, boxes[k, 0])
             v_hi = max(v_hi, boxes[k, 1])
@@ -85,111 +129,127 @@ def closest_in_boxes(
                 work_u[n] = u
                 work_d[n] = d
                 n += 1
-    out_d2 = np.full(k_points, np.inf)
-    out_a = np.zeros(k_points)
-    out_b = np.zeros(k_points)
-    out_s = np.zeros(k_points)
-    out_hidden = np.zeros(k_points, dtype=np.bool_)
-    count = np.zeros(k_points, dtype=np.int64)
-    out_e2 = np.full(k_points, np.inf)
-    out_ea = np.zeros(k_points)
-    out_eb = np.zeros(k_points)
-    out_ed = np.zeros(k_points)
-    best = np.empty(support)
-    best_a = np.empty(support)
-    best_b = np.empty(support)
-    best_s = np.empty(support)
-    best_d = np.empty(support)
-    last = support - 1
-    for k in range(k_points):
-        v0, v1, u0, u1 = boxes[k, 0], boxes[k, 1], boxes[k, 2], boxes[k, 3]
-        px, py, pz = points[k, 0], points[k, 1], points[k, 2]
-        e, ea, eb, ed, ei = np.inf, 0.0, 0.0, 0.0, -1
-        if support == 1:  # plain minimum in registers: the common case, ~3x faster
-            m, ma, mb, ms, md, c = np.inf, 0.0, 0.0, 0.0, 0.0, 0
-            for i in range(n):
-                v = work_v[i]
-                u = work_u[i]
-                if v < v0 or v >= v1 or u < u0 or u >= u1:
-                    continue
-                c += 1
-                a = xn[u]
-                b = yn[v]
-                d = work_d[i]
-                ir = inv_rr[v, u]
-                s0 = (a * px + b * py + pz) * ir
-                s = max(s0, d)
-                dx = a * s - px
-                dy = b * s - py
-                dz = s - pz
-                d2 = dx * dx + dy * dy + dz * dz
-                if d2 < m:
-                    m, ma, mb, ms, md = d2, a, b, s, d
-                if measured:
-                    # Surface point: the same point when s = d, else |r|² (s0 − d)² farther (squared).
-                    e2 = d2 if s0 <= d else d2 + (s0 - d) * (s0 - d) / ir
-                    if e2 < e:
-                        e, ea, eb, ed, ei = e2, a, b, d, i
-            count[k] = c
-            out_d2[k], out_a[k], out_b[k], out_s[k], out_hidden[k] = m, ma, mb, ms, ms > md
-            if measured and ei >= 0 and not _supported(depth, work_v[ei], work_u[ei], work_d[ei], min_range, max_range):
-                e, ea, eb, ed = _closest_supported(
-                    depth, work_v, work_u, work_d, n, v0, v1, u0, u1, xn, yn, px, py, pz, min_range, max_range
-                )
-            out_e2[k], out_ea[k], out_eb[k], out_ed[k] = e, ea, eb, ed
+    return n
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _nearest_in_box(
+    work_v: np.ndarray,
+    work_u: np.ndarray,
+    work_d: np.ndarray,
+    n: int,
+    v0: int,
+    v1: int,
+    u0: int,
+    u1: int,
+    xn: np.ndarray,
+    yn: np.ndarray,
+    inv_rr: np.ndarray,
+    px: float,
+    py: float,
+    pz: float,
+    measured: bool,
+) -> tuple[float, float, float, float, float, int, float, float, float, float, int]:
+    """Support 1 of :func:`closest_in_boxes` for one box: the nearest half-line and measured point.
+
+    Returns:
+        d², a, b, s, d of the nearest half-line's point, the pixels in the box, and d², a, b, d
+        and the collected index of the nearest surface point (index −1: none or not ``measured``).
+    """
+    e, ea, eb, ed, ei = np.inf, 0.0, 0.0, 0.0, -1
+    m, ma, mb, ms, md, c = np.inf, 0.0, 0.0, 0.0, 0.0, 0
+    for i in range(n):
+        v = work_v[i]
+        u = work_u[i]
+        if v < v0 or v >= v1 or u < u0 or u >= u1:
             continue
-        best[:] = np.inf
-        best_s[:] = 0.0
-        best_d[:] = 0.0
-        c = 0
-        for i in range(n):
-            v = work_v[i]
-            u = work_u[i]
-            if v < v0 or v >= v1 or u < u0 or u >= u1:
-                continue
-            c += 1
-            a = xn[u]
-            b = yn[v]
-            d = work_d[i]
-            # Depth of the ray's closest approach to P, never in front of the measured surface.
-            s = max((a * px + b * py + pz) * inv_rr[v, u], d)
-            dx = a * s - px
-            dy = b * s - py
-            dz = s - pz
+        c += 1
+        a = xn[u]
+        b = yn[v]
+        d = work_d[i]
+        ir = inv_rr[v, u]
+        s0 = (a * px + b * py + pz) * ir
+        s = max(s0, d)
+        dx = a * s - px
+        dy = b * s - py
+        dz = s - pz
+        d2 = dx * dx + dy * dy + dz * dz
+        if d2 < m:
+            m, ma, mb, ms, md = d2, a, b, s, d
+        if measured:
+            # Surface point: the same point when s = d, else |r|² (s0 − d)² farther (squared).
+            e2 = d2 if s0 <= d else d2 + (s0 - d) * (s0 - d) / ir
+            if e2 < e:
+                e, ea, eb, ed, ei = e2, a, b, d, i
+    return m, ma, mb, ms, md, c, e, ea, eb, ed, ei
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _kth_nearest_in_box(
+    work_v: np.ndarray,
+    work_u: np.ndarray,
+    work_d: np.ndarray,
+    n: int,
+    v0: int,
+    v1: int,
+    u0: int,
+    u1: int,
+    xn: np.ndarray,
+    yn: np.ndarray,
+    inv_rr: np.ndarray,
+    px: float,
+    py: float,
+    pz: float,
+    measured: bool,
+    best: np.ndarray,
+) -> tuple[float, float, float, float, float, int, float, float, float, float, int]:
+    """Support k > 1 of :func:`closest_in_boxes` for one box (same returns as :func:`_nearest_in_box`).
+
+    ``best`` (5, k) is scratch: the k nearest half-line points so far, sorted (insertion).
+    """
+    last = best.shape[1] - 1
+    best[0, :] = np.inf
+    best[3, :] = 0.0
+    best[4, :] = 0.0
+    e, ea, eb, ed, ei = np.inf, 0.0, 0.0, 0.0, -1
+    c = 0
+    for i in range(n):
+        v = work_v[i]
+        u = work_u[i]
+        if v < v0 or v >= v1 or u < u0 or u >= u1:
+            continue
+        c += 1
+        a = xn[u]
+        b = yn[v]
+        d = work_d[i]
+        # Depth of the ray's closest approach to P, never in front of the measured surface.
+        s = max((a * px + b * py + pz) * inv_rr[v, u], d)
+        dx = a * s - px
+        dy = b * s - py
+        dz = s - pz
+        d2 = dx * dx + dy * dy + dz * dz
+        if d2 < best[0, last]:
+            j = last
+            while j > 0 and best[0, j - 1] > d2:
+                best[0, j] = best[0, j - 1]
+                best[1, j] = best[1, j - 1]
+                best[2, j] = best[2, j - 1]
+                best[3, j] = best[3, j - 1]
+                best[4, j] = best[4, j - 1]
+                j -= 1
+            best[0, j] = d2
+            best[1, j] = a
+            best[2, j] = b
+            best[3, j] = s
+            best[4, j] = d
+        if measured:
+            dx = a * d - px
+            dy = b * d - py
+            dz = d - pz
             d2 = dx * dx + dy * dy + dz * dz
-            if d2 < best[last]:
-                j = last
-                while j > 0 and best[j - 1] > d2:
-                    best[j] = best[j - 1]
-                    best_a[j] = best_a[j - 1]
-                    best_b[j] = best_b[j - 1]
-                    best_s[j] = best_s[j - 1]
-                    best_d[j] = best_d[j - 1]
-                    j -= 1
-                best[j] = d2
-                best_a[j] = a
-                best_b[j] = b
-                best_s[j] = s
-                best_d[j] = d
-            if measured:
-                dx = a * d - px
-                dy = b * d - py
-                dz = d - pz
-                d2 = dx * dx + dy * dy + dz * dz
-                if d2 < e:
-                    e, ea, eb, ed, ei = d2, a, b, d, i
-        if measured and ei >= 0 and not _supported(depth, work_v[ei], work_u[ei], work_d[ei], min_range, max_range):
-            e, ea, eb, ed = _closest_supported(
-                depth, work_v, work_u, work_d, n, v0, v1, u0, u1, xn, yn, px, py, pz, min_range, max_range
-            )
-        count[k] = c
-        out_d2[k] = best[last]
-        out_a[k] = best_a[last]
-        out_b[k] = best_b[last]
-        out_s[k] = best_s[last]
-        out_hidden[k] = best_s[last] > best_d[last]
-        out_e2[k], out_ea[k], out_eb[k], out_ed[k] = e, ea, eb, ed
-    return out_d2, out_a, out_b, out_s, out_hidden, count, out_e2, out_ea, out_eb, out_ed
+            if d2 < e:
+                e, ea, eb, ed, ei = d2, a, b, d, i
+    return best[0, last], best[1, last], best[2, last], best[3, last], best[4, last], c, e, ea, eb, ed, ei
 
 
 SUPPORT_DEPTH_M = 0.05

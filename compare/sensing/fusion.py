@@ -194,98 +194,178 @@ class DepthFusion:
         """
         if len(frames) != len(self.distances):
             raise SensingError(f"expected {len(self.distances)} frames, got {len(frames)}")
+        scan = self._scan(frames, control_points, valid_fractions)
+        best = _Best.measured(scan, self.rho_m, self.settings.step_m)
+        samples = 0
+        for c in np.flatnonzero(best.needs_search(scan).any(axis=1)):
+            samples += self._search_camera(int(c), frames, scan, best)
+        self.last_samples = samples
+        cameras: tuple[DistanceResult, ...] = ()
+        if per_camera:
+            cameras = tuple(
+                d.result(f, scan.names, _evaluation(p, box, raw), vf)
+                for d, f, p, (box, raw), vf in zip(
+                    self.distances, frames, scan.p_sensor, scan.raw, scan.fractions, strict=True
+                )
+            )
+        return DistanceResult(
+            readings=self._readings(scan, best),
+            valid_fraction=min(scan.fractions),
+            blind=any(vf < d.blind_fraction for vf, d in zip(scan.fractions, self.distances, strict=True)),
+            stamp_s=min(f.stamp_s for f in frames),
+            pixels_visited=int(sum(raw[5].sum() for _, raw in scan.raw)),
+            out_of_view=tuple(n for k, n in enumerate(scan.names) if not scan.seen[:, k].any()),
+            cameras=cameras,
+        )
+
+    def _scan(
+        self,
+        frames: Sequence[DepthFrame],
+        control_points: Mapping[str, np.ndarray],
+        valid_fractions: Sequence[float] | None,
+    ) -> _Scan:
+        """Every camera's depth-space scan of every control point (measured points and hidden half-lines)."""
         names = list(control_points)
-        k_points = len(names)
         p_base = np.array([np.asarray(control_points[n], dtype=float).reshape(3) for n in names]).reshape(-1, 3)
         fractions = [
             valid_fraction(f) if valid_fractions is None else float(valid_fractions[c]) for c, f in enumerate(frames)
         ]
-        dists = self.distances
-        p_sensor = [base_to_sensor(d.camera, p_base) for d in dists]
-        scans = [d.scan(f, p, measured=True) for d, f, p in zip(dists, frames, p_sensor, strict=True)]
-        boxes = [box for box, _ in scans]
-        delta = np.sqrt(np.array([raw[0] for _, raw in scans]))  # (N, K) hidden half-lines
-        measured = np.sqrt(np.array([raw[6] for _, raw in scans]))  # (N, K) surface points
-        seen = np.array([box[:, 0] < box[:, 1] for box in boxes])
-        rho = self.rho_m
-        # Measured: the closest surface point over all cameras (never dropped).
-        best_cam = np.argmin(measured, axis=0)
-        best = measured[best_cam, np.arange(k_points)]
-        hidden_points: dict[int, np.ndarray] = {}
-        radius = np.minimum(best, rho)
-        # A hidden point replaces a measured one only if nearer by more than the search's resolution.
-        margin = np.where(best <= rho, self.settings.step_m, 0.0)
-        need = seen & (delta < radius - margin)
+        p_sensor = [base_to_sensor(d.camera, p_base) for d in self.distances]
+        raw = [d.scan(f, p, measured=True) for d, f, p in zip(self.distances, frames, p_sensor, strict=True)]
+        boxes = [box for box, _ in raw]
+        return _Scan(
+            names=names,
+            p_sensor=p_sensor,
+            raw=raw,
+            fractions=fractions,
+            delta=np.sqrt(np.array([r[0] for _, r in raw])),  # (N, K) hidden half-lines
+            measured=np.sqrt(np.array([r[6] for _, r in raw])),  # (N, K) surface points
+            seen=np.array([box[:, 0] < box[:, 1] for box in boxes]),
+        )
+
+    def _search_camera(self, c: int, frames: Sequence[DepthFrame], scan: _Scan, best: _Best) -> int:
+        """Search camera ``c``'s hidden half-lines for points no other camera sees free; returns the samples.
+
+        Each control point whose hidden distance may beat the best so far by more than the
+        search's resolution, and is not within every other camera's seen-free bound, is searched
+        (:func:`~compare.sensing._fusion_kernel.occluded_search`); a hit replaces its best.
+        """
+        others, rot, trans, intr, tau = self._others[c]
+        delta = scan.delta
+        bounds = np.zeros(len(scan.names))
+        for j, m in enumerate(others):
+            np.maximum(bounds, not_free_bounds(scan.p_sensor[m], delta[m], best.radius, intr[j], tau[j]), out=bounds)
+        limit = best.radius - best.margin
+        todo = np.flatnonzero(scan.seen[c] & (delta[c] < limit) & (bounds < limit))
+        if todo.size == 0:
+            return 0
+        owner = self.distances[c]
+        depth = _contiguous(frames[c].depth_m)
+        other_depths = tuple(_contiguous(frames[m].depth_m) for m in others)
+        box = scan.raw[c][0]
         samples = 0
-        for c in np.flatnonzero(need.any(axis=1)):
-            others, rot, trans, intr, tau = self._others[c]
-            bounds = np.zeros(k_points)
-            for j, m in enumerate(others):
-                np.maximum(bounds, not_free_bounds(p_sensor[m], delta[m], radius, intr[j], tau[j]), out=bounds)
-            todo = np.flatnonzero(seen[c] & (delta[c] < radius - margin) & (bounds < radius - margin))
-            if todo.size == 0:
-                continue
-            owner = dists[c]
-            depth = _contiguous(frames[c].depth_m)
-            other_depths = tuple(_contiguous(frames[m].depth_m) for m in others)
-            for k in todo:
-                found, x, y, z, n, _ = occluded_search(
-                    depth,
-                    boxes[c][k],
-                    owner._xn64,
-                    owner._yn64,
-                    owner._inv_rr,
-                    owner.camera.min_range_m,
-                    owner.camera.max_range_m,
-                    p_sensor[c][k],
-                    float(bounds[k]),
-                    float(radius[k] - margin[k]),
-                    self.settings.step_m,
-                    self.settings.max_samples,
-                    rot,
-                    trans,
-                    intr,
-                    tau,
-                    other_depths,
-                    self._work[c],
-                )
-                samples += n
-                if found < radius[k] - margin[k]:
-                    radius[k] = best[k] = found
-                    margin[k] = 0.0
-                    best_cam[k] = c
-                    hidden_points[int(k)] = np.array([x, y, z])
-        self.last_samples = samples
+        for k in todo:
+            found, x, y, z, n, _ = occluded_search(
+                depth,
+                box[k],
+                owner._xn64,
+                owner._yn64,
+                owner._inv_rr,
+                owner.camera.min_range_m,
+                owner.camera.max_range_m,
+                scan.p_sensor[c][k],
+                float(bounds[k]),
+                float(best.radius[k] - best.margin[k]),
+                self.settings.step_m,
+                self.settings.max_samples,
+                rot,
+                trans,
+                intr,
+                tau,
+                other_depths,
+                self._work[c],
+            )
+            samples += n
+            if found < best.radius[k] - best.margin[k]:
+                best.take_hidden(int(k), c, found, np.array([x, y, z]))
+        return samples
+
+    def _readings(self, scan: _Scan, best: _Best) -> dict[str, ObstacleReading]:
+        """The reading of every control point from the best point found (measured or hidden)."""
         readings = {}
-        for k, name in enumerate(names):
-            if not best[k] <= rho:
+        for k, name in enumerate(scan.names):
+            if not best.distance[k] <= self.rho_m:
                 readings[name] = ObstacleReading.nothing()
                 continue
-            c = int(best_cam[k])
-            hidden = hidden_points.get(k)
+            c = int(best.camera[k])
+            hidden = best.hidden_points.get(k)
             if hidden is None:
-                raw = scans[c][1]
+                raw = scan.raw[c][1]
                 ed = raw[9][k]
                 hidden_or_surface = np.array([raw[7][k] * ed, raw[8][k] * ed, ed])
             else:
                 hidden_or_surface = hidden
-            point = sensor_to_base(dists[c].camera, hidden_or_surface)
-            readings[name] = ObstacleReading(float(best[k]), point, True, hidden is not None, self.names[c])
-        cameras: tuple[DistanceResult, ...] = ()
-        if per_camera:
-            cameras = tuple(
-                d.result(f, names, _evaluation(p, box, raw), vf)
-                for d, f, p, (box, raw), vf in zip(dists, frames, p_sensor, scans, fractions, strict=True)
-            )
-        return DistanceResult(
-            readings=readings,
-            valid_fraction=min(fractions),
-            blind=any(vf < d.blind_fraction for vf, d in zip(fractions, dists, strict=True)),
-            stamp_s=min(f.stamp_s for f in frames),
-            pixels_visited=int(sum(raw[5].sum() for _, raw in scans)),
-            out_of_view=tuple(n for k, n in enumerate(names) if not seen[:, k].any()),
-            cameras=cameras,
-        )
+            point = sensor_to_base(self.distances[c].camera, hidden_or_surface)
+            readings[name] = ObstacleReading(float(best.distance[k]), point, True, hidden is not None, self.names[c])
+        return readings
+
+
+@dataclass
+class _Scan:
+    """Every camera's scan of the control points (:meth:`DepthFusion._scan`).
+
+    Attributes:
+        names: Control point names (K).
+        p_sensor: Control points in each camera's sensor frame [m], N × (K, 3).
+        raw: Each camera's (boxes, raw arrays) of :meth:`DepthDistance.scan`.
+        fractions: Each camera's valid fraction.
+        delta: Distance to each camera's hidden half-lines [m], (N, K).
+        measured: Distance to each camera's closest measured point [m], (N, K).
+        seen: Control point in each camera's view, (N, K).
+    """
+
+    names: list[str]
+    p_sensor: list[np.ndarray]
+    raw: list[tuple[np.ndarray, tuple[np.ndarray, ...]]]
+    fractions: list[float]
+    delta: np.ndarray
+    measured: np.ndarray
+    seen: np.ndarray
+
+
+@dataclass
+class _Best:
+    """The best point so far per control point: its distance [m], camera and (hidden ones) the point.
+
+    ``radius`` is the search radius (the best distance capped at ρ) and ``margin`` what a hidden
+    point must beat it by (the search's step while the best is a measured point within ρ).
+    """
+
+    distance: np.ndarray
+    camera: np.ndarray
+    radius: np.ndarray
+    margin: np.ndarray
+    hidden_points: dict[int, np.ndarray]
+
+    @classmethod
+    def measured(cls, scan: _Scan, rho: float, step: float) -> _Best:
+        """Start from the closest surface point over all cameras (never dropped)."""
+        camera = np.argmin(scan.measured, axis=0)
+        distance = scan.measured[camera, np.arange(len(scan.names))]
+        # A hidden point replaces a measured one only if nearer by more than the search's resolution.
+        margin = np.where(distance <= rho, step, 0.0)
+        return cls(distance, camera, np.minimum(distance, rho), margin, {})
+
+    def needs_search(self, scan: _Scan) -> np.ndarray:
+        """(N, K): camera's hidden half-lines may hold a point nearer than the best (by the margin)."""
+        return scan.seen & (scan.delta < self.radius - self.margin)
+
+    def take_hidden(self, k: int, camera: int, distance: float, point: np.ndarray) -> None:
+        """Control point ``k``'s best is now a hidden point of ``camera``."""
+        self.radius[k] = self.distance[k] = distance
+        self.margin[k] = 0.0
+        self.camera[k] = camera
+        self.hidden_points[k] = point
 
 
 def _evaluation(p: np.ndarray, boxes: np.ndarray, raw: tuple[np.ndarray, ...]) -> CameraEvaluation:

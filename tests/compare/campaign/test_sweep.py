@@ -64,7 +64,16 @@ def test_sweep_runs_four_seeds_then_skips_them(tmp_path):
     assert summary["runs"] == 4 and set(summary["methods"]) == {"tpik", "hqp-daqp"}
     plant = {"sensing": "geometric", "simulation": "dynamic", "drive": "decoupled", "drive_bandwidth_rad_s": 100.0}
     assert summary["campaign"]["plant"] == plant
+    # Throughput: 4 runs x 2 methods x 3 s simulated, per CPU second of the sweep and its workers.
+    campaign = summary["campaign"]
+    assert campaign["cpu_time_s"] > 0.0
+    assert campaign["sim_s_per_cpu_s"] == pytest.approx(4 * 2 * 3.0 / campaign["cpu_time_s"])
+    for name, m in summary["methods"].items():  # the worst step after warm-up, on the limit's (CPU) clock
+        worst = max(json.loads((r / "summary.json").read_text())["methods"][name]["solve_worst_us"]["us"] for r in runs)
+        assert m["solve_time_us"]["max_on_limit_clock"] == pytest.approx(worst) and 0.0 < worst
+        assert worst <= m["solve_time_us"]["max"] * (1.0 + 1e-6) + 5.0  # CPU time <= the elapsed time around it
     report = (out / "sweep_report.md").read_text()
+    assert "simulated s per CPU s" in report and "worst step after warm-up" in report
     assert "- plant: dynamic simulation, decoupled joint drive (λ = 100 rad/s), geometric sensing" in report
     stamps = [(r / "summary.json").stat().st_mtime_ns for r in runs]
 
