@@ -906,22 +906,47 @@ class HqpSolver(TimeLimited):
             Pz = np.eye(lp.d) * eps
             qz = eps * (qd if Z is None else Z.T @ qd)
         call = self._level_qp(lp, Pz, qz)
+        answer = self._backend_answer(lp, call)
+        cand = self._accept_level(lp, answer.x)
+        doubt = "" if answer.certified else ((answer.certificate.reason if answer.certificate else "") or "not checked")
+        return cand, 1, backend_iterations(answer.solution), answer.retried, doubt
+
+    def _backend_answer(self, lp: _LevelProblem, call: _QpCall) -> LevelAnswer:
+        """The level's QP through :meth:`solve_qp` (warm start, :attr:`qp_log`, certificate kept).
+
+        Raises:
+            NoSolutionFound: As :meth:`solve_qp`.
+        """
+        k, qd, Z = lp.k, lp.qd, lp.Z
         start = None
         if self.warm_start and k in self._previous:
             start = self._warm_start_point(
-                self._previous[k], qd, Z, lp.at_zero, G_all[c0:c1], h_rel[c0:c1], call.lb, call.ub
+                self._previous[k], qd, Z, lp.at_zero, lp.G_all[lp.c0 : lp.c1], lp.h_rel[lp.c0 : lp.c1], call.lb, call.ub
             )
         try:
-            answer = self._solve_call(call, k, start)
+            answer = self.solve_qp(
+                call.P,
+                call.q,
+                call.G,
+                call.h,
+                call.lb,
+                call.ub,
+                call.x0,
+                call.f0,
+                k,
+                call.level_value,
+                start,
+                call.refine,
+                call.curvature,
+                call.modulus,
+            )
         except NoSolutionFound as exc:
             self._record(k, call, None, exc.certificate)
             raise
         self._record(k, call, answer.x, answer.certificate)
         if answer.certificate is not None:
             self._certificates[k] = answer.certificate
-        cand = self._accept_level(lp, answer.x)
-        doubt = "" if answer.certified else ((answer.certificate.reason if answer.certificate else "") or "not checked")
-        return cand, 1, backend_iterations(answer.solution), answer.retried, doubt
+        return answer
 
     def _level_cost(self, lp: _LevelProblem) -> tuple[np.ndarray | None, np.ndarray | None]:
         r"""Cost of the level in z, :math:`P_z = (JZ)^T JZ + \epsilon I` and :math:`q_z`.
