@@ -161,23 +161,27 @@ def _as_qp(
     ub: np.ndarray | None,
 ) -> _Qp:
     n = q.shape[0]
-    P = np.asarray(P.toarray() if hasattr(P, "toarray") else P, dtype=float)
-    G_ = np.zeros((0, n)) if G is None else np.asarray(G.toarray() if hasattr(G, "toarray") else G, dtype=float)
-    A_ = np.zeros((0, n)) if A is None else np.asarray(A.toarray() if hasattr(A, "toarray") else A, dtype=float)
     lb_ = np.full(n, -np.inf) if lb is None else np.asarray(lb, dtype=float)
     ub_ = np.full(n, np.inf) if ub is None else np.asarray(ub, dtype=float)
     return _Qp(
-        P,
+        _dense(P, n),
         np.asarray(q, dtype=float),
-        G_.reshape(-1, n),
+        np.zeros((0, n)) if G is None else _dense(G, n),
         np.zeros(0) if h is None else np.asarray(h, dtype=float).ravel(),
-        A_.reshape(-1, n),
+        np.zeros((0, n)) if A is None else _dense(A, n),
         np.zeros(0) if b is None else np.asarray(b, dtype=float).ravel(),
         lb_,
         ub_,
-        bool(np.isfinite(lb_).all()),
-        bool(np.isfinite(ub_).all()),
+        math.isfinite(float(np.abs(lb_).max(initial=0.0))),
+        math.isfinite(float(np.abs(ub_).max(initial=0.0))),
     )
+
+
+def _dense(M: np.ndarray, n: int) -> np.ndarray:
+    """``M`` as a dense float matrix with n columns (sparse matrices converted)."""
+    if type(M) is np.ndarray and M.dtype == np.float64 and M.ndim == 2:
+        return M
+    return np.asarray(M.toarray() if hasattr(M, "toarray") else M, dtype=float).reshape(-1, n)
 
 
 def primal_residual(qp: _Qp, x: np.ndarray, slack: np.ndarray | None = None) -> float:
@@ -201,11 +205,15 @@ def _box_term(g: np.ndarray, x: np.ndarray, lb: np.ndarray, ub: np.ndarray, curv
     """
     lo = lb - x
     hi = ub - x
-    d = np.where(g > 0.0, lo, hi)  # the linear minimiser (c = 0)
     curved = curvature > 0.0
-    if curved.any():
-        d[curved] = np.clip(-g[curved] / curvature[curved], lo[curved], hi[curved])
-    d[g == 0.0] = 0.0
+    if curved.all():  # the cascade's levels: every variable curved (ε on q̇, 1 on slacks)
+        d = np.minimum(np.maximum(-g / curvature, lo), hi)
+    else:
+        d = np.where(g > 0.0, lo, hi)  # the linear minimiser (c = 0)
+        if curved.any():
+            d[curved] = np.clip(-g[curved] / curvature[curved], lo[curved], hi[curved])
+    if not g.all():
+        d[g == 0.0] = 0.0
     if not np.isfinite(d).all():
         return math.inf
     return float(-(g @ d) - 0.5 * float(curvature @ (d * d)))

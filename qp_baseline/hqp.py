@@ -549,6 +549,8 @@ class HqpSolver(TimeLimited):
         self._first_eq = 0
         self._set_tasks: tuple[SetTask, ...] = ()
         self._set_level: tuple[int, ...] = ()
+        self._set_level_of = np.zeros(0, dtype=int)
+        self._level_marks = np.zeros(1, dtype=int)
         self._rows = SetRowBuilder((), n, self.reference)
         self._no_rows = np.zeros((0, n))
         self._no_bounds = np.zeros(0)
@@ -588,6 +590,8 @@ class HqpSolver(TimeLimited):
         self._first_eq = next((k for k, lv in enumerate(levels) if lv.r.size), len(levels))
         self._set_tasks = tuple(set_tasks)
         self._set_level = tuple(set_level)
+        self._set_level_of = np.array(set_level, dtype=int)  # level of each set task
+        self._level_marks = np.arange(len(levels) + 1)
         self._rows = SetRowBuilder(self._set_tasks, n, self.reference)
         self._hierarchy = hierarchy
 
@@ -620,8 +624,7 @@ class HqpSolver(TimeLimited):
         if not rows.h.size:
             self._G, self._h, self._owner = self._no_rows, self._no_bounds, self._no_owner
             return [0] * (len(self._levels) + 1)
-        row_level = np.asarray(self._set_level)[rows.owner]
-        level_end = np.searchsorted(row_level, np.arange(len(self._levels) + 1), side="left")
+        level_end = np.searchsorted(self._set_level_of[rows.owner], self._level_marks, side="left")
         G, h = rows.G, rows.h
         reach = G @ (0.5 * (ub + lb)) + np.abs(G) @ (0.5 * (ub - lb))  # max of g·q̇ over the box
         keep = np.flatnonzero(reach > h)
