@@ -278,6 +278,8 @@ class MinkSolver(TimeLimited):
         )
         """Joint limits (:mod:`tpik.limits`), as rows of one mink limit (:class:`JointLimits`)."""
         self._limits: list[mink.Limit] = [JointLimits(self.limits), self._limit_rows]
+        velocity = next((lim for lim in self.limits if isinstance(lim, VelocityLimit)), None)
+        self._v_max = (velocity or VelocityLimit.from_robot(robot)).v_max  # the answer is clipped into it
         self._bodies: dict[str, int] = {}
         self._hierarchy: Hierarchy | None = None
         self._adapters: list[_Adapter] = []
@@ -457,7 +459,7 @@ class MinkSolver(TimeLimited):
                     f"{self.name}: the step breaks its constraints by {excess:.3g} (tolerance {tol:g}, Δq units)",
                     iterations=iterations,
                 )
-        qdot = np.clip(x / dt, -self.robot.v_max, self.robot.v_max)  # mink.solve_ik returns Δq / dt [rad/s]
+        qdot = np.clip(x / dt, -self._v_max, self._v_max)  # mink.solve_ik returns Δq / dt [rad/s]
         tasks = self._rows.tasks
         active: list[str] = []
         if rows.h.size:
