@@ -495,6 +495,8 @@ class HqpSolver(TimeLimited):
         settings: Cascade options (fields of :class:`HqpSettings`) and backend keyword arguments in
             one table; backend arguments override :data:`SOLVER_DEFAULTS`.
         name: Method name reported in results (default ``hqp-<solver>``).
+        limits: Joint limits (:mod:`tpik.limits`) composed in order into the hard box of every
+            level; :func:`default_limits` (velocity, then position) when None.
 
     Raises:
         UnknownSolver: ``solver`` is not available (the message lists what is).
@@ -523,17 +525,7 @@ class HqpSolver(TimeLimited):
         self.qp_settings: dict[str, Any] = {**SOLVER_DEFAULTS[solver], **user_kwargs}
         self._kwargs = backend_kwargs(solver, self.qp_settings)
         self._retry_kwargs = backend_kwargs(solver, {**self.qp_settings, **RETRY_SETTINGS[solver]})
-        self.tolerance = float(self.options.tolerance or TOLERANCES[solver])
-        self.slack_tolerance = float(self.options.slack_tolerance or max(1e-6, self.tolerance))
-        self.slack_margin = 0.1 * self.tolerance
-        mnl = self.options.min_norm_level
-        self.min_norm_level = MIN_NORM_LEVEL[solver] if mnl is None else mnl
-        self.objective_tolerance = float(self.options.objective_tolerance or max(1e-6, self.tolerance))
-        self.certificate_tolerances = Tolerances(
-            primal=self.tolerance, level=self.objective_tolerance, active=max(1e-6, self.tolerance)
-        )
-        ws = self.options.warm_start
-        self.warm_start = WARM_START[solver] if ws is None else ws
+        self._resolve_defaults(solver)
         self.qp_log: list[LevelQp] | None = None
         """When a list, every backend-solved level QP is appended to it (:class:`LevelQp`)."""
         self._previous: dict[int, np.ndarray] = {}  # level → its q̇ answer at the previous step
@@ -560,6 +552,20 @@ class HqpSolver(TimeLimited):
         # Levels whose unconstrained minimiser was infeasible at the previous step: their active
         # set usually persists, so they go straight to the backend (same unique solution).
         self._needed_backend: dict[int, bool] = {}
+
+    def _resolve_defaults(self, solver: str) -> None:
+        """Tolerances, min-norm level and warm start: the options, or the backend's defaults."""
+        self.tolerance = float(self.options.tolerance or TOLERANCES[solver])
+        self.slack_tolerance = float(self.options.slack_tolerance or max(1e-6, self.tolerance))
+        self.slack_margin = 0.1 * self.tolerance
+        mnl = self.options.min_norm_level
+        self.min_norm_level = MIN_NORM_LEVEL[solver] if mnl is None else mnl
+        self.objective_tolerance = float(self.options.objective_tolerance or max(1e-6, self.tolerance))
+        self.certificate_tolerances = Tolerances(
+            primal=self.tolerance, level=self.objective_tolerance, active=max(1e-6, self.tolerance)
+        )
+        ws = self.options.warm_start
+        self.warm_start = WARM_START[solver] if ws is None else ws
 
     def __repr__(self) -> str:
         return f"HqpSolver(name={self.name!r}, solver={self.solver!r}, settings={self.qp_settings})"

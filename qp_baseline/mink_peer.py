@@ -244,6 +244,8 @@ class MinkSolver(TimeLimited):
         settings: A plain dict validated by :meth:`MinkSettings.from_dict`.
         name: Method name reported in results.
         formulation: ``"soft_return"`` (``mink``, default) or ``"hard"`` (``mink-hard``).
+        limits: Joint limits (:mod:`tpik.limits`) as rows of one mink limit; the position limits
+            (gain ``configuration_limit_gain``) and the velocity limits when None.
 
     Raises:
         UnknownSolver: ``settings["solver"]`` is not an installed QP backend.

@@ -309,6 +309,8 @@ class TpikSolver:
         robot: The robot (``nq`` and the joint velocity limits ``v_max`` are read from it).
         settings: :class:`TpikSettings`; None = defaults.
         name: Method name shown in reports (``"tpik"``, ``"tpik-ss"``).
+        limits: Joint limits (:mod:`tpik.limits`) the velocity is scaled into; the robot's
+            velocity limits when None.
 
     Which tasks are set-based, their gains and thresholds are read once per hierarchy object
     (the first time it is solved); targets and obstacle points are read every step, as the
