@@ -62,11 +62,6 @@ class SetRowBuilder:
         self.reference = reference
         self.hold_at_zero = hold_at_zero
         self._empty = SetRows(np.zeros((0, self.nq)), np.zeros(0), np.zeros(0, dtype=int), np.zeros(0))
-        count = len(self.tasks)
-        self._lower, self._upper = np.empty(count), np.empty(count)  # reference rates, reused every step
-        self._jac = np.empty((count, self.nq))
-        self._up_key = 2 * np.arange(count)  # row order key: 2·task (upper row), 2·task + 1 (lower row)
-        self._down_key = self._up_key + 1
 
     def build(self, kin: Kinematics, dt: float) -> SetRows:
         """Evaluate every task once at ``kin`` and stack its finite bounds.
@@ -77,37 +72,33 @@ class SetRowBuilder:
         """
         if not self.tasks:
             return self._empty
+        rows: list[np.ndarray] = []
+        bounds: list[float] = []
+        owner: list[int] = []
         sigma = np.empty(len(self.tasks))
-        lower, upper, jac = self._lower, self._upper, self._jac
+        hold = self.hold_at_zero
         ref = self.reference
         for i, task in enumerate(self.tasks):
             state = task.compute_state(kin)
             s = float(state.value[0])
             sigma[i] = s
             if not math.isfinite(s):
-                lower[i], upper[i] = -math.inf, math.inf  # no row
-                jac[i] = 0.0
                 continue
-            lower[i], upper[i] = ref.set_rates(task, s, dt)
-            jac[i] = state.jacobian[0]
-        if not np.isfinite(jac).all():
-            bad = next(i for i in range(len(self.tasks)) if not np.isfinite(jac[i]).all())
-            raise InvalidTaskState(f"task '{self.tasks[bad].name}': jacobian has non-finite entries")
-        # Rows task after task, the upper bound's (J q̇ ≤ hi) before the lower one's (−J q̇ ≤ −lo).
-        up, down = upper < math.inf, lower > -math.inf
-        order = np.concatenate([self._up_key[up], self._down_key[down]])
-        if not order.size:
+            lo, hi = ref.set_rates(task, s, dt)
+            jac = state.jacobian[0]
+            if hi < math.inf:  # J q̇ ≤ hi
+                rows.append(jac)
+                bounds.append(max(hi, 0.0) if hold else hi)
+                owner.append(i)
+            if lo > -math.inf:  # −J q̇ ≤ −lo
+                rows.append(-jac)
+                bounds.append(-min(lo, 0.0) if hold else -lo)
+                owner.append(i)
+            if not np.isfinite(jac).all():
+                raise InvalidTaskState(f"task '{task.name}': jacobian has non-finite entries")
+        if not rows:
             return SetRows(self._empty.G, self._empty.h, self._empty.owner, sigma)
-        order.sort()
-        owner = order >> 1
-        is_lower = (order & 1).astype(bool)
-        if self.hold_at_zero:
-            bounds = np.where(is_lower, -np.minimum(lower[owner], 0.0), np.maximum(upper[owner], 0.0))
-        else:
-            bounds = np.where(is_lower, -lower[owner], upper[owner])
-        G = jac[owner]
-        np.negative(G, out=G, where=is_lower[:, None])
-        return SetRows(G, bounds, owner, sigma)
+        return SetRows(np.array(rows), np.array(bounds), np.array(owner), sigma)
 
 
 __all__ = ["SetRowBuilder", "SetRows"]
