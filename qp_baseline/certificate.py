@@ -50,7 +50,9 @@ be **recovered** for the answer itself: a bounded least squares on the rows and 
 
 from __future__ import annotations
 
+import functools
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Literal
 
@@ -159,23 +161,27 @@ def _as_qp(
     ub: np.ndarray | None,
 ) -> _Qp:
     n = q.shape[0]
-    P = np.asarray(P.toarray() if hasattr(P, "toarray") else P, dtype=float)
-    G_ = np.zeros((0, n)) if G is None else np.asarray(G.toarray() if hasattr(G, "toarray") else G, dtype=float)
-    A_ = np.zeros((0, n)) if A is None else np.asarray(A.toarray() if hasattr(A, "toarray") else A, dtype=float)
     lb_ = np.full(n, -np.inf) if lb is None else np.asarray(lb, dtype=float)
     ub_ = np.full(n, np.inf) if ub is None else np.asarray(ub, dtype=float)
     return _Qp(
-        P,
+        _dense(P, n),
         np.asarray(q, dtype=float),
-        G_.reshape(-1, n),
+        np.zeros((0, n)) if G is None else _dense(G, n),
         np.zeros(0) if h is None else np.asarray(h, dtype=float).ravel(),
-        A_.reshape(-1, n),
+        np.zeros((0, n)) if A is None else _dense(A, n),
         np.zeros(0) if b is None else np.asarray(b, dtype=float).ravel(),
         lb_,
         ub_,
-        bool(np.isfinite(lb_).all()),
-        bool(np.isfinite(ub_).all()),
+        math.isfinite(float(np.abs(lb_).max(initial=0.0))),
+        math.isfinite(float(np.abs(ub_).max(initial=0.0))),
     )
+
+
+def _dense(M: np.ndarray, n: int) -> np.ndarray:
+    """``M`` as a dense float matrix with n columns (sparse matrices converted)."""
+    if type(M) is np.ndarray and M.dtype == np.float64 and M.ndim == 2:
+        return M
+    return np.asarray(M.toarray() if hasattr(M, "toarray") else M, dtype=float).reshape(-1, n)
 
 
 def primal_residual(qp: _Qp, x: np.ndarray, slack: np.ndarray | None = None) -> float:
@@ -199,11 +205,15 @@ def _box_term(g: np.ndarray, x: np.ndarray, lb: np.ndarray, ub: np.ndarray, curv
     """
     lo = lb - x
     hi = ub - x
-    d = np.where(g > 0.0, lo, hi)  # the linear minimiser (c = 0)
     curved = curvature > 0.0
-    if curved.any():
-        d[curved] = np.clip(-g[curved] / curvature[curved], lo[curved], hi[curved])
-    d[g == 0.0] = 0.0
+    if curved.all():  # the cascade's levels: every variable curved (ε on q̇, 1 on slacks)
+        d = np.minimum(np.maximum(-g / curvature, lo), hi)
+    else:
+        d = np.where(g > 0.0, lo, hi)  # the linear minimiser (c = 0)
+        if curved.any():
+            d[curved] = np.clip(-g[curved] / curvature[curved], lo[curved], hi[curved])
+    if not g.all():
+        d[g == 0.0] = 0.0
     if not np.isfinite(d).all():
         return math.inf
     return float(-(g @ d) - 0.5 * float(curvature @ (d * d)))
@@ -411,56 +421,82 @@ def certify(
     x = np.asarray(x, dtype=float)
     n = qp.q.shape[0]
     upper = math.inf if feasible_objective is None else float(feasible_objective)
-    if curvature is None:
-        curv = np.zeros(n)
-    elif np.ndim(curvature) == 0:
-        curv = np.full(n, float(curvature))  # type: ignore[arg-type]
-    else:
-        curv = np.asarray(curvature, dtype=float)
     if x.shape != (n,) or not np.isfinite(x).all():
         return Certificate(math.inf, math.inf, math.inf, math.nan, -math.inf, upper, "none", False, "non-finite answer")
     Px = qp.P @ x
     slack = qp.h - qp.G @ x
     r_p = primal_residual(qp, x, slack)
     f = float(x @ (0.5 * Px + qp.q))
+    curv = _curvature_vector(curvature, n)
+    judge = functools.partial(
+        _judge, qp, x, Px, slack, r_p=r_p, f=f, upper=upper, level_value=level_value, curvature=curv, tol=tol
+    )
     given = _backend_multipliers(qp, y, z, z_box)
-    # Checks that no multiplier can change.
-    early = ""
-    if r_p > tol.primal:
-        early = f"primal residual {r_p:.3g} > {tol.primal:g}"
-    elif _too_far(f - upper, f, level_value, modulus, x, tol):
-        early = f"objective {f:.9g} above a known feasible point's {upper:.9g}"
+    early = _early_reason(r_p, f, upper, level_value, modulus, x, tol)
     if early:
-        cert = (
-            _judge(qp, x, Px, slack, given, r_p, f, upper, level_value, curv, tol, "backend", modulus)
-            if given is not None
-            else None
-        )
-        if cert is None:
-            return Certificate(r_p, math.inf, math.inf, f, -math.inf, upper, "none", False, early)
-        return Certificate(
-            r_p, cert.dual_residual, cert.duality_gap, f, cert.lower_bound, upper, "backend", False, early
+        return _early_certificate(
+            judge(given, source="backend", modulus=modulus) if given is not None else None, r_p, f, upper, early
         )
     first: Certificate | None = None
     if given is not None:
-        first = _judge(qp, x, Px, slack, given, r_p, f, upper, level_value, curv, tol, "backend", modulus)
+        first = judge(given, source="backend", modulus=modulus)
         if first.passed or not recover:
             return first
     if recover:
-        # A row the answer leaves slightly open may still bind at the optimum: a wider active set
-        # second (extra rows only cost their complementarity in the bound).
-        for active in (tol.active, 100.0 * tol.active):
-            recovered = recover_multipliers(qp, x, active)
-            if recovered is None:
-                continue
-            cert = _judge(qp, x, Px, slack, recovered, r_p, f, upper, level_value, curv, tol, "recovered", modulus)
-            if cert.passed:
-                return cert
-            if first is None:
-                first = cert
+        cert = _with_recovered_multipliers(qp, x, tol, functools.partial(judge, source="recovered", modulus=modulus))
+        if cert is not None and (cert.passed or first is None):
+            return cert
     if first is not None:
         return first
     return Certificate(r_p, math.inf, math.inf, f, -math.inf, upper, "none", False, "no multipliers")
+
+
+def _with_recovered_multipliers(
+    qp: _Qp, x: np.ndarray, tol: Tolerances, judge: Callable[[tuple[np.ndarray, np.ndarray, np.ndarray]], Certificate]
+) -> Certificate | None:
+    """The first passing certificate with recovered multipliers, else the first one tried, else None.
+
+    A row the answer leaves slightly open may still bind at the optimum: a wider active set
+    second (extra rows only cost their complementarity in the bound).
+    """
+    first: Certificate | None = None
+    for active in (tol.active, 100.0 * tol.active):
+        recovered = recover_multipliers(qp, x, active)
+        if recovered is None:
+            continue
+        cert = judge(recovered)
+        if cert.passed:
+            return cert
+        if first is None:
+            first = cert
+    return first
+
+
+def _curvature_vector(curvature: np.ndarray | float | None, n: int) -> np.ndarray:
+    """The ``curvature`` argument of :func:`certify` as one entry per variable (0 when None)."""
+    if curvature is None:
+        return np.zeros(n)
+    if np.ndim(curvature) == 0:
+        return np.full(n, float(curvature))  # type: ignore[arg-type]
+    return np.asarray(curvature, dtype=float)
+
+
+def _early_reason(
+    r_p: float, f: float, upper: float, level_value: float | None, modulus: float | None, x: np.ndarray, tol: Tolerances
+) -> str:
+    """Why the answer fails whatever its multipliers (primal residual, worse than a feasible point), or ""."""
+    if r_p > tol.primal:
+        return f"primal residual {r_p:.3g} > {tol.primal:g}"
+    if _too_far(f - upper, f, level_value, modulus, x, tol):
+        return f"objective {f:.9g} above a known feasible point's {upper:.9g}"
+    return ""
+
+
+def _early_certificate(cert: Certificate | None, r_p: float, f: float, upper: float, early: str) -> Certificate:
+    """The failed certificate of an early reason, with the backend multipliers' residuals when given."""
+    if cert is None:
+        return Certificate(r_p, math.inf, math.inf, f, -math.inf, upper, "none", False, early)
+    return Certificate(r_p, cert.dual_residual, cert.duality_gap, f, cert.lower_bound, upper, "backend", False, early)
 
 
 def _backend_multipliers(

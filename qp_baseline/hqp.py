@@ -78,15 +78,14 @@ constraints, known feasible point). :attr:`HqpSolver.qp_log` records the level Q
 from __future__ import annotations
 
 import contextlib
-import functools
 import math
 import os
 import re
 import sys
 import time
 import warnings
-from collections.abc import Callable, Iterator, Mapping
-from dataclasses import dataclass, fields
+from collections.abc import Callable, Iterator, Mapping, Sequence
+from dataclasses import dataclass, field, fields
 from typing import Any
 
 import numpy as np
@@ -103,6 +102,7 @@ from robots import Kinematics, Robot
 from tpik.evaluation import EQ_ERROR, EQ_FEEDFORWARD, EQ_JAC, TaskEvaluation
 from tpik.exceptions import InvalidTaskState
 from tpik.hierarchy import Hierarchy
+from tpik.limits import Limit, PositionLimit, VelocityLimit, compose_box
 from tpik.reference import ControlReference
 from tpik.step_result import SolveStatus, StepResult, failed
 from tpik.tasks import SetTask, Task
@@ -298,6 +298,16 @@ def probe_settings(solver: str, settings: Mapping[str, Any]) -> None:
         raise InvalidSettings(solver, f"settings {dict(settings)} make the backend fail on a trivial QP")
 
 
+def default_limits(robot: Robot) -> tuple[Limit, ...]:
+    r"""HQP's hard box: the robot's velocity limits, then its position limits over one step.
+
+    Composed in this order (:func:`tpik.limits.compose_box`) the box is
+    :math:`\max(-v_{max}, (q_{min} - q)/dt) \le \dot q \le \min(v_{max}, (q_{max} - q)/dt)`, the
+    position part clipped into :math:`[-v_{max}, v_{max}]` so that it is never empty.
+    """
+    return (VelocityLimit.from_robot(robot), PositionLimit.from_robot(robot))
+
+
 @dataclass(frozen=True)
 class HqpSettings:
     r"""Options of the cascade itself; every other setting goes to the QP backend.
@@ -387,6 +397,96 @@ class _Level:
     r: np.ndarray  # (m_eq,), preallocated
 
 
+@dataclass
+class _Cascade:
+    """Running state of one step's cascade: q̇ so far, relaxed bounds, null space, counters."""
+
+    qd: np.ndarray  # q̇ of the levels solved so far
+    h_rel: np.ndarray  # set-row bounds relaxed by the solved levels' slacks
+    lb: np.ndarray  # hard box (composed limits)
+    ub: np.ndarray
+    cuts: list[int]  # rows of level k: cuts[k]:cuts[k + 1]
+    Z: np.ndarray | None = None  # null-space basis of the solved equality rows; None: identity
+    slack: np.ndarray | None = None  # per row, set by the first backend answer
+    residuals: dict[str, float] = field(default_factory=dict)
+    iterations: dict[str, int] = field(default_factory=dict)
+    qp_calls: int = 0
+    retries: int = 0
+    levels_dropped: int = 0
+    levels_uncertified: int = 0
+    status: SolveStatus = SolveStatus.OK
+    message: str = ""
+    min_norm_failure: str = ""
+
+    def add_message(self, name: str, note: str) -> None:
+        self.message = f"{self.message}; {note}" if self.message else f"{name}: {note}"
+
+
+@dataclass
+class _LevelProblem:
+    """Inputs of one level's solve (see :meth:`HqpSolver._solve_level`)."""
+
+    k: int
+    qd: np.ndarray
+    Z: np.ndarray | None
+    J: np.ndarray
+    r: np.ndarray
+    G_all: np.ndarray
+    h_rel: np.ndarray
+    c0: int
+    c1: int
+    lb: np.ndarray
+    ub: np.ndarray
+    eps: float
+    margin: float
+    at_zero: bool = False  # Z = I and qd = 0: the products with qd are spared
+
+    @property
+    def d(self) -> int:
+        """Number of free variables z."""
+        return self.qd.shape[0] if self.Z is None else self.Z.shape[1]
+
+
+@dataclass
+class _QpCall:
+    """One QP as :meth:`HqpSolver.solve_qp` poses it, and how its answers are judged."""
+
+    P: np.ndarray
+    q: np.ndarray
+    G: np.ndarray
+    h: np.ndarray
+    lb: np.ndarray
+    ub: np.ndarray
+    x0: np.ndarray  # a feasible point
+    f0: float  # objective at x0
+    level_value: Callable[[np.ndarray], float] | None = None
+    refine: Callable[[np.ndarray], np.ndarray] | None = None
+    curvature: np.ndarray | None = None
+    modulus: float | None = None
+    slacks: int = 0  # number of slack variables (the last entries of x)
+
+
+@dataclass
+class _Trail:
+    """What the attempts of one QP left: last backend answer, its certificate, why, a fallback."""
+
+    solution: Any = None
+    certificate: Certificate | None = None
+    reason: str = ""
+    usable: LevelAnswer | None = None
+
+
+def _minimal_slacks(G_slack: np.ndarray, h_slack: np.ndarray, d: int) -> Callable[[np.ndarray], np.ndarray]:
+    """Map x = [z; w] to the same z with its minimal slacks w = max(0, G q̇ − h) (feasible, no worse)."""
+
+    def minimal_slacks(x: np.ndarray) -> np.ndarray:
+        out = x.copy()
+        out[d:] = np.maximum(G_slack @ x[:d] - h_slack, 0.0)
+        return out
+
+    return minimal_slacks
+
+
 class HqpSolver(TimeLimited):
     """Hierarchical QP over a tpik :class:`~tpik.hierarchy.Hierarchy`, any supported backend.
 
@@ -396,6 +496,8 @@ class HqpSolver(TimeLimited):
         settings: Cascade options (fields of :class:`HqpSettings`) and backend keyword arguments in
             one table; backend arguments override :data:`SOLVER_DEFAULTS`.
         name: Method name reported in results (default ``hqp-<solver>``).
+        limits: Joint limits (:mod:`tpik.limits`) composed in order into the hard box of every
+            level; :func:`default_limits` (velocity, then position) when None.
 
     Raises:
         UnknownSolver: ``solver`` is not available (the message lists what is).
@@ -408,9 +510,14 @@ class HqpSolver(TimeLimited):
         solver: str = "daqp",
         settings: Mapping[str, Any] | None = None,
         name: str | None = None,
+        limits: Sequence[Limit] | None = None,
     ) -> None:
         _check_solver(solver)
         self.robot = robot
+        self.limits: tuple[Limit, ...] = default_limits(robot) if limits is None else tuple(limits)
+        """The hard box, composed in order (:func:`tpik.limits.compose_box`)."""
+        if not self.limits:
+            raise InvalidSettings(solver, "HQP needs at least one limit (its hard box)")
         self.solver = solver
         self.name = name or f"hqp-{solver}"
         self.options, user_kwargs = split_settings(solver, settings)
@@ -419,6 +526,36 @@ class HqpSolver(TimeLimited):
         self.qp_settings: dict[str, Any] = {**SOLVER_DEFAULTS[solver], **user_kwargs}
         self._kwargs = backend_kwargs(solver, self.qp_settings)
         self._retry_kwargs = backend_kwargs(solver, {**self.qp_settings, **RETRY_SETTINGS[solver]})
+        self._resolve_defaults(solver)
+        self.qp_log: list[LevelQp] | None = None
+        """When a list, every backend-solved level QP is appended to it (:class:`LevelQp`)."""
+        self._previous: dict[int, np.ndarray] = {}  # level → its q̇ answer at the previous step
+        self._certificates: dict[int, Certificate] = {}  # this step's, per level
+        self._sparse = solver in _SPARSE_SOLVERS
+        self._quiet = solver == "osqp"
+        n = robot.nq
+        self._eye = np.eye(n)
+        self._eps_eye = self.options.regularization * np.eye(n)
+        self._zeros = np.zeros(n)
+        self._hierarchy: Hierarchy | None = None
+        self._levels: list[_Level] = []
+        self._first_eq = 0
+        self._set_tasks: tuple[SetTask, ...] = ()
+        self._set_level: tuple[int, ...] = ()
+        self._set_level_of = np.zeros(0, dtype=int)
+        self._level_marks = np.zeros(1, dtype=int)
+        self._rows = SetRowBuilder((), n, self.reference)
+        self._no_rows = np.zeros((0, n))
+        self._no_bounds = np.zeros(0)
+        self._no_owner = np.zeros(0, dtype=int)
+        self._G, self._h, self._owner = self._no_rows, self._no_bounds, self._no_owner
+        self._backend_time = 0.0
+        # Levels whose unconstrained minimiser was infeasible at the previous step: their active
+        # set usually persists, so they go straight to the backend (same unique solution).
+        self._needed_backend: dict[int, bool] = {}
+
+    def _resolve_defaults(self, solver: str) -> None:
+        """Tolerances, min-norm level and warm start: the options, or the backend's defaults."""
         self.tolerance = float(self.options.tolerance or TOLERANCES[solver])
         self.slack_tolerance = float(self.options.slack_tolerance or max(1e-6, self.tolerance))
         self.slack_margin = 0.1 * self.tolerance
@@ -430,30 +567,6 @@ class HqpSolver(TimeLimited):
         )
         ws = self.options.warm_start
         self.warm_start = WARM_START[solver] if ws is None else ws
-        self.qp_log: list[LevelQp] | None = None
-        """When a list, every backend-solved level QP is appended to it (:class:`LevelQp`)."""
-        self._previous: dict[int, np.ndarray] = {}  # level → its q̇ answer at the previous step
-        self._certificates: dict[int, Certificate] = {}  # this step's, per level
-        self._sparse = solver in _SPARSE_SOLVERS
-        self._quiet = solver == "osqp"
-        n = robot.nq
-        self._v_max = np.asarray(robot.v_max, dtype=float)
-        self._eye = np.eye(n)
-        self._eps_eye = self.options.regularization * np.eye(n)
-        self._zeros = np.zeros(n)
-        self._hierarchy: Hierarchy | None = None
-        self._levels: list[_Level] = []
-        self._set_tasks: tuple[SetTask, ...] = ()
-        self._set_level: tuple[int, ...] = ()
-        self._rows = SetRowBuilder((), n, self.reference)
-        self._no_rows = np.zeros((0, n))
-        self._no_bounds = np.zeros(0)
-        self._no_owner = np.zeros(0, dtype=int)
-        self._G, self._h, self._owner = self._no_rows, self._no_bounds, self._no_owner
-        self._backend_time = 0.0
-        # Levels whose unconstrained minimiser was infeasible at the previous step: their active
-        # set usually persists, so they go straight to the backend (same unique solution).
-        self._needed_backend: dict[int, bool] = {}
 
     def __repr__(self) -> str:
         return f"HqpSolver(name={self.name!r}, solver={self.solver!r}, settings={self.qp_settings})"
@@ -482,21 +595,17 @@ class HqpSolver(TimeLimited):
                     set_level.append(k)
         self._levels = levels
         self._eq_evaluation = TaskEvaluation([t for lv in levels for t in lv.eq_tasks], self.robot)
+        self._first_eq = next((k for k, lv in enumerate(levels) if lv.r.size), len(levels))
         self._set_tasks = tuple(set_tasks)
         self._set_level = tuple(set_level)
+        self._set_level_of = np.array(set_level, dtype=int)  # level of each set task
+        self._level_marks = np.arange(len(levels) + 1)
         self._rows = SetRowBuilder(self._set_tasks, n, self.reference)
         self._hierarchy = hierarchy
 
     def _box(self, q: np.ndarray, dt: float) -> tuple[np.ndarray, np.ndarray]:
-        r"""Hard bounds :math:`\underline v \le \dot q \le \overline v` [rad/s]."""
-        v, inv_dt = self._v_max, 1.0 / dt
-        lower = (self.robot.q_lower - q) * inv_dt  # −inf on continuous joints
-        upper = (self.robot.q_upper - q) * inv_dt
-        np.maximum(lower, -v, out=lower)
-        np.minimum(lower, v, out=lower)
-        np.minimum(upper, v, out=upper)
-        np.maximum(upper, -v, out=upper)
-        return lower, upper
+        r"""Hard bounds :math:`\underline v \le \dot q \le \overline v` [rad/s]: the composed :attr:`limits`."""
+        return compose_box(self.limits, q, dt)
 
     def _evaluate(self, kin: Kinematics, dt: float, lb: np.ndarray, ub: np.ndarray) -> list[int]:
         """Evaluate every task once: equality tasks into their level buffers, set tasks into rows.
@@ -527,8 +636,7 @@ class HqpSolver(TimeLimited):
         if not rows.h.size:
             self._G, self._h, self._owner = self._no_rows, self._no_bounds, self._no_owner
             return [0] * (len(self._levels) + 1)
-        row_level = np.asarray(self._set_level)[rows.owner]
-        level_end = np.searchsorted(row_level, np.arange(len(self._levels) + 1), side="left")
+        level_end = np.searchsorted(self._set_level_of[rows.owner], self._level_marks, side="left")
         G, h = rows.G, rows.h
         reach = G @ (0.5 * (ub + lb)) + np.abs(G) @ (0.5 * (ub - lb))  # max of g·q̇ over the box
         keep = np.flatnonzero(reach > h)
@@ -555,9 +663,8 @@ class HqpSolver(TimeLimited):
             ``certificates`` {level or ``"min_norm"``: :class:`~qp_baseline.certificate.Certificate`
             of each backend-solved level}, ``min_norm_failure``.
         """
-        n = self.robot.nq
         if not (math.isfinite(dt) and dt > 0.0):
-            return failed(n, f"dt must be finite and > 0, got {dt}")
+            return failed(self.robot.nq, f"dt must be finite and > 0, got {dt}")
         t_start = time.perf_counter()
         if self.budget is not None:
             self.budget.start()
@@ -566,133 +673,182 @@ class HqpSolver(TimeLimited):
         self._prepare(hierarchy)
         lb, ub = self._box(kin.q, dt)
         cuts = self._evaluate(kin, dt, lb, ub)  # a task error (tpik.TpikError) propagates, as in every solver
-        G_all, h_rel = self._G, self._h.copy()  # h_rel: bounds relaxed by the levels' slacks
-        eps = self.options.regularization
-        qd = self._zeros.copy()
-        Z: np.ndarray | None = None  # None: identity (no equality row solved yet)
-        residuals: dict[str, float] = {}
-        iterations: dict[str, int] = {}
-        qp_calls = retries = levels_dropped = levels_uncertified = 0
-        status, message = SolveStatus.OK, ""
-        min_norm_failure = ""
-        slack: np.ndarray | None = None  # per row, set by the first backend answer
+        run = _Cascade(self._zeros.copy(), self._h.copy(), lb, ub, cuts)
+        result = self._run_levels(run, t_start)
+        if result is None:
+            result = self._report(run, t_start)
+        for limit in self.limits:
+            limit.observe(result.qdot)
+        return result
+
+    def _first_level(self, run: _Cascade) -> int:
+        """Where the cascade starts: after leading levels of set tasks only that q̇ = 0 solves.
+
+        Zero is their regularised optimum when it is feasible: inside the box and every such row
+        has h ≥ 0 (the fast path of ``unconstrained_first``).
+        """
+        if not self.options.unconstrained_first:
+            return 0
+        first_eq = self._first_eq
+        c_pre = run.cuts[first_eq]
+        if first_eq and not ((run.lb > 0.0).any() or (run.ub < 0.0).any()):
+            if c_pre == 0 or (run.h_rel[:c_pre] >= 0.0).all():
+                return first_eq
+        return 0
+
+    def _level_rows(self, k: int, run: _Cascade) -> tuple[np.ndarray, np.ndarray, int, int, float] | None:
+        """(J, r, first row, end row, margin) of level ``k``; None: the cascade ends before it.
+
+        The min-norm level (k = number of task levels) is min ‖q̇‖² under all rows, solved only
+        after a backend answer (without one q̇ is already the exact ε-regularised minimum-norm
+        solution). Its optimum sits on the constraints of the levels above: a margin δ gives the
+        feasible set an interior (ProxQP reports "infeasible" without it).
+        """
+        if k < len(self._levels):
+            lv = self._levels[k]
+            return lv.J, lv.r, run.cuts[k], run.cuts[k + 1], 0.0
+        if self.min_norm_level and run.qp_calls:
+            return self._eye, self._zeros, run.cuts[k], run.cuts[k], self.slack_margin
+        return None
+
+    def _run_levels(self, run: _Cascade, t_start: float) -> StepResult | None:
+        """Solve the levels in priority order into ``run``; a FAILED result when level 0 fails."""
         n_levels = len(self._levels)
-        k_start = 0
-        if self.options.unconstrained_first:
-            # Fast path: leading levels of set tasks only are solved by q̇ = 0 (their regularised
-            # optimum) when zero is feasible: inside the box and every such row has h ≥ 0.
-            first_eq = next((k for k, lv in enumerate(self._levels) if lv.r.size), n_levels)
-            c_pre = cuts[first_eq]
-            if first_eq and not ((lb > 0.0).any() or (ub < 0.0).any()) and (c_pre == 0 or (h_rel[:c_pre] >= 0.0).all()):
-                k_start = first_eq
-        margin = 0.0
-        for k in range(k_start, n_levels + 1):
-            if k < n_levels:
-                lv = self._levels[k]
-                J, r, c0, c1 = lv.J, lv.r, cuts[k], cuts[k + 1]
-            elif self.min_norm_level and qp_calls:
-                # min ‖q̇‖² under all rows; without a backend answer q̇ is already the exact
-                # ε-regularised (minimum-norm) solution. Its optimum sits on the constraints of
-                # the levels above: a margin δ gives the feasible set an interior (ProxQP reports
-                # "infeasible" without it).
-                J, r, c0, c1 = self._eye, self._zeros, cuts[k], cuts[k]
-                margin = self.slack_margin
-            else:
+        eps = self.options.regularization
+        for k in range(self._first_level(run), n_levels + 1):
+            rows = self._level_rows(k, run)
+            if rows is None:
                 break
-            d = n if Z is None else Z.shape[1]
+            J, r, c0, c1, margin = rows
+            d = self.robot.nq if run.Z is None else run.Z.shape[1]
             if d == 0 or (r.size == 0 and c0 == c1):
                 continue
             try:
                 qd, used, its, retried, doubt = self._solve_level(
-                    k, qd, Z, J, r, G_all, h_rel, c0, c1, lb, ub, eps, margin
+                    k, run.qd, run.Z, J, r, self._G, run.h_rel, c0, c1, run.lb, run.ub, eps, margin
                 )
             except NoSolutionFound as exc:
                 if k == 0:
                     return self._failed(f"{self.name}: {exc}", t_start, k)
-                if k == n_levels:
-                    # The min-norm level only picks among equally good answers: keep the one we have.
-                    min_norm_failure = str(exc)
-                    break
-                status = SolveStatus.DEGRADED
-                levels_dropped = n_levels - k
-                message = f"{self.name}: {exc}; kept the solution of the levels above ({levels_dropped} dropped)"
+                self._give_up(run, k, exc)
                 break
+            run.qd = qd
             if doubt:
                 if k == 0:
                     return self._failed(f"{self.name}: priority level 0: answer not certified: {doubt}", t_start, k)
-                if k == n_levels:
-                    min_norm_failure = f"answer not certified: {doubt}"  # kept: it meets every level above
-                else:
-                    status = SolveStatus.DEGRADED
-                    levels_uncertified += 1
-                    note = f"priority level {k} ({lv.name}): answer not certified: {doubt}"
-                    message = f"{message}; {note}" if message else f"{self.name}: {note}"
-            qp_calls += used
-            retries += retried
-            if its is not None:
-                iterations[lv.name if k < n_levels else "min_norm"] = its
-            if used and c1 > c0:
-                # This level's slack at its own optimum relaxes its rows for every later level; a
-                # relaxed row sits on the best value reachable, so it gets a margin δ: without it
-                # the later feasible set has no interior and quadprog and the interior-point
-                # backends report it infeasible.
-                w = G_all[c0:c1] @ qd
-                w -= h_rel[c0:c1]
-                np.maximum(w, 0.0, out=w)
-                if slack is None:
-                    slack = np.zeros(h_rel.shape[0])
-                slack[c0:c1] = w
-                h_rel[c0:c1] += w + self.slack_margin * (w > 0.0)
-            if r.size and k < n_levels:
-                residuals[lv.name] = float(np.linalg.norm(J @ qd - r))
-                if k + 1 < n_levels or (self.min_norm_level and qp_calls):
-                    Z = self._null_space(J, Z)
-        np.maximum(qd, lb, out=qd)
-        np.minimum(qd, ub, out=qd)
+                self._note_doubt(run, k, doubt)
+            self._after_level(run, k, J, r, c0, c1, used, its, retried)
+        return None
+
+    def _give_up(self, run: _Cascade, k: int, exc: NoSolutionFound) -> None:
+        """Level ``k`` > 0 had no usable answer: keep the solution of the levels above it."""
+        n_levels = len(self._levels)
+        if k == n_levels:
+            run.min_norm_failure = str(exc)  # it only picks among equally good answers
+            return
+        run.status = SolveStatus.DEGRADED
+        run.levels_dropped = n_levels - k
+        run.message = f"{self.name}: {exc}; kept the solution of the levels above ({run.levels_dropped} dropped)"
+
+    def _note_doubt(self, run: _Cascade, k: int, doubt: str) -> None:
+        """Level ``k`` > 0 kept an uncertified answer: DEGRADED (the min-norm level: noted only)."""
+        if k == len(self._levels):
+            run.min_norm_failure = f"answer not certified: {doubt}"  # kept: it meets every level above
+            return
+        run.status = SolveStatus.DEGRADED
+        run.levels_uncertified += 1
+        run.add_message(self.name, f"priority level {k} ({self._levels[k].name}): answer not certified: {doubt}")
+
+    def _after_level(
+        self,
+        run: _Cascade,
+        k: int,
+        J: np.ndarray,
+        r: np.ndarray,
+        c0: int,
+        c1: int,
+        used: int,
+        its: int | None,
+        retried: int,
+    ) -> None:
+        """Book-keeping after level ``k``: counters, relaxed rows, residual, the next null space."""
+        run.qp_calls += used
+        run.retries += retried
+        if its is not None:
+            run.iterations[self._level_name(k)] = its
+        if used and c1 > c0:
+            # This level's slack at its own optimum relaxes its rows for every later level; a
+            # relaxed row sits on the best value reachable, so it gets a margin δ: without it
+            # the later feasible set has no interior and quadprog and the interior-point
+            # backends report it infeasible.
+            w = self._G[c0:c1] @ run.qd
+            w -= run.h_rel[c0:c1]
+            np.maximum(w, 0.0, out=w)
+            if run.slack is None:
+                run.slack = np.zeros(run.h_rel.shape[0])
+            run.slack[c0:c1] = w
+            run.h_rel[c0:c1] += w + self.slack_margin * (w > 0.0)
+        n_levels = len(self._levels)
+        if r.size and k < n_levels:
+            run.residuals[self._levels[k].name] = float(np.linalg.norm(J @ run.qd - r))
+            if k + 1 < n_levels or (self.min_norm_level and run.qp_calls):
+                run.Z = self._null_space(J, run.Z)
+
+    def _set_task_report(self, run: _Cascade) -> tuple[dict[str, dict[str, float]], list[str], list[str]]:
+        """Per level the largest slack of each set task; the binding tasks; the relaxed ones."""
         s_tol = self.slack_tolerance
         slacks: dict[str, dict[str, float]] = {}
         active: list[str] = []
         relaxed: list[str] = []
-        if h_rel.size:
-            # Slacks only come from backend answers: without a backend call they are all zero.
-            binding = (G_all @ qd) >= h_rel - s_tol
-            if slack is not None:
-                binding |= slack > s_tol
-            owners, bind_list = self._owner.tolist(), binding.tolist()
-            slack_list = slack.tolist() if slack is not None else [0.0] * len(owners)
-            for k, lv in enumerate(self._levels):
-                if cuts[k + 1] == cuts[k]:
-                    continue
-                per_task: dict[str, float] = {}
-                for row in range(cuts[k], cuts[k + 1]):
-                    name = self._set_tasks[owners[row]].name
-                    per_task[name] = max(per_task.get(name, 0.0), slack_list[row])
-                    if bind_list[row] and name not in active:
-                        active.append(name)
-                    if slack_list[row] > s_tol and name not in relaxed:
-                        relaxed.append(name)
-                slacks[lv.name] = per_task
+        if not run.h_rel.size:
+            return slacks, active, relaxed
+        # Slacks only come from backend answers: without a backend call they are all zero.
+        binding = (self._G @ run.qd) >= run.h_rel - s_tol
+        if run.slack is not None:
+            binding |= run.slack > s_tol
+        owners, bind_list = self._owner.tolist(), binding.tolist()
+        slack_list = run.slack.tolist() if run.slack is not None else [0.0] * len(owners)
+        cuts = run.cuts
+        for k, lv in enumerate(self._levels):
+            if cuts[k + 1] == cuts[k]:
+                continue
+            per_task: dict[str, float] = {}
+            for row in range(cuts[k], cuts[k + 1]):
+                name = self._set_tasks[owners[row]].name
+                per_task[name] = max(per_task.get(name, 0.0), slack_list[row])
+                if bind_list[row] and name not in active:
+                    active.append(name)
+                if slack_list[row] > s_tol and name not in relaxed:
+                    relaxed.append(name)
+            slacks[lv.name] = per_task
+        return slacks, active, relaxed
+
+    def _report(self, run: _Cascade, t_start: float) -> StepResult:
+        """The step's :class:`StepResult` from the finished cascade (q̇ clipped into the box)."""
+        qd = run.qd
+        np.maximum(qd, run.lb, out=qd)
+        np.minimum(qd, run.ub, out=qd)
+        slacks, active, relaxed = self._set_task_report(run)
         if relaxed:
-            note = f"set tasks relaxed (slack > {s_tol:g}): {', '.join(relaxed)}"
-            message = f"{message}; {note}" if message else f"{self.name}: {note}"
-            status = SolveStatus.DEGRADED
+            run.add_message(self.name, f"set tasks relaxed (slack > {self.slack_tolerance:g}): {', '.join(relaxed)}")
+            run.status = SolveStatus.DEGRADED
         total = time.perf_counter() - t_start
         return StepResult(
             qd,
-            status,
+            run.status,
             tuple(active),
             build_time_s=total - self._backend_time,
             solve_time_s=self._backend_time,
-            message=message,
+            message=run.message,
             extras={
                 "slacks": slacks,
-                "residuals": residuals,
-                "qp_calls": qp_calls,
-                "iterations": iterations,
-                "retries": retries,
-                "min_norm_failure": min_norm_failure,
-                "levels_dropped": levels_dropped,
-                "levels_uncertified": levels_uncertified,
+                "residuals": run.residuals,
+                "qp_calls": run.qp_calls,
+                "iterations": run.iterations,
+                "retries": run.retries,
+                "min_norm_failure": run.min_norm_failure,
+                "levels_dropped": run.levels_dropped,
+                "levels_uncertified": run.levels_uncertified,
                 "certificates": {self._level_name(k): c for k, c in self._certificates.items()},
             },
         )
@@ -721,6 +877,7 @@ class HqpSolver(TimeLimited):
         basis = Vt[rank:].T
         return basis if Z is None else Z @ basis
 
+    # ------------------------------------------------------------------ one level
     def _solve_level(
         self,
         k: int,
@@ -752,153 +909,199 @@ class HqpSolver(TimeLimited):
             NoSolutionFound: Neither attempt gave a usable answer (feasible, no worse than the
                 known feasible point).
         """
-        G_acc, h_acc = G_all[:c0], h_rel[:c0]
-        G_own, h_own = G_all[c0:c1], h_rel[c0:c1]
-        at_zero = Z is None and not qd.any()  # start of the cascade: spare the products with qd
-        JZ = qz = Pz = None
-        if r.size:
-            JZ = J if Z is None else J @ Z
-            d = JZ.shape[1]
-            Pz = JZ.T @ JZ
-            Pz += self._eps_eye if d == qd.shape[0] and eps == self.options.regularization else eps * np.eye(d)
-            if at_zero:
-                qz = -(JZ.T @ r)
-            else:
-                qz = JZ.T @ (J @ qd - r)
-                if eps:
-                    qz += eps * (qd if Z is None else Z.T @ qd)
+        lp = _LevelProblem(k, qd, Z, J, r, G_all, h_rel, c0, c1, lb, ub, eps, margin)
+        lp.at_zero = Z is None and not qd.any()  # start of the cascade: spare the products with qd
+        Pz, qz = self._level_cost(lp)
         if self.options.unconstrained_first and not self._needed_backend.get(k, False):
-            if Pz is not None and qz is not None:
-                t0 = time.perf_counter()
-                z = np.linalg.solve(Pz, -qz)
-                self._backend_time += time.perf_counter() - t0
-                cand = z if at_zero else (qd + z if Z is None else qd + Z @ z)
-            else:
-                # Pz = εI: the minimiser is qd without its component in span(Z).
-                cand = self._zeros.copy() if Z is None else qd - Z @ (Z.T @ qd)
-            if (
-                (cand >= lb).all()
-                and (cand <= ub).all()
-                and (G_acc @ cand <= h_acc).all()
-                and (G_own @ cand <= h_own).all()
-            ):
+            cand = self._unconstrained(lp, Pz, qz)
+            if cand is not None:
                 self._previous[k] = cand
                 return cand, 0, None, 0, ""
-        n = qd.shape[0]
-        d = n if Z is None else Z.shape[1]
         if Pz is None or qz is None:
-            Pz = np.eye(d) * eps
+            Pz = np.eye(lp.d) * eps
             qz = eps * (qd if Z is None else Z.T @ qd)
-        # The QP in x = [z; w]: rows of earlier levels, this level's rows with slack, the box.
-        m = c1 - c0
-        own0 = c0  # first row of this level's own rows in the QP
-        if at_zero:
-            z_lb, z_ub, G_rows, h = lb, ub, G_all[:c1], h_rel[:c1]
-        elif Z is None:
-            z_lb, z_ub = lb - qd, ub - qd
-            G_rows, h = G_all[:c1], h_rel[:c1] - G_all[:c1] @ qd
+        call = self._level_qp(lp, Pz, qz)
+        answer = self._backend_answer(lp, call)
+        cand = self._accept_level(lp, answer.x)
+        doubt = "" if answer.certified else ((answer.certificate.reason if answer.certificate else "") or "not checked")
+        return cand, 1, backend_iterations(answer.solution), answer.retried, doubt
+
+    def _backend_answer(self, lp: _LevelProblem, call: _QpCall) -> LevelAnswer:
+        """The level's QP through :meth:`solve_qp` (warm start, :attr:`qp_log`, certificate kept).
+
+        Raises:
+            NoSolutionFound: As :meth:`solve_qp`.
+        """
+        k, qd, Z = lp.k, lp.qd, lp.Z
+        start = None
+        if self.warm_start and k in self._previous:
+            start = self._warm_start_point(
+                self._previous[k], qd, Z, lp.at_zero, lp.G_all[lp.c0 : lp.c1], lp.h_rel[lp.c0 : lp.c1], call.lb, call.ub
+            )
+        try:
+            answer = self.solve_qp(
+                call.P,
+                call.q,
+                call.G,
+                call.h,
+                call.lb,
+                call.ub,
+                call.x0,
+                call.f0,
+                k,
+                call.level_value,
+                start,
+                call.refine,
+                call.curvature,
+                call.modulus,
+            )
+        except NoSolutionFound as exc:
+            self._record(k, call, None, exc.certificate)
+            raise
+        self._record(k, call, answer.x, answer.certificate)
+        if answer.certificate is not None:
+            self._certificates[k] = answer.certificate
+        return answer
+
+    def _level_cost(self, lp: _LevelProblem) -> tuple[np.ndarray | None, np.ndarray | None]:
+        r"""Cost of the level in z, :math:`P_z = (JZ)^T JZ + \epsilon I` and :math:`q_z`.
+
+        (None, None) without equality rows (P = εI, built by the caller when needed).
+        """
+        J, r, qd, Z, eps = lp.J, lp.r, lp.qd, lp.Z, lp.eps
+        if not r.size:
+            return None, None
+        JZ = J if Z is None else J @ Z
+        d = JZ.shape[1]
+        Pz = JZ.T @ JZ
+        Pz += self._eps_eye if d == qd.shape[0] and eps == self.options.regularization else eps * np.eye(d)
+        if lp.at_zero:
+            qz = -(JZ.T @ r)
         else:
-            radius = float(np.linalg.norm(ub - lb)) + 1.0  # ‖z‖ = ‖Z z‖ ≤ diameter of the box
-            z_lb, z_ub = np.full(d, -radius), np.full(d, radius)
-            # The box as rows on z; a joint the earlier equality rows fix entirely gives a zero
-            # row "0 ≤ 0" that some backends take for an infeasibility: drop those.
-            box_G, box_h = np.vstack([Z, -Z]), np.concatenate([ub - qd, qd - lb])
-            live = np.abs(box_G).max(axis=1) > 1e-12
-            # Likewise an earlier level's row whose Jacobian lies in the row space of the eliminated
-            # equality rows (a wall on the EE under an EE position task): ≈ 0·z ≤ h holds for every
-            # z (it holds at z = 0 by construction) and only makes the dual ill-posed (OSQP ran to
-            # its iteration limit on such min-norm levels): drop those too.
-            prev = G_all[:c0] @ Z
-            alive = np.abs(prev).max(axis=1, initial=0.0) > 1e-12
-            own0 = int(alive.sum())
-            G_rows = np.vstack([prev[alive], G_all[c0:c1] @ Z, box_G[live]])
-            h = np.concatenate([(h_rel[:c0] - G_all[:c0] @ qd)[alive], h_rel[c0:c1] - G_all[c0:c1] @ qd, box_h[live]])
-        if margin:
-            h = h + margin
+            qz = JZ.T @ (J @ qd - r)
+            if eps:
+                qz += eps * (qd if Z is None else Z.T @ qd)
+        return Pz, qz
+
+    def _unconstrained(self, lp: _LevelProblem, Pz: np.ndarray | None, qz: np.ndarray | None) -> np.ndarray | None:
+        """The level's unconstrained minimiser when it meets every row and the box, else None."""
+        qd, Z = lp.qd, lp.Z
+        if Pz is not None and qz is not None:
+            t0 = time.perf_counter()
+            z = np.linalg.solve(Pz, -qz)
+            self._backend_time += time.perf_counter() - t0
+            cand = z if lp.at_zero else (qd + z if Z is None else qd + Z @ z)
+        else:
+            # Pz = εI: the minimiser is qd without its component in span(Z).
+            cand = self._zeros.copy() if Z is None else qd - Z @ (Z.T @ qd)
+        if not ((cand >= lp.lb) & (cand <= lp.ub)).all():
+            return None
+        c1 = lp.c1
+        if c1 and not (lp.G_all[:c1] @ cand <= lp.h_rel[:c1]).all():
+            return None
+        return cand
+
+    def _level_qp(self, lp: _LevelProblem, Pz: np.ndarray, qz: np.ndarray) -> _QpCall:
+        """The level's QP in x = [z; w]: earlier rows, this level's rows with slack w, the box."""
+        G_rows, h, own0, z_lb, z_ub = self._level_rows_in_z(lp)
+        if lp.margin:
+            h = h + lp.margin
+        d, m = lp.d, lp.c1 - lp.c0
         if m == 0:  # no slack variable: x = z
-            G, P, q_vec, x_lb, x_ub = G_rows, Pz, qz, z_lb, z_ub
-            x0 = np.zeros(d)
-            f0 = 0.0
+            call = _QpCall(Pz, qz, G_rows, h, z_lb, z_ub, np.zeros(d), 0.0)
         else:
+            G_own, h_own = lp.G_all[lp.c0 : lp.c1], lp.h_rel[lp.c0 : lp.c1]
             G = np.zeros((G_rows.shape[0], d + m))
             G[:, :d] = G_rows
             G[own0 : own0 + m, d:] = -np.eye(m)
-            violation = np.maximum(G_own @ qd - h_own, 0.0)  # slack of the known feasible point
-            reach = G_own @ (0.5 * (ub + lb)) + np.abs(G_own) @ (0.5 * (ub - lb))
+            violation = np.maximum(G_own @ lp.qd - h_own, 0.0)  # slack of the known feasible point
+            reach = G_own @ (0.5 * (lp.ub + lp.lb)) + np.abs(G_own) @ (0.5 * (lp.ub - lp.lb))
             x_lb = np.concatenate([z_lb, np.zeros(m)])
             x_ub = np.concatenate([z_ub, np.maximum(reach - h_own, violation) + 1.0])
             P = np.zeros((d + m, d + m))
             P[:d, :d] = Pz
             P.flat[d * (d + m) + d :: d + m + 1] = 1.0
-            q_vec = np.concatenate([qz, np.zeros(m)])
             x0 = np.concatenate([np.zeros(d), violation])
             f0 = 0.5 * float(violation @ violation)
-        # Level objective ½(‖J q̇ − r‖² + ‖w‖²) = f(x) + ½‖J qd − r‖² + ½ε‖qd‖² − ½ε‖q̇(x)‖²
-        # (J = I, r = 0 on the min-norm level: ½‖q̇‖²).
-        res0 = (J @ qd - r) if r.size else self._no_bounds
+            call = _QpCall(P, np.concatenate([qz, np.zeros(m)]), G, h, x_lb, x_ub, x0, f0)
+            call.refine = _minimal_slacks(G[own0 : own0 + m, :d], h[own0 : own0 + m], d)
+        call.slacks = m
+        eps = lp.eps
+        # P ⪰ diag(curvature): (JZ)ᵀJZ + εI ⪰ εI (JZ = Z, orthonormal, on the min-norm level), I on slacks.
+        bend = 1.0 + eps if lp.J is self._eye else eps
+        call.curvature = np.concatenate([np.full(d, bend), np.ones(m)]) if m else np.full(d, bend)
+        # Task levels are judged on their objective; the min-norm level (P = (1 + ε)I) on its
+        # answer itself: it only picks the null-space part of q̇.
+        if lp.k == len(self._levels):
+            call.modulus = 1.0 + eps
+        else:
+            call.level_value = self._level_value(lp, call)
+        return call
+
+    def _level_rows_in_z(self, lp: _LevelProblem) -> tuple[np.ndarray, np.ndarray, int, np.ndarray, np.ndarray]:
+        """Rows on z of the earlier and this level's set rows (and the box when Z ≠ I), z bounds.
+
+        Returns:
+            (G rows, h, index of this level's first row, z lower, z upper).
+        """
+        qd, Z, G_all, h_rel, c0, c1, lb, ub = lp.qd, lp.Z, lp.G_all, lp.h_rel, lp.c0, lp.c1, lp.lb, lp.ub
+        if lp.at_zero:
+            return G_all[:c1], h_rel[:c1], c0, lb, ub
+        if Z is None:
+            return G_all[:c1], h_rel[:c1] - G_all[:c1] @ qd, c0, lb - qd, ub - qd
+        d = lp.d
+        radius = float(np.linalg.norm(ub - lb)) + 1.0  # ‖z‖ = ‖Z z‖ ≤ diameter of the box
+        # The box as rows on z; a joint the earlier equality rows fix entirely gives a zero
+        # row "0 ≤ 0" that some backends take for an infeasibility: drop those.
+        box_G, box_h = np.vstack([Z, -Z]), np.concatenate([ub - qd, qd - lb])
+        live = np.abs(box_G).max(axis=1) > 1e-12
+        # Likewise an earlier level's row whose Jacobian lies in the row space of the eliminated
+        # equality rows (a wall on the EE under an EE position task): ≈ 0·z ≤ h holds for every
+        # z (it holds at z = 0 by construction) and only makes the dual ill-posed (OSQP ran to
+        # its iteration limit on such min-norm levels): drop those too.
+        GZ = G_all[:c1] @ Z
+        h_z = h_rel[:c1] - G_all[:c1] @ qd
+        alive = np.abs(GZ[:c0]).max(axis=1, initial=0.0) > 1e-12
+        own0 = int(alive.sum())
+        G_rows = np.vstack([GZ[:c0][alive], GZ[c0:], box_G[live]])
+        h = np.concatenate([h_z[:c0][alive], h_z[c0:], box_h[live]])
+        return G_rows, h, own0, np.full(d, -radius), np.full(d, radius)
+
+    def _level_value(self, lp: _LevelProblem, call: _QpCall) -> Callable[[np.ndarray], float]:
+        r"""½(‖J q̇ − r‖² + ‖w‖²) of an answer x = [z; w].
+
+        It is :math:`f(x) + \tfrac12\|J q_d - r\|^2 + \tfrac12\epsilon\|q_d\|^2 - \tfrac12\epsilon\|\dot q(x)\|^2`
+        (J = I, r = 0 on the min-norm level: ½‖q̇‖²).
+        """
+        qd, Z, d, eps, at_zero = lp.qd, lp.Z, lp.d, lp.eps, lp.at_zero
+        P, q_vec = call.P, call.q
+        res0 = (lp.J @ qd - lp.r) if lp.r.size else self._no_bounds
         offset = 0.5 * float(res0 @ res0 + eps * (qd @ qd))
 
         def level_value(x: np.ndarray) -> float:
             qdot = x[:d] if at_zero else (qd + x[:d] if Z is None else qd + Z @ x[:d])
             return float(x @ (0.5 * (P @ x) + q_vec)) + offset - 0.5 * eps * float(qdot @ qdot)
 
-        minimal_slacks = None
-        if m:
-            G_slack, h_slack = G[own0 : own0 + m, :d], h[own0 : own0 + m]
+        return level_value
 
-            def minimal_slacks(x: np.ndarray) -> np.ndarray:
-                # The level's answer is q̇; its slacks are then max(0, G q̇ − h) (feasible, no worse).
-                out = x.copy()
-                out[d:] = np.maximum(G_slack @ x[:d] - h_slack, 0.0)
-                return out
-
-        start = None
-        if self.warm_start and k in self._previous:
-            start = self._warm_start_point(self._previous[k], qd, Z, at_zero, G_own, h_own, x_lb, x_ub)
-        try:
-            # P ⪰ diag(curvature): (JZ)ᵀJZ + εI ⪰ εI (JZ = Z, orthonormal, on the min-norm level), I on slacks.
-            bend = 1.0 + eps if J is self._eye else eps
-            curvature = np.concatenate([np.full(d, bend), np.ones(m)]) if m else np.full(d, bend)
-            # Task levels are judged on their objective; the min-norm level (P = (1 + ε)I) on its
-            # answer itself: it only picks the null-space part of q̇.
-            min_norm = k == len(self._levels)
-            answer = self.solve_qp(
-                P,
-                q_vec,
-                G,
-                h,
-                x_lb,
-                x_ub,
-                x0,
-                f0,
-                k,
-                None if min_norm else level_value,
-                start,
-                minimal_slacks,
-                curvature,
-                1.0 + eps if min_norm else None,
-            )
-        except NoSolutionFound as exc:
-            self._record(k, P, q_vec, G, h, x_lb, x_ub, x0, None, exc.certificate, level_value, m)
-            raise
-        x, solution, retried = answer.x, answer.solution, answer.retried
-        self._record(k, P, q_vec, G, h, x_lb, x_ub, x0, x, answer.certificate, level_value, m)
-        if answer.certificate is not None:
-            self._certificates[k] = answer.certificate
-        cand = x[:d].copy() if at_zero else (qd + x[:d] if Z is None else qd + Z @ x[:d])
+    def _accept_level(self, lp: _LevelProblem, x: np.ndarray) -> np.ndarray:
+        """q̇ of the accepted answer, clipped into the box; rows and previous-step state updated."""
+        qd, Z, lb, ub, c0, c1 = lp.qd, lp.Z, lp.lb, lp.ub, lp.c0, lp.c1
+        d = lp.d
+        cand = x[:d].copy() if lp.at_zero else (qd + x[:d] if Z is None else qd + Z @ x[:d])
         np.maximum(cand, lb, out=cand)
         np.minimum(cand, ub, out=cand)
         # Next step, go straight to the backend only if a constraint binds now.
         tol = self.tolerance
-        self._needed_backend[k] = bool(
-            (cand <= lb + tol).any() or (cand >= ub - tol).any() or (G_all[:c1] @ cand >= h_rel[:c1] - tol).any()
+        self._needed_backend[lp.k] = bool(
+            (cand <= lb + tol).any() or (cand >= ub - tol).any() or (lp.G_all[:c1] @ cand >= lp.h_rel[:c1] - tol).any()
         )
         if c0:
             # Absorb violations within tolerance, so later levels stay feasible by construction.
-            np.maximum(h_acc, G_acc @ cand, out=h_acc)
-        self._previous[k] = cand
-        doubt = "" if answer.certified else ((answer.certificate.reason if answer.certificate else "") or "not checked")
-        return cand, 1, backend_iterations(solution), retried, doubt
+            h_acc = lp.h_rel[:c0]
+            np.maximum(h_acc, lp.G_all[:c0] @ cand, out=h_acc)
+        self._previous[lp.k] = cand
+        return cand
 
     @staticmethod
     def _warm_start_point(
@@ -921,45 +1124,33 @@ class HqpSolver(TimeLimited):
             z = np.concatenate([z, np.maximum(G_own @ qdot - h_own, 0.0)])
         return np.clip(z, x_lb, x_ub)
 
-    def _record(
-        self,
-        k: int,
-        P: np.ndarray,
-        q: np.ndarray,
-        G: np.ndarray,
-        h: np.ndarray,
-        lb: np.ndarray,
-        ub: np.ndarray,
-        x0: np.ndarray,
-        x: np.ndarray | None,
-        certificate: Certificate | None,
-        level_value: Callable[[np.ndarray], float] | None,
-        slacks: int,
-    ) -> None:
+    def _record(self, k: int, call: _QpCall, x: np.ndarray | None, certificate: Certificate | None) -> None:
         """Append the level QP to :attr:`qp_log` when it is a list (copies: the buffers are reused)."""
         if self.qp_log is None:
             return
         offset = None
-        if level_value is not None:
+        P, q, x0 = call.P, call.q, call.x0
+        if call.level_value is not None:
             probe = x if x is not None else x0
-            offset = level_value(probe) - float(probe @ (0.5 * (P @ probe) + q))
+            offset = call.level_value(probe) - float(probe @ (0.5 * (P @ probe) + q))
         self.qp_log.append(
             LevelQp(
                 k,
                 P.copy(),
                 q.copy(),
-                G.copy(),
-                h.copy(),
-                lb.copy(),
-                ub.copy(),
+                call.G.copy(),
+                call.h.copy(),
+                call.lb.copy(),
+                call.ub.copy(),
                 x0.copy(),
                 None if x is None else x.copy(),
                 certificate,
                 offset,
-                slacks,
+                call.slacks,
             )
         )
 
+    # ------------------------------------------------------------------ one checked QP
     def solve_qp(
         self,
         P: np.ndarray,
@@ -1023,122 +1214,157 @@ class HqpSolver(TimeLimited):
             G, h = np.zeros((0, q.shape[0])), np.zeros(0)
         if f0 is None:
             f0 = float(x0 @ (0.5 * (P @ x0) + q))
-        d = q.shape[0]
+        call = _QpCall(P, q, G, h, lb, ub, x0, f0, level_value, refine, curvature, modulus)
+        return self._solve_call(call, level, initvals)
+
+    def _solve_call(self, call: _QpCall, level: int, initvals: np.ndarray | None) -> LevelAnswer:
+        """:meth:`solve_qp` of a bundled problem: the attempts in order, the first certified answer."""
         attempts: list[tuple[dict[str, Any], float, np.ndarray | None]] = [(self._kwargs, 0.0, initvals)]
         if self.options.retry:
-            attempts.append((self._retry_kwargs, RETRY_REGULARIZATION, x0))
-        tol = self.tolerance
-        last_solution: Any = None
-        last_cert: Certificate | None = None
-        usable: LevelAnswer | None = None
-        reason = ""
+            attempts.append((self._retry_kwargs, RETRY_REGULARIZATION, call.x0))
+        trail = _Trail()
         for attempt, (kwargs, extra_reg, start) in enumerate(attempts):
-            if attempt and usable is not None:
-                start = usable.x  # the retry starts from the first attempt's usable answer, when there is one
-            P_try = P
-            if extra_reg:
-                P_try = P.copy()
-                P_try.flat[:: d + 1] += extra_reg
-            try:
-                solution = self._call_backend(P_try, q, G, h, lb, ub, start, kwargs)
-            except Exception as exc:  # noqa: BLE001 - a backend error is a failure of this QP
-                last_solution, reason = None, f"{self.solver} raised {type(exc).__name__}: {exc}"
-                continue
-            last_solution = solution
-            x = solution.x
-            if x is None or (not solution.found and not self.options.certify):
-                reason = f"{self.solver} reported no solution"
-                continue
-            x = np.asarray(x, dtype=float)
-            if x.shape != (d,) or not np.isfinite(x).all():
-                reason = f"{self.solver} returned a non-finite or misshaped solution"
-                continue
-            if not self.options.certify:
-                viol = max((lb - x).max(), (x - ub).max(), (G @ x - h).max() if h.size else -math.inf)
-                if viol > tol:
-                    reason = f"{self.solver} answer violates its constraints by {viol:.3g} (tolerance {tol:g})"
-                    continue
-                f = float(x @ (0.5 * (P @ x) + q))
-                if f > f0 + tol * (1.0 + abs(f0)):
-                    reason = f"{self.solver} answer is worse than a known feasible point ({f:.6g} > {f0:.6g})"
-                    continue
-                return LevelAnswer(x, solution, attempt, None, True)
-            if refine is not None:
-                x = refine(x)
-            # Cheapest first: the backend's multipliers; then the KKT polish (exact multipliers
-            # with it); then multipliers recovered for the answer itself (bounded least squares).
-            judge = functools.partial(self._certificate, P, q, G, h, lb, ub, f0, level_value, curvature, modulus)
-            z, z_box = getattr(solution, "z", None), getattr(solution, "z_box", None)
-            cert = judge(x, z, z_box, recover=False)
-            last_cert = cert
+            if attempt and trail.usable is not None:
+                start = trail.usable.x  # the retry starts from the first attempt's usable answer, when there is one
+            answer = self._attempt(call, attempt, kwargs, extra_reg, start, trail)
+            if answer is not None:
+                return answer
+        if trail.usable is not None:
+            return trail.usable
+        raise NoSolutionFound(level, trail.solution, trail.reason, trail.certificate)
+
+    def _attempt(
+        self,
+        call: _QpCall,
+        attempt: int,
+        kwargs: Mapping[str, Any],
+        extra_reg: float,
+        start: np.ndarray | None,
+        trail: _Trail,
+    ) -> LevelAnswer | None:
+        """One backend call and its judgement; None (and why, in ``trail``) when not accepted."""
+        P_try = call.P
+        if extra_reg:
+            P_try = call.P.copy()
+            P_try.flat[:: call.q.shape[0] + 1] += extra_reg
+        try:
+            solution = self._call_backend(P_try, call.q, call.G, call.h, call.lb, call.ub, start, kwargs)
+        except Exception as exc:  # noqa: BLE001 - a backend error is a failure of this QP
+            trail.solution, trail.reason = None, f"{self.solver} raised {type(exc).__name__}: {exc}"
+            return None
+        trail.solution = solution
+        x = solution.x
+        if x is None or (not solution.found and not self.options.certify):
+            trail.reason = f"{self.solver} reported no solution"
+            return None
+        x = np.asarray(x, dtype=float)
+        if x.shape != call.q.shape or not np.isfinite(x).all():
+            trail.reason = f"{self.solver} returned a non-finite or misshaped solution"
+            return None
+        if not self.options.certify:
+            return self._accept_on_status(call, x, solution, attempt, trail)
+        if call.refine is not None:
+            x = call.refine(x)
+        return self._certified_answer(call, x, solution, attempt, trail)
+
+    def _accept_on_status(
+        self, call: _QpCall, x: np.ndarray, solution: qpsolvers.Solution, attempt: int, trail: _Trail
+    ) -> LevelAnswer | None:
+        """The checks of ``certify = false``: constraints within tolerance, no worse than x0."""
+        tol, f0 = self.tolerance, call.f0
+        viol = max((call.lb - x).max(), (x - call.ub).max(), (call.G @ x - call.h).max() if call.h.size else -math.inf)
+        if viol > tol:
+            trail.reason = f"{self.solver} answer violates its constraints by {viol:.3g} (tolerance {tol:g})"
+            return None
+        f = float(x @ (0.5 * (call.P @ x) + call.q))
+        if f > f0 + tol * (1.0 + abs(f0)):
+            trail.reason = f"{self.solver} answer is worse than a known feasible point ({f:.6g} > {f0:.6g})"
+            return None
+        return LevelAnswer(x, solution, attempt, None, True)
+
+    def _certified_answer(
+        self, call: _QpCall, x: np.ndarray, solution: qpsolvers.Solution, attempt: int, trail: _Trail
+    ) -> LevelAnswer | None:
+        """Judge ``x``: the backend's multipliers, then the KKT polish, then recovered multipliers.
+
+        An answer that is not certified but usable (feasible within tolerance, no worse than x0)
+        is kept in ``trail`` as the fallback.
+        """
+        tol, f0 = self.tolerance, call.f0
+        z, z_box = getattr(solution, "z", None), getattr(solution, "z_box", None)
+        cert = self._certificate(call, x, z, z_box, recover=False)
+        trail.certificate = cert
+        if cert.passed:
+            return LevelAnswer(x, solution, attempt, cert, True)
+        polished = self._polished(call, x, z, z_box, cert, solution, attempt)
+        if polished is not None:
+            return polished
+        if cert.primal_residual <= tol:
+            cert = self._certificate(call, x, None, None, recover=True)
+            trail.certificate = cert
             if cert.passed:
                 return LevelAnswer(x, solution, attempt, cert, True)
-            # Polish near-optimal answers only: nearly feasible and no worse than the known point.
-            near = cert.primal_residual <= 100.0 * tol and cert.objective <= f0 + tol * (1.0 + abs(f0))
-            if self.options.kkt_polish and near:
-                # The active set from the answer alone first (rows it meets within 1e-9: interior-
-                # point multipliers of nearly active rows mislead), then from its multipliers.
-                for z_start, zb_start, active in ((None, None, 1e-9), (z, z_box, tol)):
-                    polished = polish(P, q, G, h, lb, ub, x, z_start, zb_start, active=active)
-                    if polished is None:
-                        continue
-                    xp = refine(polished[0]) if refine is not None else polished[0]
-                    cert_p = judge(xp, polished[2], polished[3], recover=False)
-                    if cert_p.passed:
-                        return LevelAnswer(xp, solution, attempt, cert_p, True)
-            if cert.primal_residual <= tol:
-                cert = judge(x, None, None, recover=True)
-                last_cert = cert
-                if cert.passed:
-                    return LevelAnswer(x, solution, attempt, cert, True)
-            said = "" if solution.found else f" ({self.solver} reported no solution)"
-            if cert.primal_residual > tol:
-                reason = (
-                    f"{self.solver} answer violates its constraints by {cert.primal_residual:.3g} (tolerance {tol:g})"
-                )
-            elif cert.objective > f0 and "known feasible point" in cert.reason:
-                reason = f"{self.solver} answer is worse than a known feasible point ({cert.objective:.6g} > {f0:.6g})"
-            else:
-                reason = f"{self.solver} answer not certified: {cert.reason}"
-            reason += said
-            if usable is None and cert.primal_residual <= tol and cert.objective <= f0 + tol * (1.0 + abs(f0)):
-                usable = LevelAnswer(x, solution, attempt, cert, False)
-        if usable is not None:
-            return usable
-        raise NoSolutionFound(level, last_solution, reason, last_cert)
+        trail.reason = self._rejection(cert, solution, f0)
+        if trail.usable is None and cert.primal_residual <= tol and cert.objective <= f0 + tol * (1.0 + abs(f0)):
+            trail.usable = LevelAnswer(x, solution, attempt, cert, False)
+        return None
 
-    def _certificate(
+    def _polished(
         self,
-        P: np.ndarray,
-        q: np.ndarray,
-        G: np.ndarray,
-        h: np.ndarray,
-        lb: np.ndarray,
-        ub: np.ndarray,
-        f0: float,
-        level_value: Callable[[np.ndarray], float] | None,
-        curvature: np.ndarray | None,
-        modulus: float | None,
+        call: _QpCall,
         x: np.ndarray,
         z: np.ndarray | None,
         z_box: np.ndarray | None,
-        recover: bool,
+        cert: Certificate,
+        solution: qpsolvers.Solution,
+        attempt: int,
+    ) -> LevelAnswer | None:
+        """A certified KKT polish of a near-optimal answer (nearly feasible, no worse than x0), or None."""
+        tol, f0 = self.tolerance, call.f0
+        near = cert.primal_residual <= 100.0 * tol and cert.objective <= f0 + tol * (1.0 + abs(f0))
+        if not (self.options.kkt_polish and near):
+            return None
+        # The active set from the answer alone first (rows it meets within 1e-9: interior-point
+        # multipliers of nearly active rows mislead), then from its multipliers.
+        for z_start, zb_start, active in ((None, None, 1e-9), (z, z_box, tol)):
+            polished = polish(call.P, call.q, call.G, call.h, call.lb, call.ub, x, z_start, zb_start, active=active)
+            if polished is None:
+                continue
+            xp = call.refine(polished[0]) if call.refine is not None else polished[0]
+            cert_p = self._certificate(call, xp, polished[2], polished[3], recover=False)
+            if cert_p.passed:
+                return LevelAnswer(xp, solution, attempt, cert_p, True)
+        return None
+
+    def _rejection(self, cert: Certificate, solution: qpsolvers.Solution, f0: float) -> str:
+        """Why an answer with certificate ``cert`` is not accepted (the message of the failure)."""
+        tol = self.tolerance
+        if cert.primal_residual > tol:
+            reason = f"{self.solver} answer violates its constraints by {cert.primal_residual:.3g} (tolerance {tol:g})"
+        elif cert.objective > f0 and "known feasible point" in cert.reason:
+            reason = f"{self.solver} answer is worse than a known feasible point ({cert.objective:.6g} > {f0:.6g})"
+        else:
+            reason = f"{self.solver} answer not certified: {cert.reason}"
+        return reason + ("" if solution.found else f" ({self.solver} reported no solution)")
+
+    def _certificate(
+        self, call: _QpCall, x: np.ndarray, z: np.ndarray | None, z_box: np.ndarray | None, recover: bool
     ) -> Certificate:
         """:func:`~qp_baseline.certificate.certify` of ``x`` with this solver's tolerances."""
         return certify(
-            P,
-            q,
-            G,
-            h,
+            call.P,
+            call.q,
+            call.G,
+            call.h,
             x,
-            lb=lb,
-            ub=ub,
+            lb=call.lb,
+            ub=call.ub,
             z=z,
             z_box=z_box,
-            feasible_objective=f0,
-            level_value=None if level_value is None else level_value(x),
-            curvature=curvature,
-            modulus=modulus,
+            feasible_objective=call.f0,
+            level_value=None if call.level_value is None else call.level_value(x),
+            curvature=call.curvature,
+            modulus=call.modulus,
             tolerances=self.certificate_tolerances,
             recover=recover,
         )

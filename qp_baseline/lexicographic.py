@@ -239,6 +239,40 @@ def solve_level_qp(
     raise ReferenceError(f"reference level QP not certified: {best.reason}")
 
 
+def _task_level_qp(
+    lv: LevelRows,
+    fixed_G: np.ndarray,
+    fixed_h: np.ndarray,
+    A: np.ndarray,
+    b: np.ndarray,
+    lb: np.ndarray,
+    ub: np.ndarray,
+    regularization: float,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    r"""(P, c, G, h, A, b, lb, ub) of one task level in x = [q̇; w] (module docstring).
+
+    :math:`\min \|J\dot q - r\|^2 + \epsilon\|\dot q\|^2 + \|w\|^2` under the earlier levels'
+    fixed rows, this level's rows with slack w ≥ 0, the earlier equality rows ``A q̇ = b`` and the box.
+    """
+    n, m = lb.shape[0], lv.h.size
+    d = n + m
+    P = np.zeros((d, d))
+    P[:n, :n] = 2.0 * (lv.J.T @ lv.J + regularization * np.eye(n))
+    P[n:, n:] = 2.0 * np.eye(m)
+    c = np.concatenate([-2.0 * lv.J.T @ lv.r, np.zeros(m)])
+    G = np.zeros((fixed_h.size + m, d))
+    G[: fixed_h.size, :n] = fixed_G
+    G[fixed_h.size :, :n] = lv.G
+    G[fixed_h.size :, n:] = -np.eye(m)
+    h = np.concatenate([fixed_h, lv.h])
+    A_x = np.hstack([A, np.zeros((A.shape[0], m))])
+    x_lb = np.concatenate([lb, np.zeros(m)])
+    # A finite slack bound every backend accepts: above the largest violation the box allows.
+    reach = lv.G @ (0.5 * (ub + lb)) + np.abs(lv.G) @ (0.5 * (ub - lb)) - lv.h
+    x_ub = np.concatenate([ub, np.maximum(reach, 0.0) + 1.0])
+    return P, c, G, h, A_x, b, x_lb, x_ub
+
+
 def solve_reference(
     rows: Sequence[LevelRows],
     lb: np.ndarray,
@@ -271,22 +305,7 @@ def solve_reference(
             slacks.append(np.zeros(0))
             continue
         A, b = _independent_rows(eq_J, eq_J @ qdot)
-        d = n + m
-        P = np.zeros((d, d))
-        P[:n, :n] = 2.0 * (lv.J.T @ lv.J + regularization * np.eye(n))
-        P[n:, n:] = 2.0 * np.eye(m)
-        c = np.concatenate([-2.0 * lv.J.T @ lv.r, np.zeros(m)])
-        G = np.zeros((fixed_h.size + m, d))
-        G[: fixed_h.size, :n] = fixed_G
-        G[fixed_h.size :, :n] = lv.G
-        G[fixed_h.size :, n:] = -np.eye(m)
-        h = np.concatenate([fixed_h, lv.h])
-        A_x = np.hstack([A, np.zeros((A.shape[0], m))])
-        x_lb = np.concatenate([lb, np.zeros(m)])
-        # A finite slack bound every backend accepts: above the largest violation the box allows.
-        reach = lv.G @ (0.5 * (ub + lb)) + np.abs(lv.G) @ (0.5 * (ub - lb)) - lv.h
-        x_ub = np.concatenate([ub, np.maximum(reach, 0.0) + 1.0])
-        x, cert = solve_level_qp(P, c, G, h, A_x, b, x_lb, x_ub, tolerances)
+        x, cert = solve_level_qp(*_task_level_qp(lv, fixed_G, fixed_h, A, b, lb, ub, regularization), tolerances)
         qdot = np.clip(x[:n], lb, ub)
         w = np.maximum(lv.G @ qdot - lv.h, 0.0)
         slacks.append(w)

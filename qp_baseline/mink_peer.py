@@ -38,8 +38,10 @@ satisfies, as ``ConfigurationLimit`` and ``CollisionAvoidanceLimit`` are written
   no slack, and no return task: a task past its threshold *demands* its return rate, and when
   the rows cannot all hold (a person closer than the arm can retreat from within its velocity
   limits) mink finds no solution and the step is FAILED.
-* Joint position limits of the model: :class:`mink.ConfigurationLimit`; joint velocity limits
-  ``robot.v_max``: :class:`mink.VelocityLimit`.
+* Joint limits: the :mod:`tpik.limits` objects every method reads, as one mink limit
+  (:class:`JointLimits`); by default the position limits with mink's ``ConfigurationLimit`` gain
+  and the velocity limits ``robot.v_max``, the rows of :class:`mink.ConfigurationLimit` and
+  :class:`mink.VelocityLimit`.
 
 Priorities are weights (mink's nature): the levels, highest first, get the costs
 :math:`c_k = \rho^{-k}` (:math:`\rho` = ``level_cost_ratio``, default 10, i.e. a factor 100 per
@@ -59,7 +61,7 @@ from __future__ import annotations
 import math
 import time
 import warnings
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, fields
 from typing import Any
 
@@ -74,6 +76,7 @@ from qp_baseline.set_rows import SetRowBuilder, SetRows
 from qp_baseline.time_limits import TimeLimited
 from robots import Kinematics, Robot
 from tpik.hierarchy import Hierarchy
+from tpik.limits import Limit, PositionLimit, VelocityLimit, stack_inequalities
 from tpik.reference import ControlReference
 from tpik.step_result import SolveStatus, StepResult, failed
 from tpik.tasks import OrientationTask, PoseTask, PositionTask, SetTask, Task, TaskState
@@ -168,6 +171,25 @@ class SetTaskLimit(mink.Limit):
         return mink.Constraint(G=self._G, h=self._h * dt)
 
 
+class JointLimits(mink.Limit):
+    r"""Our joint limits (:mod:`tpik.limits`) as one mink limit: every limit's rows, :math:`G\Delta q \le h\,dt`.
+
+    The default limits stand for mink's own ``ConfigurationLimit`` (position box, gain γ) and
+    ``VelocityLimit`` and give their rows in their order: :math:`\Delta q \le \gamma(q_{max} - q)`,
+    :math:`-\Delta q \le \gamma(q - q_{min})` on the limited joints, then :math:`|\Delta q| \le v_{max} dt`.
+    """
+
+    def __init__(self, limits: Sequence[Limit]) -> None:
+        self.limits = tuple(limits)
+
+    def compute_qp_inequalities(self, configuration: mink.Configuration, dt: float) -> mink.Constraint:
+        r"""Rows of every limit at ``configuration.q`` (hinge joints: q is the joint vector), in Δq units."""
+        G, h = stack_inequalities(self.limits, configuration.q, dt)
+        if h.size == 0:
+            return mink.Constraint()
+        return mink.Constraint(G=G, h=h * dt)
+
+
 class _StateTask(mink.Task):
     """A task of stored rows as a mink task: error ``e`` (Δq units) and Jacobian set each step."""
 
@@ -222,6 +244,8 @@ class MinkSolver(TimeLimited):
         settings: A plain dict validated by :meth:`MinkSettings.from_dict`.
         name: Method name reported in results.
         formulation: ``"soft_return"`` (``mink``, default) or ``"hard"`` (``mink-hard``).
+        limits: Joint limits (:mod:`tpik.limits`) as rows of one mink limit; the position limits
+            (gain ``configuration_limit_gain``) and the velocity limits when None.
 
     Raises:
         UnknownSolver: ``settings["solver"]`` is not an installed QP backend.
@@ -234,6 +258,7 @@ class MinkSolver(TimeLimited):
         settings: Mapping[str, Any] | None = None,
         name: str = "mink",
         formulation: str = "soft_return",
+        limits: Sequence[Limit] | None = None,
     ) -> None:
         if formulation not in FORMULATIONS:
             raise InvalidSettings("mink", f"unknown formulation {formulation!r}; known: {', '.join(FORMULATIONS)}")
@@ -248,12 +273,15 @@ class MinkSolver(TimeLimited):
         self.configuration = mink.Configuration(robot.mj_model)
         nv = robot.nq
         self._limit_rows = SetTaskLimit(nv)
-        velocities = {robot.joint_names[i]: float(robot.v_max[i]) for i in range(nv)}
-        self._limits: list[mink.Limit] = [
-            mink.ConfigurationLimit(robot.mj_model, gain=s.configuration_limit_gain),
-            mink.VelocityLimit(robot.mj_model, velocities),
-            self._limit_rows,
-        ]
+        self.limits: tuple[Limit, ...] = (
+            (PositionLimit.from_robot(robot, gain=s.configuration_limit_gain), VelocityLimit.from_robot(robot))
+            if limits is None
+            else tuple(limits)
+        )
+        """Joint limits (:mod:`tpik.limits`), as rows of one mink limit (:class:`JointLimits`)."""
+        self._limits: list[mink.Limit] = [JointLimits(self.limits), self._limit_rows]
+        velocity = next((lim for lim in self.limits if isinstance(lim, VelocityLimit)), None)
+        self._v_max = (velocity or VelocityLimit.from_robot(robot)).v_max  # the answer is clipped into it
         self._bodies: dict[str, int] = {}
         self._hierarchy: Hierarchy | None = None
         self._adapters: list[_Adapter] = []
@@ -375,6 +403,14 @@ class MinkSolver(TimeLimited):
         n = self.robot.nq
         if not (math.isfinite(dt) and dt > 0.0):
             return failed(n, f"dt must be finite and > 0, got {dt}")
+        result = self._solve_step(hierarchy, kin, dt)
+        for limit in self.limits:
+            limit.observe(result.qdot)
+        return result
+
+    def _solve_step(self, hierarchy: Hierarchy, kin: Kinematics, dt: float) -> StepResult:
+        """:meth:`solve` without the limits' :meth:`~tpik.limits.Limit.observe` (dt already checked)."""
+        n = self.robot.nq
         t0 = time.perf_counter()
         if self.budget is not None:
             self.budget.start()
@@ -425,7 +461,7 @@ class MinkSolver(TimeLimited):
                     f"{self.name}: the step breaks its constraints by {excess:.3g} (tolerance {tol:g}, Δq units)",
                     iterations=iterations,
                 )
-        qdot = np.clip(x / dt, -self.robot.v_max, self.robot.v_max)  # mink.solve_ik returns Δq / dt [rad/s]
+        qdot = np.clip(x / dt, -self._v_max, self._v_max)  # mink.solve_ik returns Δq / dt [rad/s]
         tasks = self._rows.tasks
         active: list[str] = []
         if rows.h.size:

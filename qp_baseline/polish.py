@@ -57,16 +57,9 @@ def polish(
     lo_rows, hi_rows = np.flatnonzero(np.isfinite(lb)), np.flatnonzero(np.isfinite(ub))
     Gb = np.vstack([G, np.eye(n)[hi_rows], -np.eye(n)[lo_rows]])
     hb = np.concatenate([h, ub[hi_rows], -lb[lo_rows]])
-    m = h.shape[0]
-    zb = np.zeros(n) if z_box is None else np.asarray(z_box, dtype=float)
-    mult = np.concatenate(
-        [
-            np.zeros(m) if z is None else np.maximum(np.asarray(z, dtype=float), 0.0),
-            zb[hi_rows].clip(0.0),
-            (-zb[lo_rows]).clip(0.0),
-        ]
-    )
-    y = np.zeros(A_.shape[0])
+    m, p = h.shape[0], A_.shape[0]
+    mult = _row_multipliers(z, z_box, m, n, lo_rows, hi_rows)
+    y = np.zeros(p)
     previous: np.ndarray | None = None
     for _ in range(max_rounds):
         gap = hb - Gb @ x
@@ -74,24 +67,44 @@ def polish(
         if previous is not None and np.array_equal(act, previous):
             break
         previous = act
-        E = np.vstack([A_, Gb[act]])
-        e = np.concatenate([b_, hb[act]])
-        k = E.shape[0]
-        K = np.zeros((n + k, n + k))
-        K[:n, :n] = P
-        K[:n, n:] = E.T
-        K[n:, :n] = E
-        rhs = np.concatenate([-q, e])
-        sol = np.linalg.lstsq(K, rhs, rcond=1e-14)[0]
-        sol += np.linalg.lstsq(K, rhs - K @ sol, rcond=1e-14)[0]
-        if not np.isfinite(sol).all():
+        sol = _kkt_solve(P, q, np.vstack([A_, Gb[act]]), np.concatenate([b_, hb[act]]))
+        if sol is None:
             return None
         x = sol[:n]
-        y = sol[n : n + A_.shape[0]]
+        y = sol[n : n + p]
         mult = np.zeros(Gb.shape[0])
-        mult[act] = sol[n + A_.shape[0] :]
-    z_rows = mult[:m]
+        mult[act] = sol[n + p :]
     z_box_out = np.zeros(n)
     z_box_out[hi_rows] += mult[m : m + hi_rows.size]
     z_box_out[lo_rows] -= mult[m + hi_rows.size :]
-    return x, y, z_rows, z_box_out
+    return x, y, mult[:m], z_box_out
+
+
+def _row_multipliers(
+    z: np.ndarray | None, z_box: np.ndarray | None, m: int, n: int, lo_rows: np.ndarray, hi_rows: np.ndarray
+) -> np.ndarray:
+    """Starting multipliers of the rows [G; upper box; lower box] (≥ 0; zero where unknown)."""
+    zb = np.zeros(n) if z_box is None else np.asarray(z_box, dtype=float)
+    return np.concatenate(
+        [
+            np.zeros(m) if z is None else np.maximum(np.asarray(z, dtype=float), 0.0),
+            zb[hi_rows].clip(0.0),
+            (-zb[lo_rows]).clip(0.0),
+        ]
+    )
+
+
+def _kkt_solve(P: np.ndarray, q: np.ndarray, E: np.ndarray, e: np.ndarray) -> np.ndarray | None:
+    r"""[x; λ] of :math:`\min \tfrac12 x^TPx + q^Tx` s.t. :math:`Ex = e`, or None when not finite.
+
+    Least squares on the KKT system (dependent rows are fine), plus one step of refinement.
+    """
+    n, k = P.shape[0], E.shape[0]
+    K = np.zeros((n + k, n + k))
+    K[:n, :n] = P
+    K[:n, n:] = E.T
+    K[n:, :n] = E
+    rhs = np.concatenate([-q, e])
+    sol = np.linalg.lstsq(K, rhs, rcond=1e-14)[0]
+    sol += np.linalg.lstsq(K, rhs - K @ sol, rcond=1e-14)[0]
+    return sol if np.isfinite(sol).all() else None

@@ -79,7 +79,7 @@ from __future__ import annotations
 import dataclasses
 import math
 import time
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any, ClassVar
 
@@ -90,6 +90,7 @@ from tpik.cascade import SEARCH_NAMES, STATUS_NO_FINITE_MODE, STATUS_NON_FINITE_
 from tpik.evaluation import TaskEvaluation
 from tpik.exceptions import InvalidSettings, InvalidTaskState, TpikError
 from tpik.hierarchy import Hierarchy
+from tpik.limits import Limit, VelocityLimit, compose_box, scale_into_box
 from tpik.reference import ControlReference
 from tpik.step_result import SolveStatus, StepResult, failed
 from tpik.step_rows import OUT_CANDIDATES, OUT_EVALUATED, OUT_HOW, OUT_LEVELS, OUT_ROWS, OUT_STATUS, tpik_step
@@ -302,6 +303,8 @@ class TpikSolver:
         robot: The robot (``nq`` and the joint velocity limits ``v_max`` are read from it).
         settings: :class:`TpikSettings`; None = defaults.
         name: Method name shown in reports (``"tpik"``, ``"tpik-ss"``).
+        limits: Joint limits (:mod:`tpik.limits`) the velocity is scaled into; the robot's
+            velocity limits when None.
 
     Which tasks are set-based, their gains and thresholds are read once per hierarchy object
     (the first time it is solved); targets and obstacle points are read every step, as the
@@ -316,14 +319,26 @@ class TpikSolver:
 
     VARIANTS: ClassVar[tuple[str, ...]] = VARIANTS
 
-    def __init__(self, robot: Robot, settings: TpikSettings | None = None, name: str = "tpik") -> None:
+    def __init__(
+        self,
+        robot: Robot,
+        settings: TpikSettings | None = None,
+        name: str = "tpik",
+        limits: Sequence[Limit] | None = None,
+    ) -> None:
         self.robot = robot
         self.settings = settings if settings is not None else TpikSettings()
         self.name = name
         self.nq = int(robot.nq)
-        v_max = np.asarray(robot.v_max, dtype=float)
-        if v_max.shape != (self.nq,) or not np.all(np.isfinite(v_max)) or np.any(v_max <= 0.0):
-            raise InvalidSettings(f"robot '{robot.name}': joint velocity limits must be finite and > 0, got {v_max}")
+        # The final scaling keeps q̇ in the first VelocityLimit (the robot's by default); any other
+        # limit is applied after it by scale_into_box (TPIK's joint position limits are the
+        # hierarchy's joint-limit tasks, so PositionLimit is not among the defaults).
+        self.limits: tuple[Limit, ...] = (VelocityLimit.from_robot(robot),) if limits is None else tuple(limits)
+        velocity = next((lim for lim in self.limits if isinstance(lim, VelocityLimit)), None)
+        v_max = (velocity or VelocityLimit.from_robot(robot)).v_max
+        if v_max.shape != (self.nq,):
+            raise InvalidSettings(f"robot '{robot.name}': joint velocity limits must have shape ({self.nq},)")
+        self._box_limits = () if all(lim is velocity for lim in self.limits) else self.limits
         self._inv_v_max = 1.0 / v_max
         s = self.settings
         self.velocity_norm_max = (
@@ -380,6 +395,20 @@ class TpikSolver:
             raise TpikError(f"{self.name}: dt must be a finite number > 0 [s], got {dt!r}")
 
     def solve(self, hierarchy: Hierarchy, kin: Kinematics, dt: float) -> StepResult:
+        """One control step (:meth:`_solve_step`), then into the box of :attr:`limits` (:mod:`tpik.limits`)."""
+        result = self._solve_step(hierarchy, kin, dt)
+        if self._box_limits and result.status != SolveStatus.FAILED:
+            result.qdot, scale = scale_into_box(result.qdot, compose_box(self._box_limits, kin.q, dt))
+            result.extras["limit_scale"] = scale
+            if scale < 1.0:
+                result.status = SolveStatus.DEGRADED
+                note = f"velocity scaled by {scale:.3g} into the limits"
+                result.message = f"{result.message}; {note}" if result.message else f"{self.name}: {note}"
+        for limit in self.limits:
+            limit.observe(result.qdot)
+        return result
+
+    def _solve_step(self, hierarchy: Hierarchy, kin: Kinematics, dt: float) -> StepResult:
         """One control step: joint velocities for ``hierarchy`` at ``kin.q`` over ``dt``.
 
         Step 1 (every task evaluated once, CLIK references of eq. 2, candidates of eq. 7) is
