@@ -38,10 +38,11 @@ satisfies, as ``ConfigurationLimit`` and ``CollisionAvoidanceLimit`` are written
   no slack, and no return task: a task past its threshold *demands* its return rate, and when
   the rows cannot all hold (a person closer than the arm can retreat from within its velocity
   limits) mink finds no solution and the step is FAILED.
-* Joint limits: the :mod:`tpik.limits` objects every method reads, as one mink limit
-  (:class:`JointLimits`); by default the position limits with mink's ``ConfigurationLimit`` gain
-  and the velocity limits ``robot.v_max``, the rows of :class:`mink.ConfigurationLimit` and
-  :class:`mink.VelocityLimit`.
+* Joint limits: by default mink's own :class:`mink.ConfigurationLimit` (gain
+  ``configuration_limit_gain``) and :class:`mink.VelocityLimit` (``robot.v_max``), as its users
+  write them; the same limits as :mod:`tpik.limits` objects are :attr:`MinkSolver.limits`.
+  Other limits (e.g. an acceleration limit) are passed as ``limits`` and become one mink limit
+  (:class:`JointLimits`).
 
 Priorities are weights (mink's nature): the levels, highest first, get the costs
 :math:`c_k = \rho^{-k}` (:math:`\rho` = ``level_cost_ratio``, default 10, i.e. a factor 100 per
@@ -279,7 +280,17 @@ class MinkSolver(TimeLimited):
             else tuple(limits)
         )
         """Joint limits (:mod:`tpik.limits`), as rows of one mink limit (:class:`JointLimits`)."""
-        self._limits: list[mink.Limit] = [JointLimits(self.limits), self._limit_rows]
+        if limits is None:
+            # The defaults as mink's users write them: its own ConfigurationLimit and VelocityLimit
+            # (the same rows as self.limits; tests/qp_baseline/test_limits.py compares them).
+            velocities = {robot.joint_names[i]: float(robot.v_max[i]) for i in range(nv)}
+            own: list[mink.Limit] = [
+                mink.ConfigurationLimit(robot.mj_model, gain=s.configuration_limit_gain),
+                mink.VelocityLimit(robot.mj_model, velocities),
+            ]
+        else:
+            own = [JointLimits(self.limits)]
+        self._limits: list[mink.Limit] = [*own, self._limit_rows]
         velocity = next((lim for lim in self.limits if isinstance(lim, VelocityLimit)), None)
         self._v_max = (velocity or VelocityLimit.from_robot(robot)).v_max  # the answer is clipped into it
         self._bodies: dict[str, int] = {}
