@@ -8,8 +8,8 @@ filters and the distance are the same classes with the same settings
 
 Per update (30 Hz, called by the control loop): take the latest frame; if it is new, remove the
 static scene (:class:`~compare.sensing.self_filter.StaticBackground`) and the arm
-(:class:`~compare.sensing.self_filter.SelfFilter`, at the joint positions measured when the
-frame arrived); then run the depth-space distance
+(:class:`~compare.sensing.self_filter.SelfFilter`, swept from the joint positions known when the
+frame was taken to the newest ones: :func:`self_filter_poses`); then run the depth-space distance
 (:class:`~compare.sensing.depth_distance.DepthDistance`) for the control points at the current
 joint positions. Unlike the simulation's source, a frame older than ``[sensor] max_age_s`` is
 reported *blind* (a stalled camera must stop the arm, not replay its last frame).
@@ -56,6 +56,40 @@ def make_self_filter(robot: Robot, camera: CameraModel, settings: DepthSensingSe
         noise_allowance=settings.noise_allowance,
         root_body=settings.robot_root_body or robot.base_body,
     )
+
+
+SWEEP_STEP_RAD = 0.02
+"""Largest joint step [rad] between the poses the self-filter removes (:func:`self_filter_poses`)."""
+SWEEP_MAX_POSES = 8
+"""At most this many poses per frame (a longer gap is spanned with larger steps)."""
+
+
+def self_filter_poses(q_frame: np.ndarray | None, q_now: np.ndarray) -> list[np.ndarray]:
+    """Arm poses whose pixels the self-filter removes from one live frame.
+
+    The joint state that had arrived when the frame was taken (``q_frame``) was measured some
+    milliseconds before it (the driver's sampling, the transport; more on a loaded computer), and
+    ``q_now`` (the newest state, at the loop's time) after it: the arm in the image lies between
+    the two. Removing only one of them leaves part of a fast-moving arm in the frame, and that part
+    reads as an obstacle a few centimetres from its own control points (a *phantom*: 0.04 m on
+    link 7 seen at load ~5 in ``tests/hardware``). So the arm is removed at both ends and at
+    poses in between, at most :data:`SWEEP_STEP_RAD` apart per joint: its swept volume over the
+    latency, inflated by the filter's margin. (A person point inside that volume is hidden for
+    the frame; the sweep lasts one frame's latency.)
+
+    Args:
+        q_frame: Joint positions when the frame was taken (None: unknown, ``q_now`` only) [rad].
+        q_now: The newest joint positions [rad].
+
+    Returns:
+        The poses, ``q_frame`` first.
+    """
+    if q_frame is None:
+        return [q_now]
+    steps = min(int(np.ceil(float(np.max(np.abs(q_now - q_frame))) / SWEEP_STEP_RAD)), SWEEP_MAX_POSES - 1)
+    if steps == 0:
+        return [q_frame]
+    return [q_frame + (q_now - q_frame) * (k / steps) for k in range(steps + 1)]
 
 
 class HardwareDepthSensing:
@@ -105,7 +139,8 @@ class HardwareDepthSensing:
             depth = np.nan_to_num(frame.depth_m, nan=0.0, posinf=0.0, neginf=0.0).astype(np.float32, copy=True)
             if self.background is not None:
                 self.background.apply_inplace(depth)
-            self.self_filter.apply_inplace(depth, q=kin.q if q is None else q)
+            for pose in self_filter_poses(q, kin.q):
+                self.self_filter.apply_inplace(depth, q=pose)
             filtered = DepthFrame(depth, frame.stamp_s, frame.camera)
             self._last = (frame, filtered, vf)
             self.filter_time_s = time.perf_counter() - start

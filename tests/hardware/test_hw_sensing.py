@@ -117,3 +117,37 @@ def test_captured_background_leaves_the_arm_out_and_round_trips(scene, jaco, tmp
     small = type(pipeline.camera)(**{**pipeline.camera.__dict__, "width": 10})
     with pytest.raises(HardwareError, match="px"):
         load_background(path, small)
+
+
+def test_self_filter_poses_span_the_latency_in_small_steps():
+    from compare.hardware.sensing import SWEEP_MAX_POSES, SWEEP_STEP_RAD, self_filter_poses
+
+    q0, q1 = np.zeros(7), np.array([0.0, 0.1, 0.0, -0.05, 0.0, 0.0, 0.0])
+    poses = self_filter_poses(q0, q1)
+    assert np.array_equal(poses[0], q0) and np.allclose(poses[-1], q1)
+    assert max(np.max(np.abs(b - a)) for a, b in itertools.pairwise(poses)) <= SWEEP_STEP_RAD + 1e-12
+    assert len(self_filter_poses(q0, q0)) == 1 and len(self_filter_poses(None, q1)) == 1
+    assert len(self_filter_poses(q0, q0 + 3.0)) == SWEEP_MAX_POSES  # a long gap: bounded work
+
+
+def test_a_moving_arm_leaves_no_phantom_when_the_joint_state_lags_the_frame(scene, jaco):
+    """The frame shows the arm between the last state that had arrived and the newest one."""
+    from compare.sensing.person import Person
+    from compare.sensing.scene import make_data
+
+    config, pipeline, _, q, empty, _ = scene
+    depth = capture_background(_stream(empty), lambda t: q, jaco, config, duration_s=0.05)
+    background = static_background(depth, config)
+    q_lag = q.copy()
+    q_new = q + np.array([0.0, 0.3, 0.0, 0.3, 0.0, 0.3, 0.0])  # ~0.3 rad of joint motion in the latency
+    data = make_data(pipeline.model, 0.5 * (q_lag + q_new))  # the arm as the camera saw it
+    Person(pipeline.model, []).apply(0.0, data)
+    mujoco.mj_forward(pipeline.model, data)
+    frame = pipeline.render(data, stamp_s=1.0)
+    swept = HardwareDepthSensing(jaco, pipeline.camera, lambda: frame, lambda t: q_lag, config, background)
+    result = swept.update(1.0, jaco.kinematics(q_new))
+    assert not result.blind and not any(r.in_range for r in result.readings.values()), result.readings
+    # Filtering the lagging pose only (as before) leaves part of the arm in the image: a phantom.
+    only_lag = HardwareDepthSensing(jaco, pipeline.camera, lambda: frame, lambda t: q_lag, config, background)
+    phantom = only_lag.update(1.0, jaco.kinematics(q_lag))
+    assert any(r.in_range for r in phantom.readings.values())
