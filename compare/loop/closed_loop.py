@@ -39,6 +39,7 @@ and :func:`run_loop` repeats it.
 
 from __future__ import annotations
 
+import gc
 import time
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
@@ -219,10 +220,15 @@ def timed_solve(
     """One solve, timed (kinematics already done: the solver's own work only).
 
     A solver error of its own domain (:data:`SOLVER_ERRORS`) is a FAILED step with zero velocity.
+    Python's cyclic garbage collector is paused during the solve (it runs at the next allocation
+    after it, in the loop's own time): a full collection takes milliseconds of the harness's
+    objects and would otherwise land, at random, on some method's solve and its time limit.
 
     Returns:
         (q̇ [rad/s], status, active set, message, the solver's deadline-miss flag, solve time [µs]).
     """
+    collecting = gc.isenabled()
+    gc.disable()
     wall0 = time.perf_counter_ns()
     try:
         result = solver.solve(hierarchy, kin, dt)
@@ -231,7 +237,11 @@ def timed_solve(
     except SOLVER_ERRORS as exc:  # the solver's own domain (no solution, a task it cannot evaluate)
         qdot, status, active, message = np.zeros(kin.nq), SolveStatus.FAILED, (), f"{type(exc).__name__}: {exc}"
         missed = False
-    return qdot, status, active, message, missed, (time.perf_counter_ns() - wall0) * 1e-3
+    finally:
+        elapsed_us = (time.perf_counter_ns() - wall0) * 1e-3
+        if collecting:
+            gc.enable()
+    return qdot, status, active, message, missed, elapsed_us
 
 
 class _Step:

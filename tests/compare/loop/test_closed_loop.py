@@ -162,3 +162,32 @@ def test_warm_up_solves_before_the_run_without_changing_it(jaco, name):
     _, warm = _run(jaco, solver, hierarchy, steps=10)
     _, cold = _run(jaco, make_method(name, jaco), _ee_hierarchy(jaco), steps=10)
     np.testing.assert_allclose(warm.steps.filter(like="qdot_"), cold.steps.filter(like="qdot_"), atol=1e-9)
+
+
+def test_the_garbage_collector_never_runs_inside_a_timed_solve_and_is_restored_after_it(jaco):
+    import gc
+
+    from compare.loop.closed_loop import timed_solve
+    from tpik.exceptions import InvalidTaskState
+    from tpik.step_result import SolveStatus, StepResult
+
+    seen: list[bool] = []
+
+    class Probe:
+        name = "probe"
+
+        def __init__(self, fail: bool) -> None:
+            self.fail = fail
+
+        def solve(self, hierarchy, kin, dt):
+            seen.append(gc.isenabled())
+            if self.fail:
+                raise InvalidTaskState("probe")
+            return StepResult(qdot=np.zeros(kin.nq), status=SolveStatus.OK)
+
+    kin = jaco.kinematics(jaco.home)
+    assert gc.isenabled()
+    ok = timed_solve(Probe(False), None, kin, 0.01)  # type: ignore[arg-type]
+    failed = timed_solve(Probe(True), None, kin, 0.01)  # type: ignore[arg-type]
+    assert seen == [False, False] and gc.isenabled()
+    assert ok[1] == SolveStatus.OK and failed[1] == SolveStatus.FAILED
