@@ -6,6 +6,24 @@ import os
 
 os.environ.setdefault("MUJOCO_GL", "egl")  # before mujoco is imported (by robots)
 
+
+def _cpu_has(*flags: str) -> bool:
+    try:
+        with open("/proc/cpuinfo", encoding="ascii", errors="replace") as fh:
+            words = set(next((line for line in fh if line.startswith("flags")), "").split())
+    except OSError:
+        return False
+    return all(f in words for f in flags)
+
+
+# One BLAS kernel set on every x86-64 machine with AVX2 (before numpy loads OpenBLAS): OpenBLAS
+# picks its kernels by CPU, and their round-off differs. The QP methods' velocities are not robust
+# to round-off (a 1e-16 change of a row moves HQP's answer by up to 3e-4 rad/s at some states), so
+# tests/regression, whose reference was stored with the Haswell kernels, holds to 1e-9 rad/s only
+# with the same kernels (with OPENBLAS_CORETYPE=Prescott four methods fail it).
+if _cpu_has("avx2", "fma"):
+    os.environ.setdefault("OPENBLAS_CORETYPE", "Haswell")
+
 import numpy as np  # noqa: E402
 import pytest  # noqa: E402
 
