@@ -129,8 +129,8 @@ def start(procs: list[Proc], env: dict[str, str], args: list[str], log_path: Pat
     return proc
 
 
-def write_config(path: Path, base: str = "case1.toml", **sections: dict[str, Any]) -> Path:
-    """``configs/<base>`` with sections updated key by key, written to ``path``."""
+def write_config(path: Path, base: str | Path = "case1.toml", **sections: dict[str, Any]) -> Path:
+    """``configs/<base>`` (or the file ``base``) with sections updated key by key, written to ``path``."""
     with open(CONFIGS / base, "rb") as fh:
         data = tomllib.load(fh)
     for name, values in sections.items():

@@ -8,12 +8,17 @@ import sys
 from tests.hardware.conftest import ROOT, write_config
 
 
-def test_start_refused_without_camera_transform(tmp_path):
-    config = write_config(tmp_path / "nocam.toml", scenario={"time_scale": 0.1}, methods={"names": ["tpik"]})
-    res = subprocess.run(
-        [sys.executable, "-m", "compare.cli", "hw", str(config), "--out", str(tmp_path / "hw"), "-q"],
+def _refused_start(config, out):
+    """``tpik-compare hw CONFIG`` without ROS: the checks that refuse before connecting."""
+    return subprocess.run(
+        [sys.executable, "-m", "compare.cli", "hw", str(config), "--out", str(out), "-q"],
         cwd=ROOT, capture_output=True, text=True, timeout=120,
     )  # fmt: skip
+
+
+def test_start_refused_without_camera_transform(tmp_path):
+    config = write_config(tmp_path / "nocam.toml", scenario={"time_scale": 0.1}, methods={"names": ["tpik"]})
+    res = _refused_start(config, tmp_path / "hw")
     assert res.returncode == 2, res.stderr
     assert "camera transform missing" in res.stderr and "Traceback" not in res.stderr
     assert res.stderr.count("\n") == 1
@@ -32,10 +37,7 @@ def test_start_refused_with_several_cameras_in_one_line(tmp_path):
     config = write_config(
         tmp_path / "two.toml", base="case1_two_cameras.toml", scenario={"time_scale": 0.1}, methods={"names": ["tpik"]}
     )
-    res = subprocess.run(
-        [sys.executable, "-m", "compare.cli", "hw", str(config), "--out", str(tmp_path / "hw"), "-q"],
-        cwd=ROOT, capture_output=True, text=True, timeout=120,
-    )  # fmt: skip
+    res = _refused_start(config, tmp_path / "hw")
     assert res.returncode == 2, res.stderr
     assert "2 cameras in [[sensor.cameras]]" in res.stderr and "Traceback" not in res.stderr
     assert res.stderr.count("\n") == 1

@@ -24,7 +24,6 @@ from typing import Any
 
 import numpy as np
 import pytest
-import tomli_w
 
 from tests.hardware.conftest import CONFIGS, ROOT, Proc, read_json, ros_skip_reason, start, write_config
 
@@ -87,11 +86,7 @@ def _keyframes_earlier(shift_s: float) -> list[dict[str, Any]]:
 
 def _with_hardware(config: Path, name: str, **values: Any) -> Path:
     """A copy of ``config`` with ``[hardware]`` keys set to ``values`` (existing keys replaced)."""
-    data = tomllib.loads(config.read_text())
-    data.setdefault("hardware", {}).update(values)
-    path = config.with_name(name)
-    path.write_bytes(tomli_w.dumps(data).encode())
-    return path
+    return write_config(config.with_name(name), config, hardware=values)
 
 
 def _toml(value: Any) -> str:
