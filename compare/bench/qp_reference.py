@@ -67,10 +67,30 @@ def bench_states(robot: Robot) -> list[QpState]:
     return case2_qp_states(robot) + random_states(robot, RANDOM_COUNT, RANDOM_SEED)
 
 
+FINGERPRINT_DIGITS = 10
+"""Significant digits of every float in :func:`fingerprint`."""
+
+
+def _rounded(value: Any) -> Any:
+    """``value`` with every float rounded to :data:`FINGERPRINT_DIGITS` significant digits."""
+    if isinstance(value, float):
+        return float(f"{value:.{FINGERPRINT_DIGITS - 1}e}")
+    if isinstance(value, dict):
+        return {k: _rounded(v) for k, v in value.items()}
+    if isinstance(value, list | tuple):
+        return [_rounded(v) for v in value]
+    return value
+
+
 def fingerprint(states: list[QpState], robot: Robot) -> str:
-    """SHA-256 of the robot's case-2 hierarchy description and the states (what the reference depends on)."""
+    """SHA-256 of the robot's case-2 hierarchy description and the states (what the reference depends on).
+
+    Floats enter rounded to :data:`FINGERPRINT_DIGITS` significant digits: the state generator
+    draws its gains through ``np.exp``, whose last bit depends on the CPU's SIMD kernels (AVX2 and
+    AVX-512 differ), and a reference is valid for states one rounding apart.
+    """
     payload = json.dumps(
-        {"hierarchy": case2_description(robot), "states": [s.to_dict() for s in states]}, sort_keys=True
+        _rounded({"hierarchy": case2_description(robot), "states": [s.to_dict() for s in states]}), sort_keys=True
     )
     return hashlib.sha256(payload.encode()).hexdigest()
 

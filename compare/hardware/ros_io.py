@@ -98,6 +98,13 @@ def init_node(ros: RosApi, name: str) -> None:
     root.setLevel(level)
 
 
+MAX_FRAME_LEAD_S = 0.1
+"""Longest extrapolation of the arm past its newest joint state for the self-filter [s]
+(:meth:`RosRobotIO.frame_q_ahead`): beyond it the joint state is stale and the watchdog acts."""
+PERIOD_SAMPLES = 20
+"""Joint states whose median interval is the state period of :meth:`RosRobotIO.frame_q_ahead`."""
+
+
 class _RateCounter:
     """Arrival times of one topic (bounded), for measured rates."""
 
@@ -473,6 +480,32 @@ class RosRobotIO(RobotIO):
         with self._lock:
             capture = self._capture_of.get(round(stamp_s + self._epoch, 6))
         return self.q_at(stamp_s if capture is None else capture - self._epoch)
+
+    def frame_q_ahead(self, stamp_s: float) -> np.ndarray | None:
+        """Where the arm may already have been, beyond the newest joint state, when a frame was taken.
+
+        The newest joint state (received at t_s) was measured up to one state period T before it
+        arrived (the driver samples, then publishes; over USB T ≈ 22 ms, kinova-ros #281), so when
+        the frame that arrived at ``stamp_s`` was captured at t_c, the arm was up to
+        lead = t_c − (t_s − T) past that state, moving at the velocity last sent q̇_s (the driver
+        follows it; its reported velocity lags). The pose returned is q_s + q̇_s · lead, with lead
+        clipped to [0, :data:`MAX_FRAME_LEAD_S`]; the self-filter sweeps to it, so a joint state
+        lagging the frame leaves no piece of the moving arm in the image (a phantom obstacle).
+
+        Returns:
+            The extrapolated joint positions [rad], or None before the first two joint states.
+        """
+        with self._lock:
+            capture = self._capture_of.get(round(stamp_s + self._epoch, 6), stamp_s + self._epoch)
+            history = list(self._history)[-PERIOD_SAMPLES:]
+            sent = self._sent.copy()
+        if len(history) < 2:
+            return None
+        arrivals = np.array([a for a, _ in history])
+        period = float(np.median(np.diff(arrivals)))
+        newest_t, newest_q = history[-1]
+        lead = min(max(capture - (newest_t - period), 0.0), MAX_FRAME_LEAD_S)
+        return newest_q + sent * lead
 
     def read_depth(self) -> DepthFrame | None:
         """Latest depth frame with the calibrated camera (its age is the caller's to check)."""

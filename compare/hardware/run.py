@@ -106,7 +106,7 @@ def make_obstacle_source(config: Config, robot: robots.Robot, io: RosRobotIO) ->
     else:
         depth = None
     background = static_background(depth, config) if depth is not None else None
-    return HardwareDepthSensing(robot, frame.camera, io.read_depth, io.frame_q, config, background)
+    return HardwareDepthSensing(robot, frame.camera, io.read_depth, io.frame_q, config, background, io.frame_q_ahead)
 
 
 def capture_background_file(config: Config, path: Path, duration_s: float) -> float:

@@ -64,32 +64,45 @@ SWEEP_MAX_POSES = 8
 """At most this many poses per frame (a longer gap is spanned with larger steps)."""
 
 
-def self_filter_poses(q_frame: np.ndarray | None, q_now: np.ndarray) -> list[np.ndarray]:
+def self_filter_poses(
+    q_frame: np.ndarray | None, q_now: np.ndarray, q_ahead: np.ndarray | None = None
+) -> list[np.ndarray]:
     """Arm poses whose pixels the self-filter removes from one live frame.
 
     The joint state that had arrived when the frame was taken (``q_frame``) was measured some
     milliseconds before it (the driver's sampling, the transport; more on a loaded computer), and
-    ``q_now`` (the newest state, at the loop's time) after it: the arm in the image lies between
-    the two. Removing only one of them leaves part of a fast-moving arm in the frame, and that part
-    reads as an obstacle a few centimetres from its own control points (a *phantom*: 0.04 m on
-    link 7 seen at load ~5 in ``tests/hardware``). So the arm is removed at both ends and at
-    poses in between, at most :data:`SWEEP_STEP_RAD` apart per joint: its swept volume over the
-    latency, inflated by the filter's margin. (A person point inside that volume is hidden for
-    the frame; the sweep lasts one frame's latency.)
+    ``q_now`` (the newest state, at the loop's time) usually after it: the arm in the image lies
+    between the two. When no state newer than the frame has arrived yet (a 45 Hz USB state stream
+    against 30 Hz frames), the arm in the image is already past ``q_now``: ``q_ahead``
+    (:meth:`~compare.hardware.ros_io.RosRobotIO.frame_q_ahead`, the newest state extrapolated
+    with the velocity sent) bounds it. Removing only one pose leaves part of a fast-moving arm in
+    the frame, and that part reads as an obstacle a few centimetres from its own control points
+    (a *phantom*: 0.04 m on link 7 seen at load ~5 in ``tests/hardware``). So the arm is removed
+    along the path q_frame → q_now → q_ahead, at poses at most :data:`SWEEP_STEP_RAD` apart per
+    joint: its swept volume over the latency, inflated by the filter's margin. (A person point
+    inside that volume is hidden for the frame; the sweep lasts one frame's latency.)
 
     Args:
         q_frame: Joint positions when the frame was taken (None: unknown, ``q_now`` only) [rad].
         q_now: The newest joint positions [rad].
+        q_ahead: Where the arm may already have been past ``q_now`` (None: not beyond it) [rad].
 
     Returns:
-        The poses, ``q_frame`` first.
+        The poses, ``q_frame`` first; at most :data:`SWEEP_MAX_POSES` (a long path gets larger steps).
     """
     if q_frame is None:
-        return [q_now]
-    steps = min(int(np.ceil(float(np.max(np.abs(q_now - q_frame))) / SWEEP_STEP_RAD)), SWEEP_MAX_POSES - 1)
-    if steps == 0:
-        return [q_frame]
-    return [q_frame + (q_now - q_frame) * (k / steps) for k in range(steps + 1)]
+        q_frame = q_now
+    anchors = [q_frame, q_now] + ([] if q_ahead is None else [q_ahead])
+    lengths = [float(np.max(np.abs(b - a))) for a, b in zip(anchors[:-1], anchors[1:], strict=True)]
+    steps = [int(np.ceil(length / SWEEP_STEP_RAD)) for length in lengths]
+    budget = SWEEP_MAX_POSES - 1
+    if sum(steps) > budget:  # share the poses by length, at least one per moving segment
+        total = sum(lengths)
+        steps = [max(1, int(budget * length / total)) if length > 0 else 0 for length in lengths]
+    poses = [q_frame]
+    for a, b, n in zip(anchors[:-1], anchors[1:], steps, strict=True):
+        poses.extend(a + (b - a) * (k / n) for k in range(1, n + 1))
+    return poses
 
 
 class HardwareDepthSensing:
@@ -102,6 +115,8 @@ class HardwareDepthSensing:
         q_at: Measured joint positions [rad] at a time on the same clock (None if unknown).
         config: ``[sensor]`` margins, noise, ρ, blind fraction and max age.
         background: Static scene to remove (None: keep everything the self-filter leaves).
+        q_ahead: Where the arm may already have been past the newest joint state when a frame
+            was taken (:func:`self_filter_poses`; None: not extrapolated).
     """
 
     def __init__(
@@ -112,6 +127,7 @@ class HardwareDepthSensing:
         q_at: Callable[[float], np.ndarray | None],
         config: Config,
         background: StaticBackground | None = None,
+        q_ahead: Callable[[float], np.ndarray | None] | None = None,
     ) -> None:
         s = self.settings = sensing_settings(config)
         self.self_filter = make_self_filter(robot, camera, s)
@@ -122,6 +138,7 @@ class HardwareDepthSensing:
         self.max_age_s = config.sensor.max_age_s
         self._frames = frames
         self._q_at = q_at
+        self._q_ahead = q_ahead
         self._last: tuple[DepthFrame, DepthFrame, float] | None = None
         self.filter_time_s = 0.0
 
@@ -139,7 +156,8 @@ class HardwareDepthSensing:
             depth = np.nan_to_num(frame.depth_m, nan=0.0, posinf=0.0, neginf=0.0).astype(np.float32, copy=True)
             if self.background is not None:
                 self.background.apply_inplace(depth)
-            for pose in self_filter_poses(q, kin.q):
+            ahead = None if self._q_ahead is None else self._q_ahead(frame.stamp_s)
+            for pose in self_filter_poses(q, kin.q, ahead):
                 self.self_filter.apply_inplace(depth, q=pose)
             filtered = DepthFrame(depth, frame.stamp_s, frame.camera)
             self._last = (frame, filtered, vf)

@@ -2,9 +2,11 @@
 
 from __future__ import annotations
 
+import collections
 import itertools
 import math
 import os
+import threading
 from pathlib import Path
 
 import mujoco
@@ -151,3 +153,59 @@ def test_a_moving_arm_leaves_no_phantom_when_the_joint_state_lags_the_frame(scen
     only_lag = HardwareDepthSensing(jaco, pipeline.camera, lambda: frame, lambda t: q_lag, config, background)
     phantom = only_lag.update(1.0, jaco.kinematics(q_lag))
     assert any(r.in_range for r in phantom.readings.values())
+
+
+def test_a_frame_newer_than_every_joint_state_is_filtered_up_to_the_extrapolated_pose(scene, jaco):
+    """No state newer than the frame (USB states at 45 Hz, frames at 30 Hz): the arm in the image is
+    past the newest state; the sweep to the extrapolated pose removes it, q_now alone does not."""
+    from compare.sensing.person import Person
+    from compare.sensing.scene import make_data
+
+    config, pipeline, _, q, empty, _ = scene
+    depth = capture_background(_stream(empty), lambda t: q, jaco, config, duration_s=0.05)
+    background = static_background(depth, config)
+    q_ahead = q + np.array([0.0, 0.3, 0.0, 0.3, 0.0, 0.3, 0.0])
+    data = make_data(pipeline.model, q_ahead)  # the arm as the camera saw it, ahead of every state
+    Person(pipeline.model, []).apply(0.0, data)
+    mujoco.mj_forward(pipeline.model, data)
+    frame = pipeline.render(data, stamp_s=1.0)
+    kin = jaco.kinematics(q)  # the newest state is the one the frame was matched with
+    stale = HardwareDepthSensing(jaco, pipeline.camera, lambda: frame, lambda t: q, config, background)
+    assert any(r.in_range for r in stale.update(1.0, kin).readings.values())
+    ahead = HardwareDepthSensing(
+        jaco, pipeline.camera, lambda: frame, lambda t: q, config, background, q_ahead=lambda t: q_ahead
+    )
+    result = ahead.update(1.0, kin)
+    assert not result.blind and not any(r.in_range for r in result.readings.values()), result.readings
+
+
+def test_self_filter_poses_continue_past_the_newest_state_within_the_pose_budget():
+    from compare.hardware.sensing import SWEEP_MAX_POSES, SWEEP_STEP_RAD, self_filter_poses
+
+    q0, q1, q2 = np.zeros(7), np.full(7, 0.05), np.full(7, 0.09)
+    poses = self_filter_poses(q0, q1, q2)
+    assert np.array_equal(poses[0], q0) and np.allclose(poses[-1], q2)
+    assert any(np.allclose(p, q1) for p in poses)  # the newest state is on the path
+    assert max(np.max(np.abs(b - a)) for a, b in itertools.pairwise(poses)) <= SWEEP_STEP_RAD + 1e-12
+    long = self_filter_poses(q0, q0 + 3.0, q0 + 3.01)
+    assert len(long) <= SWEEP_MAX_POSES and np.allclose(long[-1], q0 + 3.01)
+
+
+def test_frame_q_ahead_extrapolates_the_newest_state_with_the_velocity_sent():
+    """lead = t_capture − (t_state − T), clipped to [0, MAX_FRAME_LEAD_S]; q_s + q̇_sent · lead."""
+    from compare.hardware.ros_io import MAX_FRAME_LEAD_S, RosRobotIO
+
+    io = RosRobotIO.__new__(RosRobotIO)  # the bookkeeping only: no ROS node
+    io._lock, io._epoch = threading.RLock(), 100.0
+    io._history = collections.deque((100.0 + 0.022 * k, np.full(7, 0.01 * k)) for k in range(10))
+    io._sent = np.full(7, 0.5)
+    newest_t = 100.0 + 0.022 * 9
+    io._capture_of = {round(newest_t + 0.010, 6): newest_t + 0.010}  # captured 10 ms after the newest state
+    ahead = io.frame_q_ahead(newest_t + 0.010 - 100.0)
+    np.testing.assert_allclose(ahead, 0.09 + 0.5 * (0.010 + 0.022), atol=1e-9)
+    io._capture_of = {}  # unknown capture: the arrival; a frame long after the state is capped
+    np.testing.assert_allclose(io.frame_q_ahead(newest_t + 1.0 - 100.0), 0.09 + 0.5 * MAX_FRAME_LEAD_S, atol=1e-9)
+    io._sent = np.zeros(7)  # a still command: no extrapolation
+    np.testing.assert_allclose(io.frame_q_ahead(newest_t - 100.0), 0.09, atol=1e-12)
+    io._history = collections.deque([(100.0, np.zeros(7))])
+    assert io.frame_q_ahead(0.0) is None

