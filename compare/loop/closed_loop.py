@@ -59,6 +59,7 @@ from compare.loop.sensing_gate import (
 )
 from compare.loop.waypoints import WaypointSchedule
 from qp_baseline.exceptions import HqpError
+from qp_baseline.time_limits import TimeLimitReached
 from robots import Kinematics, Robot
 from tpik.exceptions import TpikError
 from tpik.hierarchy import Hierarchy
@@ -236,7 +237,7 @@ def timed_solve(
         missed = bool(result.extras.get("deadline_miss", False))
     except SOLVER_ERRORS as exc:  # the solver's own domain (no solution, a task it cannot evaluate)
         qdot, status, active, message = np.zeros(kin.nq), SolveStatus.FAILED, (), f"{type(exc).__name__}: {exc}"
-        missed = False
+        missed = isinstance(exc, TimeLimitReached)  # the solver's own time-limit check: a deadline miss too
     finally:
         elapsed_us = (time.perf_counter_ns() - wall0) * 1e-3
         if collecting:

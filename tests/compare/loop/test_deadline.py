@@ -22,7 +22,7 @@ import scipy.sparse as spa
 
 import robots
 from compare.config import load_config, parse_config
-from compare.loop.closed_loop import run_loop
+from compare.loop.closed_loop import run_loop, timed_solve
 from compare.loop.deadline import MeasuredDeadline, ThreadedDeadline, guard_solver
 from compare.loop.robot_io import JointReading, RobotIO
 from compare.methods import make_method
@@ -275,6 +275,21 @@ def test_a_budget_hands_the_backend_what_is_left_on_the_wall_clock_only():
     _busy(0.002)
     with pytest.raises(TimeLimitReached, match="time limit of 1 ms reached before the daqp call"):
         spent.backend_kwargs("daqp")
+
+
+def test_the_solvers_own_time_limit_check_is_a_failed_deadline_miss(robot):
+    """``TimeLimitReached`` (the QP methods' check before a backend call) counts like the guard's miss."""
+    hierarchy, kin = _two_levels(robot)
+
+    class OutOfTime:
+        name = "out-of-time"
+
+        def solve(self, hierarchy: Hierarchy, kin: Any, dt: float) -> StepResult:
+            raise TimeLimitReached("time limit of 5 ms reached before the daqp call")
+
+    qdot, status, _, message, missed, _ = timed_solve(OutOfTime(), hierarchy, kin, DT)  # type: ignore[arg-type]
+    assert missed and status.value == "failed" and "TimeLimitReached" in message
+    assert np.array_equal(qdot, np.zeros(robot.nq))
 
 
 def _two_levels(robot: robots.Robot) -> tuple[Hierarchy, Any]:
