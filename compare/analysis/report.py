@@ -454,7 +454,9 @@ def _throughput(campaign: dict[str, Any]) -> str:
     cpu, rate = campaign.get("cpu_time_s"), campaign.get("sim_s_per_cpu_s")
     if not cpu or not rate:
         return ""
-    return f", {cpu / 3600.0:.2f} CPU-h, {rate:.1f} simulated s per CPU s"
+    steal = campaign.get("steal_time_s")
+    stolen = f", hypervisor steal {steal:.1f} s" if steal is not None else ""
+    return f", {cpu / 3600.0:.2f} CPU-h, {rate:.1f} simulated s per CPU s{stolen}"
 
 
 def _figures(directory: Path, pattern: str, title: str) -> list[str]:

@@ -781,6 +781,7 @@ TIMING_KEYS = frozenset(
         "solve_worst_us",
         "cpu_time_s",
         "sim_s_per_cpu_s",
+        "steal_time_s",
     }
 )
 """Keys of ``summary.json`` whose values depend on the machine's speed or environment, not on

@@ -213,6 +213,7 @@ def _execute(
     columns = (TextColumn("[bold]sweep"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(), TimeRemainingColumn())
     start = time.perf_counter()
     cpu0 = os.times()
+    steal0 = machine_steal_s()
     with Progress(*columns, disable=not progress) as bar:
         task = bar.add_task("runs", total=n, completed=skipped)
 
@@ -225,6 +226,7 @@ def _execute(
         runner.run(jobs, done)
     wall = time.perf_counter() - start
     cpu = _cpu_since(cpu0) if runner.name == "local" else None
+    steal1 = machine_steal_s()
     sim_s = sum(j.config.scenario.sim_time_s * len(j.config.methods.names) for j in jobs)
     if skipped:
         log.info("skipped %d finished runs", skipped)
@@ -241,6 +243,9 @@ def _execute(
         # (run, method) pairs per CPU second of this process and its workers (local executor only).
         "cpu_time_s": cpu,
         "sim_s_per_cpu_s": sim_s / cpu if cpu else None,
+        # CPU time the hypervisor gave to others while the sweep ran (all vCPUs; None off Linux):
+        # the solver time limit's CPU clock counts it on a VM (docs/benchmarks.md, "Deadline misses").
+        "steal_time_s": steal1 - steal0 if steal0 is not None and steal1 is not None else None,
         "command": command or " ".join(shlex.quote(a) for a in sys.argv),
         "plant": _plant(config),
     }
@@ -267,6 +272,22 @@ def _execute(
         except Exception as exc:
             log.warning("sweep report failed: %s", exc)
     return summary
+
+
+def machine_steal_s(stat: Path = Path("/proc/stat")) -> float | None:
+    """Steal time of all CPUs since boot [s]: the 8th value of the ``cpu`` line of ``/proc/stat``.
+
+    Steal is time a virtual machine's CPU was runnable but the hypervisor ran something else
+    (USER_HZ ticks, 10 ms). None where the file or the field is missing (not Linux, old kernels).
+    """
+    try:
+        with stat.open(encoding="ascii") as fh:
+            fields = fh.readline().split()
+    except OSError:
+        return None
+    if len(fields) < 9 or fields[0] != "cpu":
+        return None
+    return int(fields[8]) / os.sysconf("SC_CLK_TCK")
 
 
 def _cpu_since(start: os.times_result) -> float:

@@ -68,6 +68,7 @@ def test_sweep_runs_four_seeds_then_skips_them(tmp_path):
     campaign = summary["campaign"]
     assert campaign["cpu_time_s"] > 0.0
     assert campaign["sim_s_per_cpu_s"] == pytest.approx(4 * 2 * 3.0 / campaign["cpu_time_s"])
+    assert campaign["steal_time_s"] is None or 0.0 <= campaign["steal_time_s"] <= 2 * campaign["wall_time_s"]
     for name, m in summary["methods"].items():  # the worst step after warm-up, on the limit's (CPU) clock
         worst = max(json.loads((r / "summary.json").read_text())["methods"][name]["solve_worst_us"]["us"] for r in runs)
         assert m["solve_time_us"]["max_on_limit_clock"] == pytest.approx(worst) and 0.0 < worst
@@ -314,3 +315,14 @@ def test_a_sweep_killed_at_random_points_and_resumed_ends_with_the_results_of_an
     assert not [p for p in out.rglob(".*.tmp")]  # the killed writes' temporaries were cleaned up
     sweep = json.loads((out / "sweep_summary.json").read_text())
     assert {m: v["runs"] for m, v in sweep["methods"].items()} == {"tpik": 3, "hqp-daqp": 3}
+
+
+def test_machine_steal_is_the_eighth_value_of_the_cpu_line(tmp_path):
+    from compare.campaign.sweep import machine_steal_s
+
+    stat = tmp_path / "stat"
+    stat.write_text("cpu  81401 164557 21012 42581 653 0 303 419 0 0\ncpu0 1 2 3 4 5 6 7 8 0 0\n")
+    assert machine_steal_s(stat) == pytest.approx(419 / os.sysconf("SC_CLK_TCK"))
+    stat.write_text("intr 12 34\n")
+    assert machine_steal_s(stat) is None
+    assert machine_steal_s(tmp_path / "missing") is None
