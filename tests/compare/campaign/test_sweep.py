@@ -7,6 +7,7 @@ import os
 import signal
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 import numpy as np
@@ -264,17 +265,25 @@ def test_sweep_help_says_how_a_resume_is_checked():
     assert "resumes it" in text and "refused (exit 2) unless --overwrite" in text
 
 
-def _killed_sweep(out: Path, rng: np.random.Generator, env: dict[str, str]) -> tuple[int, str]:
-    """One ``tpik-compare sweep`` process, killed at a random point: mid-write (the fault hook) or at a random time."""
+def _sweep_command(out: Path) -> list[str]:
     cmd = [sys.executable, "-m", "compare.cli", "sweep", str(CONFIGS / "random.toml"), "--out", str(out)]
-    cmd += ["--n", "3", "-m", "tpik", "-m", "hqp-daqp", *SHORT]
-    if rng.random() < 0.5:
-        nth = int(rng.integers(1, 12))
+    return cmd + ["--n", "3", "-m", "tpik", "-m", "hqp-daqp", *SHORT]
+
+
+def _killed_sweep(
+    out: Path, env: dict[str, str], nth: int | None = None, delay: float | None = None
+) -> tuple[int, str]:
+    """One ``tpik-compare sweep`` process, killed mid-write (the fault hook, at the ``nth`` atomic
+    write of a process) or after ``delay`` seconds."""
+    if nth is not None:
         run_env = {**env, FAULT_ENV: f"*@{nth}"}  # SIGKILL at the nth atomic write of a process
-        done = subprocess.run(cmd, env=run_env, capture_output=True, text=True, timeout=300, start_new_session=True)
+        done = subprocess.run(
+            _sweep_command(out), env=run_env, capture_output=True, text=True, timeout=300, start_new_session=True
+        )
         return done.returncode, f"write {nth}"
-    delay = float(rng.uniform(3.0, 9.0))
-    proc = subprocess.Popen(cmd, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, start_new_session=True)
+    proc = subprocess.Popen(
+        _sweep_command(out), env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, start_new_session=True
+    )
     try:
         proc.wait(timeout=delay)
     except subprocess.TimeoutExpired:
@@ -286,25 +295,31 @@ def _killed_sweep(out: Path, rng: np.random.Generator, env: dict[str, str]) -> t
 @pytest.mark.slow
 @pytest.mark.timeout(900)
 def test_a_sweep_killed_at_random_points_and_resumed_ends_with_the_results_of_an_uninterrupted_one(tmp_path):
-    reference = tmp_path / "reference"
-    _direct(reference, 3, ["tpik", "hqp-daqp"])
-    out = tmp_path / "killed"
+    """Killed by timer while the whole sweep lies ahead, then at the resumed process's first write
+    (both always land: work remains), then at random points (writes or times) until it finishes."""
     env = {**os.environ, "PYTHONPATH": str(ROOT), "MUJOCO_GL": "egl"}
     env.pop(FAULT_ENV, None)
+    reference = tmp_path / "reference"
+    start = time.perf_counter()
+    uninterrupted = subprocess.run(_sweep_command(reference), env=env, capture_output=True, text=True, timeout=300)
+    took = time.perf_counter() - start  # this machine's time for the whole sweep: the timer's scale
+    assert uninterrupted.returncode == 0, uninterrupted.stderr
+    out = tmp_path / "killed"
     rng = np.random.default_rng(22)
     kills: list[str] = []
-    for _ in range(5):
-        code, where = _killed_sweep(out, rng, env)
+    attempts = [{"delay": float(rng.uniform(0.4, 0.7)) * took}, {"nth": 1}]
+    attempts += [
+        {"nth": int(rng.integers(1, 12))} if rng.random() < 0.5 else {"delay": float(rng.uniform(0.2, 0.8)) * took}
+        for _ in range(3)
+    ]
+    for attempt in attempts:
+        code, where = _killed_sweep(out, env, **attempt)
         if code == 0:
             break
         assert code == -signal.SIGKILL, code
         kills.append(where)
-    assert len(kills) >= 3, kills
-    final = subprocess.run(
-        [sys.executable, "-m", "compare.cli", "sweep", str(CONFIGS / "random.toml"), "--out", str(out)]
-        + ["--n", "3", "-m", "tpik", "-m", "hqp-daqp", *SHORT],
-        env=env, capture_output=True, text=True, timeout=300,
-    )  # fmt: skip
+    assert len(kills) >= 2 and kills[1] == "write 1", kills
+    final = subprocess.run(_sweep_command(out), env=env, capture_output=True, text=True, timeout=300)
     assert final.returncode == 0, final.stderr
     for i in range(3):
         ref_dir, run_dir = sweep_run_dir(reference, i), sweep_run_dir(out, i)
