@@ -477,9 +477,13 @@ class RosRobotIO(RobotIO):
         0.5 s before the arrival: camera driver on the same machine, or clocks in sync), else the
         arrival time; the self-filter then places the arm where it was in the image.
         """
+        return self.q_at(self._capture_time(stamp_s) - self._epoch)
+
+    def _capture_time(self, stamp_s: float) -> float:
+        """Monotonic capture time of the frame that arrived at ``stamp_s`` (this clock); its arrival if unknown."""
+        arrival = stamp_s + self._epoch
         with self._lock:
-            capture = self._capture_of.get(round(stamp_s + self._epoch, 6))
-        return self.q_at(stamp_s if capture is None else capture - self._epoch)
+            return self._capture_of.get(round(arrival, 6), arrival)
 
     def frame_q_ahead(self, stamp_s: float) -> np.ndarray | None:
         """Where the arm may already have been, beyond the newest joint state, when a frame was taken.
@@ -495,8 +499,8 @@ class RosRobotIO(RobotIO):
         Returns:
             The extrapolated joint positions [rad], or None before the first two joint states.
         """
+        capture = self._capture_time(stamp_s)
         with self._lock:
-            capture = self._capture_of.get(round(stamp_s + self._epoch, 6), stamp_s + self._epoch)
             history = list(self._history)[-PERIOD_SAMPLES:]
             sent = self._sent.copy()
         if len(history) < 2:
