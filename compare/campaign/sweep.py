@@ -285,7 +285,7 @@ def machine_steal_s(stat: Path = Path("/proc/stat")) -> float | None:
             fields = fh.readline().split()
     except OSError:
         return None
-    if len(fields) < 9 or fields[0] != "cpu":
+    if len(fields) < 9 or fields[0] != "cpu" or not fields[8].isdigit():
         return None
     return int(fields[8]) / os.sysconf("SC_CLK_TCK")
 

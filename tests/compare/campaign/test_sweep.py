@@ -340,4 +340,6 @@ def test_machine_steal_is_the_eighth_value_of_the_cpu_line(tmp_path):
     assert machine_steal_s(stat) == pytest.approx(419 / os.sysconf("SC_CLK_TCK"))
     stat.write_text("intr 12 34\n")
     assert machine_steal_s(stat) is None
+    stat.write_text("cpu  1 2 3 4 5 6 7 x 0 0\n")  # a malformed field: no number, not a traceback
+    assert machine_steal_s(stat) is None
     assert machine_steal_s(tmp_path / "missing") is None
