@@ -450,12 +450,17 @@ class SolverLimitConfig(_Strict):
             time limits are then not set, as they count wall time) or ``wall`` (elapsed time, as on
             hardware). Hardware always uses the wall clock, in a watchdog thread, so the loop
             never waits for a late answer.
+        exclude_steal: On the ``cpu`` clock, take the hypervisor's steal time (counted per
+            virtual CPU in ``/proc/stat``) out of a solve that looks late: a solve within the limit
+            without it keeps its answer and counts in ``deadline_steal_excused``, not as a miss
+            (``compare.loop.steal_clock``; no effect where the counter cannot be read).
     """
 
     enabled: bool = True
     time_limit_s: float | None = Field(None, gt=0.0, le=10.0)
     period_fraction: float = Field(0.5, gt=0.0, le=1.0)
     simulation_clock: Literal["cpu", "wall"] = "cpu"
+    exclude_steal: bool = True
 
     def limit_s(self, dt: float) -> float | None:
         """The limit [s] for control period ``dt`` [s], or None when disabled."""

@@ -163,6 +163,7 @@ def run_method(config: Config, method: str, robot: robots.Robot, progress: Progr
     summary["solver_limit"] = solver_limit_entry(config, realtime=False)
     summary["events"] = out.events[:50]
     summary["solve_worst_us"] = worst_solve_entry(solver, config)
+    summary["deadline_steal_excused"] = steal_excused_entry(solver)
     return {"summary": summary, "steps": steps}
 
 
@@ -180,6 +181,18 @@ def worst_solve_entry(solver: object, config: Config) -> dict[str, Any]:
     worst = getattr(solver, "worst_s", None) if isinstance(solver, MeasuredDeadline) else None
     clock = config.solver_limit.simulation_clock if worst is not None else None
     return {"us": None if worst is None else 1e6 * float(worst), "clock": clock}
+
+
+def steal_excused_entry(solver: object) -> dict[str, Any]:
+    """Solves late on the raw CPU clock but kept once the hypervisor's steal was taken out.
+
+    Returns:
+        ``{"steps": count or None (no CPU-clock guard with a steal counter), "stolen_s": steal taken out [s]}``.
+    """
+    guard = solver if isinstance(solver, MeasuredDeadline) else None
+    if guard is None or not guard.excludes_steal:
+        return {"steps": None, "stolen_s": None}
+    return {"steps": guard.steal_excused, "stolen_s": guard.stolen_s}
 
 
 def solver_limit_entry(config: Config, realtime: bool) -> dict[str, Any]:

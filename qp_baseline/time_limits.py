@@ -21,7 +21,9 @@ A backend stops at the end of the iteration that crosses its limit, not at the l
 caller's wall-clock guard (``compare.loop.deadline``) still measures the whole solve. Backend
 limits count wall time, so they are only set when the budget is on the wall clock
 (:attr:`CallBudget.backend_limits`); on the CPU clock (simulation) the budget is checked
-between calls only.
+between calls only. The simulation's time-limit guard may share its own :class:`CallClock` (the
+CPU clock that knows the hypervisor's steal, ``compare.loop.steal_clock``): before refusing a
+backend call, the budget then takes out the steal counted since the guard began the call.
 """
 
 from __future__ import annotations
@@ -29,7 +31,7 @@ from __future__ import annotations
 import math
 import time
 from collections.abc import Callable, Mapping
-from typing import Any
+from typing import Any, Protocol
 
 from qp_baseline.exceptions import HqpError
 
@@ -48,17 +50,33 @@ class TimeLimitReached(HqpError):
     """The solve's time budget is used up before a backend call."""
 
 
+class CallClock(Protocol):
+    """The guard's CPU clock, begun at each solve call: it knows what the machine took meanwhile."""
+
+    def began_s(self) -> float:
+        """Thread CPU time (``time.thread_time``) when the current call began [s]."""
+        ...
+
+    def stolen_s(self) -> float:
+        """CPU time the machine took from the thread since the call began [s] (may read the OS)."""
+        ...
+
+
 class CallBudget:
     """The time budget of one solve call: :meth:`start` at the call, :meth:`backend_kwargs` before each QP.
 
     Args:
         limit_s: Budget of one call [s].
-        clock: ``wall`` (``time.perf_counter``) or ``cpu`` (``time.thread_time``).
+        clock: ``wall`` (``time.perf_counter``), ``cpu`` (``time.thread_time``), or a
+            :class:`CallClock` that the caller begins at every call (a CPU clock: no backend limits).
     """
 
-    def __init__(self, limit_s: float, clock: str = "wall") -> None:
+    def __init__(self, limit_s: float, clock: str | CallClock = "wall") -> None:
         if not (math.isfinite(limit_s) and limit_s > 0.0):
             raise ValueError(f"time limit must be finite and > 0 s, got {limit_s}")
+        self.shared: CallClock | None = None
+        if not isinstance(clock, str):
+            self.shared, clock = clock, "cpu"
         if clock not in CLOCKS:
             raise ValueError(f"unknown clock '{clock}'; available: {', '.join(CLOCKS)}")
         self.limit_s = float(limit_s)
@@ -79,6 +97,13 @@ class CallBudget:
         """Budget left [s] (negative once overrun)."""
         return self.limit_s - (self._now() - self._start)
 
+    def _stolen_s(self) -> float:
+        """What the machine took during this call, when the shared clock was begun for it [s]."""
+        shared = self.shared
+        if shared is None or not 0.0 <= self._start - shared.began_s() <= self.limit_s:
+            return 0.0  # no shared clock, or one not begun for this call (a direct solve)
+        return shared.stolen_s()
+
     def backend_kwargs(self, solver: str) -> dict[str, Any]:
         """Keyword arguments limiting one backend call to the budget left (minus a reserve).
 
@@ -86,6 +111,8 @@ class CallBudget:
             TimeLimitReached: Nothing is left for another backend call.
         """
         left = self.remaining_s() - RESERVE_FRACTION * self.limit_s
+        if left <= 0.0:  # what the machine took is not the solver's
+            left += self._stolen_s()
         if left <= 0.0:
             raise TimeLimitReached(f"time limit of {1e3 * self.limit_s:.3g} ms reached before the {solver} call")
         key = BACKEND_TIME_LIMIT.get(solver)
@@ -97,7 +124,7 @@ class TimeLimited:
 
     budget: CallBudget | None = None
 
-    def set_time_limit(self, limit_s: float | None, clock: str = "wall") -> None:
+    def set_time_limit(self, limit_s: float | None, clock: str | CallClock = "wall") -> None:
         """Limit every ``solve`` call to ``limit_s`` [s] (None: no limit).
 
         Each backend call gets what is left; with nothing left the backend is not called and the
