@@ -92,7 +92,8 @@ import numpy as np
 import qpsolvers
 import scipy.sparse as spa
 
-from qp_baseline.certificate import Certificate, Tolerances, certify
+from qp_baseline.certificate import Certificate, Tolerances, certify, certify_dense
+from qp_baseline.certificate import warm_up as warm_up_certificate
 from qp_baseline.exceptions import InvalidSettings, NoSolutionFound, UnknownSolver
 from qp_baseline.level_qp import LevelAnswer, LevelQp
 from qp_baseline.polish import polish
@@ -527,6 +528,7 @@ class HqpSolver(TimeLimited):
         self._kwargs = backend_kwargs(solver, self.qp_settings)
         self._retry_kwargs = backend_kwargs(solver, {**self.qp_settings, **RETRY_SETTINGS[solver]})
         self._resolve_defaults(solver)
+        warm_up_certificate()  # the compiled certificate is loaded now, not at the first control step
         self.qp_log: list[LevelQp] | None = None
         """When a list, every backend-solved level QP is appended to it (:class:`LevelQp`)."""
         self._previous: dict[int, np.ndarray] = {}  # level → its q̇ answer at the previous step
@@ -1350,7 +1352,30 @@ class HqpSolver(TimeLimited):
     def _certificate(
         self, call: _QpCall, x: np.ndarray, z: np.ndarray | None, z_box: np.ndarray | None, recover: bool
     ) -> Certificate:
-        """:func:`~qp_baseline.certificate.certify` of ``x`` with this solver's tolerances."""
+        """:func:`~qp_baseline.certificate.certify` of ``x`` with this solver's tolerances.
+
+        The cascade's level QPs (dense, finite box, a curvature on every variable) go through
+        :func:`~qp_baseline.certificate.certify_dense`: the same verdict, a passing one compiled.
+        """
+        level_value = None if call.level_value is None else call.level_value(x)
+        if isinstance(call.curvature, np.ndarray):
+            return certify_dense(
+                call.P,
+                call.q,
+                call.G,
+                call.h,
+                x,
+                call.lb,
+                call.ub,
+                z,
+                z_box,
+                call.curvature,
+                feasible_objective=call.f0,
+                level_value=level_value,
+                modulus=call.modulus,
+                tolerances=self.certificate_tolerances,
+                recover=recover,
+            )
         return certify(
             call.P,
             call.q,
@@ -1362,7 +1387,7 @@ class HqpSolver(TimeLimited):
             z=z,
             z_box=z_box,
             feasible_objective=call.f0,
-            level_value=None if call.level_value is None else call.level_value(x),
+            level_value=level_value,
             curvature=call.curvature,
             modulus=call.modulus,
             tolerances=self.certificate_tolerances,
