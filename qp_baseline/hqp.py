@@ -92,6 +92,8 @@ import numpy as np
 import qpsolvers
 import scipy.sparse as spa
 
+from qp_baseline.cascade_kernels import equality_rows
+from qp_baseline.cascade_kernels import warm_up as warm_up_kernels
 from qp_baseline.certificate import Certificate, Tolerances, certify, certify_dense
 from qp_baseline.certificate import warm_up as warm_up_certificate
 from qp_baseline.exceptions import InvalidSettings, NoSolutionFound, UnknownSolver
@@ -100,7 +102,7 @@ from qp_baseline.polish import polish
 from qp_baseline.set_rows import SetRowBuilder
 from qp_baseline.time_limits import TimeLimited
 from robots import Kinematics, Robot
-from tpik.evaluation import EQ_ERROR, EQ_FEEDFORWARD, EQ_JAC, TaskEvaluation
+from tpik.evaluation import TaskEvaluation
 from tpik.exceptions import InvalidTaskState
 from tpik.hierarchy import Hierarchy
 from tpik.limits import Limit, PositionLimit, VelocityLimit, compose_box
@@ -528,7 +530,8 @@ class HqpSolver(TimeLimited):
         self._kwargs = backend_kwargs(solver, self.qp_settings)
         self._retry_kwargs = backend_kwargs(solver, {**self.qp_settings, **RETRY_SETTINGS[solver]})
         self._resolve_defaults(solver)
-        warm_up_certificate()  # the compiled certificate is loaded now, not at the first control step
+        warm_up_certificate()  # the compiled certificate and kernels are loaded now, not at the first step
+        warm_up_kernels(robot.nq)
         self.qp_log: list[LevelQp] | None = None
         """When a list, every backend-solved level QP is appended to it (:class:`LevelQp`)."""
         self._previous: dict[int, np.ndarray] = {}  # level → its q̇ answer at the previous step
@@ -545,7 +548,6 @@ class HqpSolver(TimeLimited):
         self._set_tasks: tuple[SetTask, ...] = ()
         self._set_level: tuple[int, ...] = ()
         self._set_level_of = np.zeros(0, dtype=int)
-        self._level_marks = np.zeros(1, dtype=int)
         self._rows = SetRowBuilder((), n, self.reference)
         self._no_rows = np.zeros((0, n))
         self._no_bounds = np.zeros(0)
@@ -596,12 +598,23 @@ class HqpSolver(TimeLimited):
                     set_tasks.append(task)
                     set_level.append(k)
         self._levels = levels
-        self._eq_evaluation = TaskEvaluation([t for lv in levels for t in lv.eq_tasks], self.robot)
+        # One evaluation pass over every task (tpik.evaluation): equality tasks level after
+        # level, then the set tasks in the order their rows are stacked.
+        eq_tasks: list[Task] = [t for lv in levels for t in lv.eq_tasks]
+        self._evaluation = TaskEvaluation([*eq_tasks, *set_tasks], self.robot)
+        ptr = self._evaluation.eq_ptr
+        self._eq_J, self._eq_r = np.zeros((int(ptr[-1]), n)), np.zeros(int(ptr[-1]))
+        self._eq_spans: list[tuple[_Level, int, int]] = []
+        e = 0
+        for lv in levels:
+            if lv.eq_tasks:
+                self._eq_spans.append((lv, int(ptr[e]), int(ptr[e + len(lv.eq_tasks)])))
+            e += len(lv.eq_tasks)
         self._first_eq = next((k for k, lv in enumerate(levels) if lv.r.size), len(levels))
         self._set_tasks = tuple(set_tasks)
         self._set_level = tuple(set_level)
-        self._set_level_of = np.array(set_level, dtype=int)  # level of each set task
-        self._level_marks = np.arange(len(levels) + 1)
+        self._set_level_of = np.array(set_level, dtype=np.int64)  # level of each set task
+        self._cuts = np.zeros(len(levels) + 1, dtype=np.int64)
         self._rows = SetRowBuilder(self._set_tasks, n, self.reference)
         self._hierarchy = hierarchy
 
@@ -612,38 +625,27 @@ class HqpSolver(TimeLimited):
     def _evaluate(self, kin: Kinematics, dt: float, lb: np.ndarray, ub: np.ndarray) -> list[int]:
         """Evaluate every task once: equality tasks into their level buffers, set tasks into rows.
 
-        The set rows that can bind (a row that cannot reach its bound inside the hard box is
-        redundant and dropped) are stored compacted in ``self._G``, ``self._h`` (bounds),
-        ``self._owner`` (index into ``self._set_tasks``), level after level.
+        One pass of the shared task evaluation (:mod:`tpik.evaluation`: σ̃, σ̇_d, J per row) for
+        all tasks; the CLIK references (eq. 2) in one compiled call
+        (:func:`~qp_baseline.cascade_kernels.equality_rows`). The set rows that can bind (a row
+        that cannot reach its bound inside the hard box is redundant and dropped,
+        :meth:`SetRowBuilder.binding`) are stored compacted in ``self._G``, ``self._h`` (bounds),
+        ``self._owner`` (index into ``self._set_tasks``), level after level: views of the row
+        builder's buffers, valid for this step.
 
         Returns:
             ``cuts``: the rows of level k are ``cuts[k]:cuts[k + 1]``.
         """
-        finite = True
-        reference = self.reference
-        ev = self._eq_evaluation  # the shared task evaluation (tpik.evaluation): σ̃, σ̇_d, J per row
+        ev = self._evaluation
         ev.evaluate(kin)
-        e = 0
-        for lv in self._levels:
-            for task, sl in zip(lv.eq_tasks, lv.eq_slices, strict=True):
-                block = ev.eq_out[ev.eq_ptr[e] : ev.eq_ptr[e + 1]]
-                lv.J[sl] = block[:, EQ_JAC:]
-                lv.r[sl] = block[:, EQ_FEEDFORWARD] + reference.gain(task, dt) * block[:, EQ_ERROR]  # eq. 2
-                e += 1
-            if lv.r.size:
-                finite = finite and bool(np.isfinite(lv.r).all() and np.isfinite(lv.J).all())
-        if not finite:
+        J, r = self._eq_J, self._eq_r
+        if not equality_rows(ev.eq_out, ev.eq_in, ev.eq_ptr, float(dt), self.reference.gain_cap, J, r):
             raise InvalidTaskState(f"{self.name}: non-finite equality task Jacobian or reference")
-        rows = self._rows.build(kin, dt)
-        if not rows.h.size:
-            self._G, self._h, self._owner = self._no_rows, self._no_bounds, self._no_owner
-            return [0] * (len(self._levels) + 1)
-        level_end = np.searchsorted(self._set_level_of[rows.owner], self._level_marks, side="left")
-        G, h = rows.G, rows.h
-        reach = G @ (0.5 * (ub + lb)) + np.abs(G) @ (0.5 * (ub - lb))  # max of g·q̇ over the box
-        keep = np.flatnonzero(reach > h)
-        self._G, self._h, self._owner = G[keep], h[keep], rows.owner[keep]
-        return np.searchsorted(keep, level_end).tolist()  # type: ignore[no-any-return]
+        for lv, a, b in self._eq_spans:
+            lv.J[...] = J[a:b]
+            lv.r[...] = r[a:b]
+        self._G, self._h, self._owner = self._rows.binding(ev, dt, lb, ub, self._set_level_of, self._cuts)
+        return self._cuts.tolist()  # type: ignore[no-any-return]
 
     # ------------------------------------------------------------------ solve
     def solve(self, hierarchy: Hierarchy, kin: Kinematics, dt: float) -> StepResult:
