@@ -43,8 +43,78 @@ def equality_rows(
     return finite
 
 
+@numba.njit(cache=True, nogil=True)
+def clip_into(v: np.ndarray, lb: np.ndarray, ub: np.ndarray) -> None:
+    r"""``v`` clipped into the box in place: :math:`v \leftarrow \min(\max(v, lb), ub)`.
+
+    The same numbers as ``np.maximum(v, lb, out=v)`` then ``np.minimum(v, ub, out=v)``.
+    """
+    for i in range(v.shape[0]):
+        if v[i] < lb[i]:
+            v[i] = lb[i]
+        if v[i] > ub[i]:
+            v[i] = ub[i]
+
+
+@numba.njit(cache=True, nogil=True)
+def raise_to(h: np.ndarray, g: np.ndarray) -> None:
+    r""":math:`h \leftarrow \max(h, g)` in place (as ``np.maximum(h, g, out=h)``)."""
+    for i in range(h.shape[0]):
+        if h[i] < g[i]:
+            h[i] = g[i]
+
+
+@numba.njit(cache=True, nogil=True)
+def feasible(v: np.ndarray, lb: np.ndarray, ub: np.ndarray, Gv: np.ndarray, h: np.ndarray) -> bool:
+    r"""Whether :math:`lb \le v \le ub` and :math:`Gv \le h` (``Gv`` the product, computed by the caller)."""
+    for i in range(v.shape[0]):
+        if not (v[i] >= lb[i] and v[i] <= ub[i]):
+            return False
+    for r in range(h.shape[0]):
+        if not Gv[r] <= h[r]:
+            return False
+    return True
+
+
+@numba.njit(cache=True, nogil=True)
+def binds(v: np.ndarray, lb: np.ndarray, ub: np.ndarray, Gv: np.ndarray, h: np.ndarray, tol: float) -> bool:
+    r"""Whether a bound or a row is within ``tol`` of binding at ``v``.
+
+    That is :math:`v_i \le lb_i + tol`, :math:`v_i \ge ub_i - tol` or :math:`(Gv)_r \ge h_r - tol`
+    for some i or r (``Gv`` the product, computed by the caller).
+    """
+    for i in range(v.shape[0]):
+        if v[i] <= lb[i] + tol or v[i] >= ub[i] - tol:
+            return True
+    for r in range(h.shape[0]):
+        if Gv[r] >= h[r] - tol:
+            return True
+    return False
+
+
+@numba.njit(cache=True, nogil=True)
+def zero_feasible(lb: np.ndarray, ub: np.ndarray, h: np.ndarray) -> bool:
+    r"""Whether :math:`\dot q = 0` meets the box and the rows :math:`G\dot q \le h`.
+
+    That is :math:`lb \le 0 \le ub` and :math:`h \ge 0`.
+    """
+    for i in range(lb.shape[0]):
+        if lb[i] > 0.0 or ub[i] < 0.0:
+            return False
+    for r in range(h.shape[0]):
+        if not h[r] >= 0.0:
+            return False
+    return True
+
+
 def warm_up(nq: int) -> None:
     """Load the kernels into this process: no control step compiles them."""
+    v = np.zeros(nq)
+    clip_into(v, v, v)
+    raise_to(v, v)
+    feasible(v, v, v, v, v)
+    binds(v, v, v, v, v, 0.0)
+    zero_feasible(v, v, v)
     if not equality_rows.signatures:
         equality_rows(
             np.zeros((0, EQ_JAC + nq)),

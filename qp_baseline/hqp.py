@@ -92,7 +92,7 @@ import numpy as np
 import qpsolvers
 import scipy.sparse as spa
 
-from qp_baseline.cascade_kernels import equality_rows
+from qp_baseline.cascade_kernels import binds, clip_into, equality_rows, feasible, raise_to, zero_feasible
 from qp_baseline.cascade_kernels import warm_up as warm_up_kernels
 from qp_baseline.certificate import Certificate, Tolerances, certify, certify_dense
 from qp_baseline.certificate import warm_up as warm_up_certificate
@@ -547,6 +547,7 @@ class HqpSolver(TimeLimited):
         self._first_eq = 0
         self._set_tasks: tuple[SetTask, ...] = ()
         self._set_level: tuple[int, ...] = ()
+        self._set_names: tuple[str, ...] = ()
         self._set_level_of = np.zeros(0, dtype=int)
         self._rows = SetRowBuilder((), n, self.reference)
         self._no_rows = np.zeros((0, n))
@@ -613,6 +614,7 @@ class HqpSolver(TimeLimited):
         self._first_eq = next((k for k, lv in enumerate(levels) if lv.r.size), len(levels))
         self._set_tasks = tuple(set_tasks)
         self._set_level = tuple(set_level)
+        self._set_names = tuple(t.name for t in set_tasks)
         self._set_level_of = np.array(set_level, dtype=np.int64)  # level of each set task
         self._cuts = np.zeros(len(levels) + 1, dtype=np.int64)
         self._rows = SetRowBuilder(self._set_tasks, n, self.reference)
@@ -695,9 +697,8 @@ class HqpSolver(TimeLimited):
             return 0
         first_eq = self._first_eq
         c_pre = run.cuts[first_eq]
-        if first_eq and not ((run.lb > 0.0).any() or (run.ub < 0.0).any()):
-            if c_pre == 0 or (run.h_rel[:c_pre] >= 0.0).all():
-                return first_eq
+        if first_eq and zero_feasible(run.lb, run.ub, run.h_rel[:c_pre]):
+            return first_eq
         return 0
 
     def _level_rows(self, k: int, run: _Cascade) -> tuple[np.ndarray, np.ndarray, int, int, float] | None:
@@ -794,12 +795,17 @@ class HqpSolver(TimeLimited):
             run.h_rel[c0:c1] += w + self.slack_margin * (w > 0.0)
         n_levels = len(self._levels)
         if r.size and k < n_levels:
-            run.residuals[self._levels[k].name] = float(np.linalg.norm(J @ run.qd - r))
+            res = J @ run.qd - r
+            run.residuals[self._levels[k].name] = math.sqrt(float(res @ res))  # np.linalg.norm's own sum
             if k + 1 < n_levels or (self.min_norm_level and run.qp_calls):
                 run.Z = self._null_space(J, run.Z)
 
     def _set_task_report(self, run: _Cascade) -> tuple[dict[str, dict[str, float]], list[str], list[str]]:
-        """Per level the largest slack of each set task; the binding tasks; the relaxed ones."""
+        """Per level the largest slack of each set task; the binding tasks; the relaxed ones.
+
+        A task binds when one of its rows is within ``slack_tolerance`` of its relaxed bound at
+        the final q̇, or was relaxed by more than that; it is relaxed by its rows' largest slack.
+        """
         s_tol = self.slack_tolerance
         slacks: dict[str, dict[str, float]] = {}
         active: list[str] = []
@@ -807,31 +813,26 @@ class HqpSolver(TimeLimited):
         if not run.h_rel.size:
             return slacks, active, relaxed
         # Slacks only come from backend answers: without a backend call they are all zero.
-        binding = (self._G @ run.qd) >= run.h_rel - s_tol
-        if run.slack is not None:
-            binding |= run.slack > s_tol
-        owners, bind_list = self._owner.tolist(), binding.tolist()
-        slack_list = run.slack.tolist() if run.slack is not None else [0.0] * len(owners)
-        cuts = run.cuts
-        for k, lv in enumerate(self._levels):
-            if cuts[k + 1] == cuts[k]:
-                continue
-            per_task: dict[str, float] = {}
-            for row in range(cuts[k], cuts[k + 1]):
-                name = self._set_tasks[owners[row]].name
-                per_task[name] = max(per_task.get(name, 0.0), slack_list[row])
-                if bind_list[row] and name not in active:
-                    active.append(name)
-                if slack_list[row] > s_tol and name not in relaxed:
-                    relaxed.append(name)
-            slacks[lv.name] = per_task
+        Gq, h = (self._G @ run.qd).tolist(), run.h_rel.tolist()
+        slack = run.slack.tolist() if run.slack is not None else [0.0] * len(h)
+        names, level_of = self._set_names, self._set_level
+        by_level: dict[int, dict[str, float]] = {}
+        for row, task in enumerate(self._owner.tolist()):
+            name, w = names[task], slack[row]
+            per_task = by_level.setdefault(level_of[task], {})
+            per_task[name] = max(per_task.get(name, 0.0), w)
+            if (Gq[row] >= h[row] - s_tol or w > s_tol) and name not in active:
+                active.append(name)
+            if w > s_tol and name not in relaxed:
+                relaxed.append(name)
+        for k, per_task in by_level.items():
+            slacks[self._levels[k].name] = per_task
         return slacks, active, relaxed
 
     def _report(self, run: _Cascade, t_start: float) -> StepResult:
         """The step's :class:`StepResult` from the finished cascade (q̇ clipped into the box)."""
         qd = run.qd
-        np.maximum(qd, run.lb, out=qd)
-        np.minimum(qd, run.ub, out=qd)
+        clip_into(qd, run.lb, run.ub)
         slacks, active, relaxed = self._set_task_report(run)
         if relaxed:
             run.add_message(self.name, f"set tasks relaxed (slack > {self.slack_tolerance:g}): {', '.join(relaxed)}")
@@ -998,12 +999,9 @@ class HqpSolver(TimeLimited):
         else:
             # Pz = εI: the minimiser is qd without its component in span(Z).
             cand = self._zeros.copy() if Z is None else qd - Z @ (Z.T @ qd)
-        if not ((cand >= lp.lb) & (cand <= lp.ub)).all():
-            return None
         c1 = lp.c1
-        if c1 and not (lp.G_all[:c1] @ cand <= lp.h_rel[:c1]).all():
-            return None
-        return cand
+        Gc = lp.G_all[:c1] @ cand if c1 else self._no_bounds
+        return cand if feasible(cand, lp.lb, lp.ub, Gc, lp.h_rel[:c1]) else None
 
     def _level_qp(self, lp: _LevelProblem, Pz: np.ndarray, qz: np.ndarray) -> _QpCall:
         """The level's QP in x = [z; w]: earlier rows, this level's rows with slack w, the box."""
@@ -1093,17 +1091,13 @@ class HqpSolver(TimeLimited):
         qd, Z, lb, ub, c0, c1 = lp.qd, lp.Z, lp.lb, lp.ub, lp.c0, lp.c1
         d = lp.d
         cand = x[:d].copy() if lp.at_zero else (qd + x[:d] if Z is None else qd + Z @ x[:d])
-        np.maximum(cand, lb, out=cand)
-        np.minimum(cand, ub, out=cand)
+        clip_into(cand, lb, ub)
         # Next step, go straight to the backend only if a constraint binds now.
-        tol = self.tolerance
-        self._needed_backend[lp.k] = bool(
-            (cand <= lb + tol).any() or (cand >= ub - tol).any() or (lp.G_all[:c1] @ cand >= lp.h_rel[:c1] - tol).any()
-        )
+        Gc = lp.G_all[:c1] @ cand
+        self._needed_backend[lp.k] = binds(cand, lb, ub, Gc, lp.h_rel[:c1], self.tolerance)
         if c0:
             # Absorb violations within tolerance, so later levels stay feasible by construction.
-            h_acc = lp.h_rel[:c0]
-            np.maximum(h_acc, lp.G_all[:c0] @ cand, out=h_acc)
+            raise_to(lp.h_rel[:c0], Gc if c0 == c1 else lp.G_all[:c0] @ cand)
         self._previous[lp.k] = cand
         return cand
 

@@ -58,3 +58,28 @@ def test_binding_rows_keep_the_rows_the_box_lets_bind_and_cut_them_by_level(seed
     assert kept == keep.size
     assert np.array_equal(G[:kept], G_ref[keep]) and np.array_equal(h[:kept], h_ref[keep])
     assert np.array_equal(own[:kept], owner_ref[keep]) and np.array_equal(cuts, cuts_ref)
+
+
+@pytest.mark.parametrize("seed", range(10))
+def test_box_and_row_checks_equal_their_numpy_expressions(seed):
+    from qp_baseline.cascade_kernels import binds, clip_into, feasible, raise_to, zero_feasible
+
+    rng = np.random.default_rng(seed)
+    n, m, tol = 7, int(rng.integers(0, 6)), 1e-6
+    lb = -rng.uniform(0.0, 1.0, n) * (rng.uniform(size=n) > 0.2)
+    ub = lb + rng.uniform(0.0, 2.0, n) * (rng.uniform(size=n) > 0.2)
+    v = rng.normal(size=n) * (rng.uniform(size=n) > 0.3)
+    Gv, h = rng.normal(size=m), rng.normal(size=m) * (rng.uniform(size=m) > 0.3)
+    if rng.uniform() < 0.5:
+        v = np.clip(v, lb, ub)
+        v[rng.integers(n)] = ub[0] - 0.5 * tol  # within tolerance of a bound, sometimes
+    clipped = v.copy()
+    clip_into(clipped, lb, ub)
+    assert np.array_equal(clipped, np.minimum(np.maximum(v, lb), ub))
+    assert feasible(v, lb, ub, Gv, h) == bool(((v >= lb) & (v <= ub)).all() and (Gv <= h).all())
+    expected = bool((v <= lb + tol).any() or (v >= ub - tol).any() or (Gv >= h - tol).any())
+    assert binds(v, lb, ub, Gv, h, tol) == expected
+    assert zero_feasible(lb, ub, h) == bool(not ((lb > 0.0).any() or (ub < 0.0).any()) and (h >= 0.0).all())
+    raised = h.copy()
+    raise_to(raised, Gv)
+    assert np.array_equal(raised, np.maximum(h, Gv))
