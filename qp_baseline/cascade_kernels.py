@@ -107,6 +107,29 @@ def zero_feasible(lb: np.ndarray, ub: np.ndarray, h: np.ndarray) -> bool:
     return True
 
 
+@numba.njit(cache=True, nogil=True)
+def level_objective(
+    P: np.ndarray, q: np.ndarray, x: np.ndarray, qd: np.ndarray, at_zero: bool, offset: float, eps: float
+) -> float:
+    r"""The level objective :math:`\tfrac12(\|J\dot q - r\|^2 + \|w\|^2)` of an answer x = [z; w] with Z = I.
+
+    It is :math:`f(x) + c - \tfrac12\epsilon\|\dot q\|^2` with :math:`f(x) = x^T(\tfrac12 Px + q)`,
+    :math:`\dot q = q_d + z` (:math:`z` alone when ``at_zero``: :math:`q_d = 0`) and the constant
+    ``offset`` :math:`c = \tfrac12\|Jq_d - r\|^2 + \tfrac12\epsilon\|q_d\|^2`.
+    """
+    f = 0.0
+    for i in range(x.shape[0]):
+        px = 0.0
+        for j in range(x.shape[0]):
+            px += P[i, j] * x[j]
+        f += x[i] * (0.5 * px + q[i])
+    qq = 0.0
+    for i in range(qd.shape[0]):
+        v = x[i] if at_zero else qd[i] + x[i]
+        qq += v * v
+    return f + offset - 0.5 * eps * qq
+
+
 def warm_up(nq: int) -> None:
     """Load the kernels into this process: no control step compiles them."""
     v = np.zeros(nq)
@@ -115,6 +138,7 @@ def warm_up(nq: int) -> None:
     feasible(v, v, v, v, v)
     binds(v, v, v, v, v, 0.0)
     zero_feasible(v, v, v)
+    level_objective(np.zeros((nq, nq)), v, v, v, True, 0.0, 0.0)
     if not equality_rows.signatures:
         equality_rows(
             np.zeros((0, EQ_JAC + nq)),

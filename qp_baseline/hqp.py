@@ -92,7 +92,15 @@ import numpy as np
 import qpsolvers
 import scipy.sparse as spa
 
-from qp_baseline.cascade_kernels import binds, clip_into, equality_rows, feasible, raise_to, zero_feasible
+from qp_baseline.cascade_kernels import (
+    binds,
+    clip_into,
+    equality_rows,
+    feasible,
+    level_objective,
+    raise_to,
+    zero_feasible,
+)
 from qp_baseline.cascade_kernels import warm_up as warm_up_kernels
 from qp_baseline.certificate import Certificate, Tolerances, certify, certify_dense
 from qp_baseline.certificate import warm_up as warm_up_certificate
@@ -558,6 +566,7 @@ class HqpSolver(TimeLimited):
         # Levels whose unconstrained minimiser was infeasible at the previous step: their active
         # set usually persists, so they go straight to the backend (same unique solution).
         self._needed_backend: dict[int, bool] = {}
+        self._curvatures: dict[tuple[int, int, float], np.ndarray] = {}  # see _curvature
 
     def _resolve_defaults(self, solver: str) -> None:
         """Tolerances, min-norm level and warm start: the options, or the backend's defaults."""
@@ -1031,7 +1040,7 @@ class HqpSolver(TimeLimited):
         eps = lp.eps
         # P ⪰ diag(curvature): (JZ)ᵀJZ + εI ⪰ εI (JZ = Z, orthonormal, on the min-norm level), I on slacks.
         bend = 1.0 + eps if lp.J is self._eye else eps
-        call.curvature = np.concatenate([np.full(d, bend), np.ones(m)]) if m else np.full(d, bend)
+        call.curvature = self._curvature(d, m, bend)
         # Task levels are judged on their objective; the min-norm level (P = (1 + ε)I) on its
         # answer itself: it only picks the null-space part of q̇.
         if lp.k == len(self._levels):
@@ -1039,6 +1048,15 @@ class HqpSolver(TimeLimited):
         else:
             call.level_value = self._level_value(lp, call)
         return call
+
+    def _curvature(self, d: int, m: int, bend: float) -> np.ndarray:
+        """``bend`` on the d variables z, 1 on the m slacks (cached per shape; read, never written)."""
+        key = (d, m, bend)
+        curvature = self._curvatures.get(key)
+        if curvature is None:
+            curvature = np.concatenate([np.full(d, bend), np.ones(m)])
+            self._curvatures[key] = curvature
+        return curvature
 
     def _level_rows_in_z(self, lp: _LevelProblem) -> tuple[np.ndarray, np.ndarray, int, np.ndarray, np.ndarray]:
         """Rows on z of the earlier and this level's set rows (and the box when Z ≠ I), z bounds.
@@ -1073,12 +1091,18 @@ class HqpSolver(TimeLimited):
         r"""½(‖J q̇ − r‖² + ‖w‖²) of an answer x = [z; w].
 
         It is :math:`f(x) + \tfrac12\|J q_d - r\|^2 + \tfrac12\epsilon\|q_d\|^2 - \tfrac12\epsilon\|\dot q(x)\|^2`
-        (J = I, r = 0 on the min-norm level: ½‖q̇‖²).
+        (J = I, r = 0 on the min-norm level: ½‖q̇‖²); compiled when Z = I
+        (:func:`~qp_baseline.cascade_kernels.level_objective`).
         """
         qd, Z, d, eps, at_zero = lp.qd, lp.Z, lp.d, lp.eps, lp.at_zero
         P, q_vec = call.P, call.q
-        res0 = (lp.J @ qd - lp.r) if lp.r.size else self._no_bounds
-        offset = 0.5 * float(res0 @ res0 + eps * (qd @ qd))
+        if at_zero:  # q_d = 0: J q_d − r = −r
+            offset = 0.5 * float(lp.r @ lp.r) if lp.r.size else 0.0
+        else:
+            res0 = (lp.J @ qd - lp.r) if lp.r.size else self._no_bounds
+            offset = 0.5 * float(res0 @ res0 + eps * (qd @ qd))
+        if Z is None:
+            return lambda x: level_objective(P, q_vec, x, qd, at_zero, offset, eps)  # type: ignore[no-any-return]
 
         def level_value(x: np.ndarray) -> float:
             qdot = x[:d] if at_zero else (qd + x[:d] if Z is None else qd + Z @ x[:d])

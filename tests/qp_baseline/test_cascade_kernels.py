@@ -83,3 +83,19 @@ def test_box_and_row_checks_equal_their_numpy_expressions(seed):
     raised = h.copy()
     raise_to(raised, Gv)
     assert np.array_equal(raised, np.maximum(h, Gv))
+
+
+@pytest.mark.parametrize("seed", range(6))
+@pytest.mark.parametrize("at_zero", [True, False])
+def test_level_objective_equals_the_numpy_level_value(seed, at_zero):
+    from qp_baseline.cascade_kernels import level_objective
+
+    rng = np.random.default_rng(seed)
+    n, m, eps = 7, int(rng.integers(0, 4)), 1e-9
+    M = rng.normal(size=(n + m, n + m))
+    P, q, x = M.T @ M, rng.normal(size=n + m), rng.normal(size=n + m)
+    qd = np.zeros(n) if at_zero else rng.normal(size=n)
+    offset = float(rng.uniform(0.0, 2.0))
+    qdot = x[:n] if at_zero else qd + x[:n]
+    expected = float(x @ (0.5 * (P @ x) + q)) + offset - 0.5 * eps * float(qdot @ qdot)
+    assert level_objective(P, q, x, qd, at_zero, offset, eps) == pytest.approx(expected, rel=1e-12, abs=1e-12)
