@@ -13,7 +13,9 @@ its threshold no faster than its reference; past it, it may not move further out
 the business of a soft task (:mod:`qp_baseline.mink_peer`).
 
 σ and J come from the shared task evaluation (:class:`tpik.evaluation.TaskEvaluation`, the
-same pass TPIK uses); the rows are stacked in one compiled call (:func:`_stack_rows`).
+same pass TPIK uses); the rows are stacked in one compiled call (:func:`_stack_rows`). HQP
+evaluates all its tasks in one pass of its own and takes the rows that can bind in its hard box
+from :meth:`SetRowBuilder.binding` (one more compiled call, :func:`_binding_rows`).
 """
 
 from __future__ import annotations
