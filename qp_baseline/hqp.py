@@ -92,14 +92,25 @@ import numpy as np
 import qpsolvers
 import scipy.sparse as spa
 
-from qp_baseline.certificate import Certificate, Tolerances, certify
+from qp_baseline.cascade_kernels import (
+    binds,
+    clip_into,
+    equality_rows,
+    feasible,
+    level_objective,
+    raise_to,
+    zero_feasible,
+)
+from qp_baseline.cascade_kernels import warm_up as warm_up_kernels
+from qp_baseline.certificate import Certificate, Tolerances, certify, certify_dense
+from qp_baseline.certificate import warm_up as warm_up_certificate
 from qp_baseline.exceptions import InvalidSettings, NoSolutionFound, UnknownSolver
 from qp_baseline.level_qp import LevelAnswer, LevelQp
 from qp_baseline.polish import polish
 from qp_baseline.set_rows import SetRowBuilder
 from qp_baseline.time_limits import TimeLimited
 from robots import Kinematics, Robot
-from tpik.evaluation import EQ_ERROR, EQ_FEEDFORWARD, EQ_JAC, TaskEvaluation
+from tpik.evaluation import TaskEvaluation
 from tpik.exceptions import InvalidTaskState
 from tpik.hierarchy import Hierarchy
 from tpik.limits import Limit, PositionLimit, VelocityLimit, compose_box
@@ -527,6 +538,8 @@ class HqpSolver(TimeLimited):
         self._kwargs = backend_kwargs(solver, self.qp_settings)
         self._retry_kwargs = backend_kwargs(solver, {**self.qp_settings, **RETRY_SETTINGS[solver]})
         self._resolve_defaults(solver)
+        warm_up_certificate()  # the compiled certificate and kernels are loaded now, not at the first step
+        warm_up_kernels(robot.nq)
         self.qp_log: list[LevelQp] | None = None
         """When a list, every backend-solved level QP is appended to it (:class:`LevelQp`)."""
         self._previous: dict[int, np.ndarray] = {}  # level → its q̇ answer at the previous step
@@ -542,8 +555,8 @@ class HqpSolver(TimeLimited):
         self._first_eq = 0
         self._set_tasks: tuple[SetTask, ...] = ()
         self._set_level: tuple[int, ...] = ()
+        self._set_names: tuple[str, ...] = ()
         self._set_level_of = np.zeros(0, dtype=int)
-        self._level_marks = np.zeros(1, dtype=int)
         self._rows = SetRowBuilder((), n, self.reference)
         self._no_rows = np.zeros((0, n))
         self._no_bounds = np.zeros(0)
@@ -553,6 +566,7 @@ class HqpSolver(TimeLimited):
         # Levels whose unconstrained minimiser was infeasible at the previous step: their active
         # set usually persists, so they go straight to the backend (same unique solution).
         self._needed_backend: dict[int, bool] = {}
+        self._curvatures: dict[tuple[int, int, float], np.ndarray] = {}  # see _curvature
 
     def _resolve_defaults(self, solver: str) -> None:
         """Tolerances, min-norm level and warm start: the options, or the backend's defaults."""
@@ -594,12 +608,24 @@ class HqpSolver(TimeLimited):
                     set_tasks.append(task)
                     set_level.append(k)
         self._levels = levels
-        self._eq_evaluation = TaskEvaluation([t for lv in levels for t in lv.eq_tasks], self.robot)
+        # One evaluation pass over every task (tpik.evaluation): equality tasks level after
+        # level, then the set tasks in the order their rows are stacked.
+        eq_tasks: list[Task] = [t for lv in levels for t in lv.eq_tasks]
+        self._evaluation = TaskEvaluation([*eq_tasks, *set_tasks], self.robot)
+        ptr = self._evaluation.eq_ptr
+        self._eq_J, self._eq_r = np.zeros((int(ptr[-1]), n)), np.zeros(int(ptr[-1]))
+        self._eq_spans: list[tuple[_Level, int, int]] = []
+        e = 0
+        for lv in levels:
+            if lv.eq_tasks:
+                self._eq_spans.append((lv, int(ptr[e]), int(ptr[e + len(lv.eq_tasks)])))
+            e += len(lv.eq_tasks)
         self._first_eq = next((k for k, lv in enumerate(levels) if lv.r.size), len(levels))
         self._set_tasks = tuple(set_tasks)
         self._set_level = tuple(set_level)
-        self._set_level_of = np.array(set_level, dtype=int)  # level of each set task
-        self._level_marks = np.arange(len(levels) + 1)
+        self._set_names = tuple(t.name for t in set_tasks)
+        self._set_level_of = np.array(set_level, dtype=np.int64)  # level of each set task
+        self._cuts = np.zeros(len(levels) + 1, dtype=np.int64)
         self._rows = SetRowBuilder(self._set_tasks, n, self.reference)
         self._hierarchy = hierarchy
 
@@ -610,38 +636,27 @@ class HqpSolver(TimeLimited):
     def _evaluate(self, kin: Kinematics, dt: float, lb: np.ndarray, ub: np.ndarray) -> list[int]:
         """Evaluate every task once: equality tasks into their level buffers, set tasks into rows.
 
-        The set rows that can bind (a row that cannot reach its bound inside the hard box is
-        redundant and dropped) are stored compacted in ``self._G``, ``self._h`` (bounds),
-        ``self._owner`` (index into ``self._set_tasks``), level after level.
+        One pass of the shared task evaluation (:mod:`tpik.evaluation`: σ̃, σ̇_d, J per row) for
+        all tasks; the CLIK references (eq. 2) in one compiled call
+        (:func:`~qp_baseline.cascade_kernels.equality_rows`). The set rows that can bind (a row
+        that cannot reach its bound inside the hard box is redundant and dropped,
+        :meth:`SetRowBuilder.binding`) are stored compacted in ``self._G``, ``self._h`` (bounds),
+        ``self._owner`` (index into ``self._set_tasks``), level after level: views of the row
+        builder's buffers, valid for this step.
 
         Returns:
             ``cuts``: the rows of level k are ``cuts[k]:cuts[k + 1]``.
         """
-        finite = True
-        reference = self.reference
-        ev = self._eq_evaluation  # the shared task evaluation (tpik.evaluation): σ̃, σ̇_d, J per row
+        ev = self._evaluation
         ev.evaluate(kin)
-        e = 0
-        for lv in self._levels:
-            for task, sl in zip(lv.eq_tasks, lv.eq_slices, strict=True):
-                block = ev.eq_out[ev.eq_ptr[e] : ev.eq_ptr[e + 1]]
-                lv.J[sl] = block[:, EQ_JAC:]
-                lv.r[sl] = block[:, EQ_FEEDFORWARD] + reference.gain(task, dt) * block[:, EQ_ERROR]  # eq. 2
-                e += 1
-            if lv.r.size:
-                finite = finite and bool(np.isfinite(lv.r).all() and np.isfinite(lv.J).all())
-        if not finite:
+        J, r = self._eq_J, self._eq_r
+        if not equality_rows(ev.eq_out, ev.eq_in, ev.eq_ptr, float(dt), self.reference.gain_cap, J, r):
             raise InvalidTaskState(f"{self.name}: non-finite equality task Jacobian or reference")
-        rows = self._rows.build(kin, dt)
-        if not rows.h.size:
-            self._G, self._h, self._owner = self._no_rows, self._no_bounds, self._no_owner
-            return [0] * (len(self._levels) + 1)
-        level_end = np.searchsorted(self._set_level_of[rows.owner], self._level_marks, side="left")
-        G, h = rows.G, rows.h
-        reach = G @ (0.5 * (ub + lb)) + np.abs(G) @ (0.5 * (ub - lb))  # max of g·q̇ over the box
-        keep = np.flatnonzero(reach > h)
-        self._G, self._h, self._owner = G[keep], h[keep], rows.owner[keep]
-        return np.searchsorted(keep, level_end).tolist()  # type: ignore[no-any-return]
+        for lv, a, b in self._eq_spans:
+            lv.J[...] = J[a:b]
+            lv.r[...] = r[a:b]
+        self._G, self._h, self._owner = self._rows.binding(ev, dt, lb, ub, self._set_level_of, self._cuts)
+        return self._cuts.tolist()  # type: ignore[no-any-return]
 
     # ------------------------------------------------------------------ solve
     def solve(self, hierarchy: Hierarchy, kin: Kinematics, dt: float) -> StepResult:
@@ -691,9 +706,8 @@ class HqpSolver(TimeLimited):
             return 0
         first_eq = self._first_eq
         c_pre = run.cuts[first_eq]
-        if first_eq and not ((run.lb > 0.0).any() or (run.ub < 0.0).any()):
-            if c_pre == 0 or (run.h_rel[:c_pre] >= 0.0).all():
-                return first_eq
+        if first_eq and zero_feasible(run.lb, run.ub, run.h_rel[:c_pre]):
+            return first_eq
         return 0
 
     def _level_rows(self, k: int, run: _Cascade) -> tuple[np.ndarray, np.ndarray, int, int, float] | None:
@@ -790,12 +804,17 @@ class HqpSolver(TimeLimited):
             run.h_rel[c0:c1] += w + self.slack_margin * (w > 0.0)
         n_levels = len(self._levels)
         if r.size and k < n_levels:
-            run.residuals[self._levels[k].name] = float(np.linalg.norm(J @ run.qd - r))
+            res = J @ run.qd - r
+            run.residuals[self._levels[k].name] = math.sqrt(float(res @ res))  # np.linalg.norm's own sum
             if k + 1 < n_levels or (self.min_norm_level and run.qp_calls):
                 run.Z = self._null_space(J, run.Z)
 
     def _set_task_report(self, run: _Cascade) -> tuple[dict[str, dict[str, float]], list[str], list[str]]:
-        """Per level the largest slack of each set task; the binding tasks; the relaxed ones."""
+        """Per level the largest slack of each set task; the binding tasks; the relaxed ones.
+
+        A task binds when one of its rows is within ``slack_tolerance`` of its relaxed bound at
+        the final q̇, or was relaxed by more than that; it is relaxed by its rows' largest slack.
+        """
         s_tol = self.slack_tolerance
         slacks: dict[str, dict[str, float]] = {}
         active: list[str] = []
@@ -803,31 +822,26 @@ class HqpSolver(TimeLimited):
         if not run.h_rel.size:
             return slacks, active, relaxed
         # Slacks only come from backend answers: without a backend call they are all zero.
-        binding = (self._G @ run.qd) >= run.h_rel - s_tol
-        if run.slack is not None:
-            binding |= run.slack > s_tol
-        owners, bind_list = self._owner.tolist(), binding.tolist()
-        slack_list = run.slack.tolist() if run.slack is not None else [0.0] * len(owners)
-        cuts = run.cuts
-        for k, lv in enumerate(self._levels):
-            if cuts[k + 1] == cuts[k]:
-                continue
-            per_task: dict[str, float] = {}
-            for row in range(cuts[k], cuts[k + 1]):
-                name = self._set_tasks[owners[row]].name
-                per_task[name] = max(per_task.get(name, 0.0), slack_list[row])
-                if bind_list[row] and name not in active:
-                    active.append(name)
-                if slack_list[row] > s_tol and name not in relaxed:
-                    relaxed.append(name)
-            slacks[lv.name] = per_task
+        Gq, h = (self._G @ run.qd).tolist(), run.h_rel.tolist()
+        slack = run.slack.tolist() if run.slack is not None else [0.0] * len(h)
+        names, level_of = self._set_names, self._set_level
+        by_level: dict[int, dict[str, float]] = {}
+        for row, task in enumerate(self._owner.tolist()):
+            name, w = names[task], slack[row]
+            per_task = by_level.setdefault(level_of[task], {})
+            per_task[name] = max(per_task.get(name, 0.0), w)
+            if (Gq[row] >= h[row] - s_tol or w > s_tol) and name not in active:
+                active.append(name)
+            if w > s_tol and name not in relaxed:
+                relaxed.append(name)
+        for k, per_task in by_level.items():
+            slacks[self._levels[k].name] = per_task
         return slacks, active, relaxed
 
     def _report(self, run: _Cascade, t_start: float) -> StepResult:
         """The step's :class:`StepResult` from the finished cascade (q̇ clipped into the box)."""
         qd = run.qd
-        np.maximum(qd, run.lb, out=qd)
-        np.minimum(qd, run.ub, out=qd)
+        clip_into(qd, run.lb, run.ub)
         slacks, active, relaxed = self._set_task_report(run)
         if relaxed:
             run.add_message(self.name, f"set tasks relaxed (slack > {self.slack_tolerance:g}): {', '.join(relaxed)}")
@@ -994,12 +1008,9 @@ class HqpSolver(TimeLimited):
         else:
             # Pz = εI: the minimiser is qd without its component in span(Z).
             cand = self._zeros.copy() if Z is None else qd - Z @ (Z.T @ qd)
-        if not ((cand >= lp.lb) & (cand <= lp.ub)).all():
-            return None
         c1 = lp.c1
-        if c1 and not (lp.G_all[:c1] @ cand <= lp.h_rel[:c1]).all():
-            return None
-        return cand
+        Gc = lp.G_all[:c1] @ cand if c1 else self._no_bounds
+        return cand if feasible(cand, lp.lb, lp.ub, Gc, lp.h_rel[:c1]) else None
 
     def _level_qp(self, lp: _LevelProblem, Pz: np.ndarray, qz: np.ndarray) -> _QpCall:
         """The level's QP in x = [z; w]: earlier rows, this level's rows with slack w, the box."""
@@ -1029,7 +1040,7 @@ class HqpSolver(TimeLimited):
         eps = lp.eps
         # P ⪰ diag(curvature): (JZ)ᵀJZ + εI ⪰ εI (JZ = Z, orthonormal, on the min-norm level), I on slacks.
         bend = 1.0 + eps if lp.J is self._eye else eps
-        call.curvature = np.concatenate([np.full(d, bend), np.ones(m)]) if m else np.full(d, bend)
+        call.curvature = self._curvature(d, m, bend)
         # Task levels are judged on their objective; the min-norm level (P = (1 + ε)I) on its
         # answer itself: it only picks the null-space part of q̇.
         if lp.k == len(self._levels):
@@ -1037,6 +1048,15 @@ class HqpSolver(TimeLimited):
         else:
             call.level_value = self._level_value(lp, call)
         return call
+
+    def _curvature(self, d: int, m: int, bend: float) -> np.ndarray:
+        """``bend`` on the d variables z, 1 on the m slacks (cached per shape; read, never written)."""
+        key = (d, m, bend)
+        curvature = self._curvatures.get(key)
+        if curvature is None:
+            curvature = np.concatenate([np.full(d, bend), np.ones(m)])
+            self._curvatures[key] = curvature
+        return curvature
 
     def _level_rows_in_z(self, lp: _LevelProblem) -> tuple[np.ndarray, np.ndarray, int, np.ndarray, np.ndarray]:
         """Rows on z of the earlier and this level's set rows (and the box when Z ≠ I), z bounds.
@@ -1071,12 +1091,18 @@ class HqpSolver(TimeLimited):
         r"""½(‖J q̇ − r‖² + ‖w‖²) of an answer x = [z; w].
 
         It is :math:`f(x) + \tfrac12\|J q_d - r\|^2 + \tfrac12\epsilon\|q_d\|^2 - \tfrac12\epsilon\|\dot q(x)\|^2`
-        (J = I, r = 0 on the min-norm level: ½‖q̇‖²).
+        (J = I, r = 0 on the min-norm level: ½‖q̇‖²); compiled when Z = I
+        (:func:`~qp_baseline.cascade_kernels.level_objective`).
         """
         qd, Z, d, eps, at_zero = lp.qd, lp.Z, lp.d, lp.eps, lp.at_zero
         P, q_vec = call.P, call.q
-        res0 = (lp.J @ qd - lp.r) if lp.r.size else self._no_bounds
-        offset = 0.5 * float(res0 @ res0 + eps * (qd @ qd))
+        if at_zero:  # q_d = 0: J q_d − r = −r
+            offset = 0.5 * float(lp.r @ lp.r) if lp.r.size else 0.0
+        else:
+            res0 = (lp.J @ qd - lp.r) if lp.r.size else self._no_bounds
+            offset = 0.5 * float(res0 @ res0 + eps * (qd @ qd))
+        if Z is None:
+            return lambda x: level_objective(P, q_vec, x, qd, at_zero, offset, eps)  # type: ignore[no-any-return]
 
         def level_value(x: np.ndarray) -> float:
             qdot = x[:d] if at_zero else (qd + x[:d] if Z is None else qd + Z @ x[:d])
@@ -1089,17 +1115,13 @@ class HqpSolver(TimeLimited):
         qd, Z, lb, ub, c0, c1 = lp.qd, lp.Z, lp.lb, lp.ub, lp.c0, lp.c1
         d = lp.d
         cand = x[:d].copy() if lp.at_zero else (qd + x[:d] if Z is None else qd + Z @ x[:d])
-        np.maximum(cand, lb, out=cand)
-        np.minimum(cand, ub, out=cand)
+        clip_into(cand, lb, ub)
         # Next step, go straight to the backend only if a constraint binds now.
-        tol = self.tolerance
-        self._needed_backend[lp.k] = bool(
-            (cand <= lb + tol).any() or (cand >= ub - tol).any() or (lp.G_all[:c1] @ cand >= lp.h_rel[:c1] - tol).any()
-        )
+        Gc = lp.G_all[:c1] @ cand
+        self._needed_backend[lp.k] = binds(cand, lb, ub, Gc, lp.h_rel[:c1], self.tolerance)
         if c0:
             # Absorb violations within tolerance, so later levels stay feasible by construction.
-            h_acc = lp.h_rel[:c0]
-            np.maximum(h_acc, lp.G_all[:c0] @ cand, out=h_acc)
+            raise_to(lp.h_rel[:c0], Gc if c0 == c1 else lp.G_all[:c0] @ cand)
         self._previous[lp.k] = cand
         return cand
 
@@ -1350,7 +1372,30 @@ class HqpSolver(TimeLimited):
     def _certificate(
         self, call: _QpCall, x: np.ndarray, z: np.ndarray | None, z_box: np.ndarray | None, recover: bool
     ) -> Certificate:
-        """:func:`~qp_baseline.certificate.certify` of ``x`` with this solver's tolerances."""
+        """:func:`~qp_baseline.certificate.certify` of ``x`` with this solver's tolerances.
+
+        The cascade's level QPs (dense, finite box, a curvature on every variable) go through
+        :func:`~qp_baseline.certificate.certify_dense`: the same verdict, a passing one compiled.
+        """
+        level_value = None if call.level_value is None else call.level_value(x)
+        if isinstance(call.curvature, np.ndarray):
+            return certify_dense(
+                call.P,
+                call.q,
+                call.G,
+                call.h,
+                x,
+                call.lb,
+                call.ub,
+                z,
+                z_box,
+                call.curvature,
+                feasible_objective=call.f0,
+                level_value=level_value,
+                modulus=call.modulus,
+                tolerances=self.certificate_tolerances,
+                recover=recover,
+            )
         return certify(
             call.P,
             call.q,
@@ -1362,7 +1407,7 @@ class HqpSolver(TimeLimited):
             z=z,
             z_box=z_box,
             feasible_objective=call.f0,
-            level_value=None if call.level_value is None else call.level_value(x),
+            level_value=level_value,
             curvature=call.curvature,
             modulus=call.modulus,
             tolerances=self.certificate_tolerances,

@@ -13,7 +13,9 @@ its threshold no faster than its reference; past it, it may not move further out
 the business of a soft task (:mod:`qp_baseline.mink_peer`).
 
 σ and J come from the shared task evaluation (:class:`tpik.evaluation.TaskEvaluation`, the
-same pass TPIK uses); the rows are stacked in one compiled call (:func:`_stack_rows`).
+same pass TPIK uses); the rows are stacked in one compiled call (:func:`_stack_rows`). HQP
+evaluates all its tasks in one pass of its own and takes the rows that can bind in its hard box
+from :meth:`SetRowBuilder.binding` (one more compiled call, :func:`_binding_rows`).
 """
 
 from __future__ import annotations
@@ -74,6 +76,49 @@ def _stack_rows(
     return r
 
 
+@numba.njit(cache=True, nogil=True)
+def _binding_rows(
+    G: np.ndarray,
+    h: np.ndarray,
+    owner: np.ndarray,
+    count: int,
+    lb: np.ndarray,
+    ub: np.ndarray,
+    task_level: np.ndarray,
+    cuts: np.ndarray,
+) -> int:
+    r"""Keep, in place and in order, the first ``count`` rows that can bind in the box; their level cuts.
+
+    A row :math:`g^T\dot q \le h` can bind when
+    :math:`\max_{\underline v \le \dot q \le \overline v} g^T\dot q = g^Tc + |g|^Tr > h`, with
+    the box centre :math:`c = \tfrac12(\overline v + \underline v)` and half-width
+    :math:`r = \tfrac12(\overline v - \underline v)`; any other row is redundant given the box.
+    ``cuts[k]`` (shape (L + 1,)) becomes the number of kept rows of the levels before k
+    (``task_level``: level of each task, rows ordered by level).
+
+    Returns:
+        The number of rows kept.
+    """
+    n, L = G.shape[1], cuts.shape[0] - 1
+    cuts[:] = 0
+    kept = 0
+    for r in range(count):
+        centre, spread = 0.0, 0.0
+        for j in range(n):
+            centre += G[r, j] * (0.5 * (ub[j] + lb[j]))
+            spread += abs(G[r, j]) * (0.5 * (ub[j] - lb[j]))
+        if not centre + spread > h[r]:
+            continue
+        if kept != r:
+            G[kept] = G[r]
+            h[kept] = h[r]
+            owner[kept] = owner[r]
+        for k in range(task_level[owner[r]] + 1, L + 1):
+            cuts[k] += 1
+        kept += 1
+    return kept
+
+
 @dataclass(frozen=True)
 class SetRows:
     r"""Rows :math:`G\dot q \le h` of a list of set-based tasks at one state.
@@ -110,10 +155,24 @@ class SetRowBuilder:
         self.hold_at_zero = hold_at_zero
         self._empty = SetRows(np.zeros((0, self.nq)), np.zeros(0), np.zeros(0, dtype=int), np.zeros(0))
         self._evaluation: TaskEvaluation | None = None  # built at the first step (needs the robot)
+        S = len(self.tasks)
+        self._G, self._h, self._owner = np.empty((2 * S, self.nq)), np.empty(2 * S), np.empty(2 * S, dtype=np.int64)
         warm_up(self.nq)  # the compiled evaluation is loaded now, not at the first control step
         if not _stack_rows.signatures:
             empty = np.zeros((0, SET_JAC + self.nq))
             _stack_rows(empty, np.zeros((0, 13)), 0.01, True, False, empty, np.zeros(0), np.zeros(0, dtype=np.int64))
+        if not _binding_rows.signatures:
+            one = np.zeros(1)
+            _binding_rows(
+                np.zeros((0, 1)),
+                one[:0],
+                np.zeros(0, dtype=np.int64),
+                0,
+                one,
+                one,
+                np.zeros(0, dtype=np.int64),
+                np.zeros(1, dtype=np.int64),
+            )
 
     def build(self, kin: Kinematics, dt: float) -> SetRows:
         """Evaluate every task once at ``kin`` and stack its finite bounds.
@@ -127,20 +186,47 @@ class SetRowBuilder:
         ev = self._evaluation
         if ev is None:
             ev = self._evaluation = TaskEvaluation(self.tasks, kin.robot)
-            S = len(self.tasks)
-            self._G, self._h, self._owner = np.empty((2 * S, self.nq)), np.empty(2 * S), np.empty(2 * S, dtype=np.int64)
         ev.evaluate(kin)
-        count = _stack_rows(
+        count = self._stack(ev, dt)
+        sigma = ev.set_out[:, SET_SIGMA].copy()
+        if count == 0:
+            return SetRows(self._empty.G, self._empty.h, self._empty.owner, sigma)
+        return SetRows(self._G[:count].copy(), self._h[:count].copy(), self._owner[:count].copy(), sigma)
+
+    def _stack(self, ev: TaskEvaluation, dt: float) -> int:
+        """Rows of an evaluated ``ev`` (its set tasks are :attr:`tasks`) into the buffers; their number.
+
+        Raises:
+            InvalidTaskState: A task's Jacobian is not finite (names the task).
+        """
+        count: int = _stack_rows(
             ev.set_out, ev.set_in, float(dt), self.reference.gain_cap, self.hold_at_zero, self._G, self._h, self._owner
         )
-        sigma = ev.set_out[:, SET_SIGMA].copy()
         if not np.isfinite(self._G[:count]).all():
             for i in self._owner[:count].tolist():
                 if not np.isfinite(ev.set_out[i, SET_JAC:]).all():
                     raise InvalidTaskState(f"task '{self.tasks[i].name}': jacobian has non-finite entries")
-        if count == 0:
-            return SetRows(self._empty.G, self._empty.h, self._empty.owner, sigma)
-        return SetRows(self._G[:count].copy(), self._h[:count].copy(), self._owner[:count].copy(), sigma)
+        return count
+
+    def binding(
+        self, ev: TaskEvaluation, dt: float, lb: np.ndarray, ub: np.ndarray, task_level: np.ndarray, cuts: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        r"""The rows of an evaluated ``ev`` that can bind in the box :math:`[lb, ub]`, level after level.
+
+        ``ev`` holds :attr:`tasks` as its set tasks, evaluated (:meth:`TaskEvaluation.evaluate`,
+        e.g. by the caller's own pass over every task); a row that cannot reach its bound in the
+        box is redundant and left out (:func:`_binding_rows`). ``cuts`` (L + 1,) is filled: the
+        rows of level k are ``cuts[k]:cuts[k + 1]`` (``task_level``: level of each task).
+
+        Returns:
+            (G, h, owner): views of the builder's buffers, valid until its next call.
+
+        Raises:
+            InvalidTaskState: A task's Jacobian is not finite (names the task).
+        """
+        count = self._stack(ev, dt) if self.tasks else 0
+        kept = _binding_rows(self._G, self._h, self._owner, count, lb, ub, task_level, cuts)
+        return self._G[:kept], self._h[:kept], self._owner[:kept]
 
 
 __all__ = ["SetRowBuilder", "SetRows"]

@@ -139,3 +139,96 @@ def test_non_finite_answer_and_bad_tolerances():
     assert not cert.passed and cert.reason == "non-finite answer"
     with pytest.raises(ValueError, match="'level'"):
         Tolerances(level=0.0)
+
+
+def _dense_level_qp(rng: np.random.Generator, n: int, m: int) -> tuple[np.ndarray, ...]:
+    """A random level-like QP: P = MᵀM + εI (curvature ε), rows with x = 0 feasible, box around 0."""
+    M = rng.normal(size=(3, n))
+    eps = 10.0 ** rng.uniform(-9, -1)
+    P = M.T @ M + eps * np.eye(n)
+    q = rng.normal(size=n)
+    G = rng.normal(size=(m, n))
+    h = rng.uniform(0.0, 1.0, m)
+    lb, ub = -rng.uniform(0.1, 2.0, n), rng.uniform(0.1, 2.0, n)
+    return P, q, G, h, lb, ub, np.full(n, eps)
+
+
+def _answers(rng: np.random.Generator, P: np.ndarray, q: np.ndarray, G: np.ndarray, h: np.ndarray, lb, ub):
+    """(x, z, z_box) to judge: DAQP's optimum, perturbed ones, random and wrong-signed multipliers."""
+    solution = qpsolvers.solve_problem(
+        qpsolvers.Problem(P, q, G if h.size else None, h if h.size else None, lb=lb, ub=ub), solver="daqp"
+    )
+    assert solution.found
+    x, z, zb = solution.x, solution.z if h.size else np.zeros(0), solution.z_box
+    n, m = x.size, h.size
+    yield x, z, zb
+    yield x + 1e-7 * rng.normal(size=n), z, zb
+    yield x + 1e-3 * rng.normal(size=n), z, zb  # suboptimal or infeasible
+    yield np.clip(rng.normal(size=n), lb, ub), rng.uniform(-1.0, 2.0, m), rng.normal(size=n)
+    yield x, -np.abs(z), np.zeros(n)
+
+
+@pytest.mark.parametrize("seed", range(8))
+def test_the_compiled_judgement_equals_the_numpy_one(seed):
+    """``_dense_judgement`` (compiled) against the NumPy functions it replaces, on random inputs."""
+    from qp_baseline import certificate as cm
+
+    rng = np.random.default_rng(seed)
+    for n, m in ((1, 0), (4, 3), (7, 6), (9, 12)):
+        P, q, G, h, lb, ub, curv = _dense_level_qp(rng, n, m)
+        for x, z, zb in _answers(rng, P, q, G, h, lb, ub):
+            out = np.empty(cm._DENSE_OUT)
+            assert cm._dense_judgement(P, q, G, h, lb, ub, x, z, zb, curv, out)
+            qp = cm._as_qp(P, q, G, h, None, None, lb, ub)
+            Px, slack = P @ x, h - G @ x
+            zp = np.maximum(z, 0.0)
+            g = Px + q + G.T @ zp
+            scale = 1.0 + float(np.abs(P).max() + np.abs(G).max(initial=0.0)) * (1.0 + float(np.abs(x).max()))
+            assert out[cm._R_P] == pytest.approx(cm.primal_residual(qp, x, slack), abs=1e-13 * scale)
+            assert out[cm._F] == pytest.approx(float(x @ (0.5 * Px + q)), rel=1e-12, abs=1e-13 * scale)
+            assert out[cm._R_D] == pytest.approx(float(np.abs(g + zb).max()), rel=1e-12, abs=1e-13 * scale)
+            assert out[cm._COMP] == pytest.approx(float(zp @ slack), rel=1e-12, abs=1e-13 * scale)
+            box = cm._box_term(g, x, lb, ub, curv)
+            assert out[cm._BOX] == pytest.approx(box, rel=1e-9, abs=1e-12 * scale)
+            terms = [x @ Px, q @ x, h @ zp, lb @ np.minimum(zb, 0.0), ub @ np.maximum(zb, 0.0)]
+            assert out[cm._TERMS :] == pytest.approx(terms, rel=1e-12, abs=1e-13 * scale)
+
+
+@pytest.mark.parametrize("seed", range(8))
+def test_certify_dense_gives_the_certificate_of_certify(seed):
+    """Same verdict, reason and multiplier source as :func:`certify`, fields to round-off, on random
+    level-like QPs with optimal, nearly optimal, suboptimal, infeasible and wrongly signed answers."""
+    from qp_baseline.certificate import certify_dense
+
+    rng = np.random.default_rng(100 + seed)
+    verdicts = set()
+    for n, m in ((1, 0), (4, 3), (7, 6), (9, 12)):
+        P, q, G, h, lb, ub, curv = _dense_level_qp(rng, n, m)
+        for x, z, zb in _answers(rng, P, q, G, h, lb, ub):
+            for f0, level, recover in ((None, None, False), (0.0, 0.5 * float(q @ q), True), (-1e9, None, False)):
+                kw = dict(feasible_objective=f0, level_value=level, recover=recover)
+                fast = certify_dense(P, q, G, h, x, lb, ub, z, zb, curv, **kw)
+                ref = certify(P, q, G, h, x, lb=lb, ub=ub, z=z, z_box=zb, curvature=curv, **kw)
+                assert (fast.passed, fast.multipliers) == (ref.passed, ref.multipliers)
+                assert fast.reason.split(" ")[:2] == ref.reason.split(" ")[:2]
+                for name in ("primal_residual", "dual_residual", "duality_gap", "objective", "lower_bound"):
+                    assert getattr(fast, name) == pytest.approx(getattr(ref, name), rel=1e-9, abs=1e-12), name
+                assert fast.upper_bound == ref.upper_bound
+                verdicts.add(fast.passed)
+    assert verdicts == {True, False}  # both kinds of verdict were exercised
+
+
+def test_certify_dense_hands_other_forms_to_certify():
+    from qp_baseline.certificate import certify_dense
+
+    P, q, G, h = _halfline()
+    lb, ub = np.array([-1.0]), np.array([1.0])
+    cases = [
+        (np.array([0.5]), None, np.zeros(1), np.ones(1)),  # no multipliers: recovered
+        (np.array([math.nan]), np.array([0.5]), np.zeros(1), np.ones(1)),  # non-finite answer
+        (np.array([0.5]), np.array([0.5]), np.zeros(1), np.zeros(1)),  # a variable without curvature
+    ]
+    for x, z, zb, curv in cases:
+        fast = certify_dense(P, q, G, h, x, lb, ub, z, zb, curv)
+        ref = certify(P, q, G, h, x, lb=lb, ub=ub, z=z, z_box=zb, curvature=curv)
+        assert fast == ref
