@@ -19,21 +19,14 @@ _LWA = pin.ReferenceFrame.LOCAL_WORLD_ALIGNED
 
 
 @numba.njit(cache=True, nogil=True)
-def _frame_origins(
-    q: np.ndarray,
-    chain_i: np.ndarray,
-    chain_f: np.ndarray,
-    frame_parent: np.ndarray,
-    frame_t: np.ndarray,
-    out: np.ndarray,
-) -> None:
-    r"""Frame origins ``out[f, 0, :3]`` by forward kinematics of a chain of single-axis revolute joints.
+def _joint_poses(q: np.ndarray, chain_i: np.ndarray, chain_f: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    r"""Orientation ``R[i]`` and origin ``p[i]`` of every joint frame of a chain of single-axis revolute joints.
 
     Joint i (1-based, parent ``chain_i[i, 0]``, axis ``chain_i[i, 1]`` ∈ {0, 1, 2}, q index
     ``chain_i[i, 2]``): :math:`{}^oR_i = {}^oR_{p}\,R^{pl}_i\,R_{axis}(q)`,
     :math:`{}^op_i = {}^op_p + {}^oR_p\,t^{pl}_i` (``chain_f[i]``: the placement rotation,
-    row-major, then its translation); a frame's origin is :math:`{}^op_j + {}^oR_j\,t_f`.
-    Pinocchio's ``forwardKinematics`` to round-off, without a Python call per frame.
+    row-major, then its translation); joint 0 is the base (identity). Pinocchio's
+    ``forwardKinematics`` to round-off.
     """
     nj = chain_i.shape[0]
     R = np.empty((nj, 3, 3))
@@ -59,6 +52,14 @@ def _frame_origins(
             R[i, a, axis] = M[a, axis]
             R[i, a, u] = c * M[a, u] + s * M[a, v]
             R[i, a, v] = -s * M[a, u] + c * M[a, v]
+    return R, p
+
+
+@numba.njit(cache=True, nogil=True)
+def _origins_from_poses(
+    R: np.ndarray, p: np.ndarray, frame_parent: np.ndarray, frame_t: np.ndarray, out: np.ndarray
+) -> None:
+    r"""Frame origins ``out[f, 0, :3]`` = :math:`{}^op_j + {}^oR_j\,t_f` (j = ``frame_parent[f]``)."""
     for f in range(frame_parent.shape[0]):
         j = frame_parent[f]
         for a in range(3):
@@ -66,6 +67,63 @@ def _frame_origins(
             for b in range(3):
                 acc += R[j, a, b] * frame_t[f, b]
             out[f, 0, a] = acc
+
+
+@numba.njit(cache=True, nogil=True)
+def _frame_origins(
+    q: np.ndarray,
+    chain_i: np.ndarray,
+    chain_f: np.ndarray,
+    frame_parent: np.ndarray,
+    frame_t: np.ndarray,
+    out: np.ndarray,
+) -> None:
+    r"""Frame origins ``out[f, 0, :3]`` by forward kinematics of a chain of single-axis revolute joints.
+
+    :func:`_joint_poses`, then a frame's origin is :math:`{}^op_j + {}^oR_j\,t_f`.
+    Pinocchio's ``forwardKinematics`` to round-off, without a Python call per frame.
+    """
+    R, p = _joint_poses(q, chain_i, chain_f)
+    _origins_from_poses(R, p, frame_parent, frame_t, out)
+
+
+@numba.njit(cache=True, nogil=True)
+def chain_frames(
+    q: np.ndarray,
+    chain_i: np.ndarray,
+    chain_f: np.ndarray,
+    frame_parent: np.ndarray,
+    frame_t: np.ndarray,
+    support: np.ndarray,
+    out: np.ndarray,
+) -> None:
+    r"""Origin and position Jacobian of every frame of a revolute chain, from ``q`` alone, into ``out`` (F, 4, n).
+
+    The origins are :func:`_frame_origins`'. Column ``chain_i[i, 2]`` of the position Jacobian of
+    the point P = ``out[f, 0, :3]`` is the velocity of P for a unit rate of joint i,
+    :math:`\omega_i \times (P - {}^op_i)` with :math:`\omega_i = {}^oR_i\,e_{axis}` the joint's
+    axis in the base frame, for the joints that move the frame (``support[f, col]``), zero for the
+    others: what :meth:`Kinematics.fill_frames` computes from pinocchio's joint Jacobians
+    (:math:`v_O + \omega \times P` with :math:`v_O = {}^op_i \times \omega_i`), to round-off,
+    with no pinocchio call (``tests/robots/test_kinematics.py``).
+    """
+    R, p = _joint_poses(q, chain_i, chain_f)
+    _origins_from_poses(R, p, frame_parent, frame_t, out)
+    n = out.shape[2]
+    for f in range(out.shape[0]):
+        p0, p1, p2 = out[f, 0, 0], out[f, 0, 1], out[f, 0, 2]
+        for k in range(n):
+            out[f, 1, k] = 0.0
+            out[f, 2, k] = 0.0
+            out[f, 3, k] = 0.0
+        for i in range(1, chain_i.shape[0]):
+            col, axis = chain_i[i, 2], chain_i[i, 1]
+            if support[f, col]:
+                w0, w1, w2 = R[i, 0, axis], R[i, 1, axis], R[i, 2, axis]
+                d0, d1, d2 = p0 - p[i, 0], p1 - p[i, 1], p2 - p[i, 2]
+                out[f, 1, col] = w1 * d2 - w2 * d1
+                out[f, 2, col] = w2 * d0 - w0 * d2
+                out[f, 3, col] = w0 * d1 - w1 * d0
 
 
 @numba.njit(cache=True, nogil=True)
@@ -99,6 +157,11 @@ class Kinematics:
     kinematics and joint Jacobians exactly once whatever the number of tasks. Frame
     Jacobians are fetched lazily and cached per frame.
 
+    With ``pending`` (what :meth:`Robot.kinematics` gives), pinocchio's forward kinematics,
+    joint Jacobians and frame placements are computed at the first query that reads them
+    (the same calls on the same ``q``, so the same numbers bit for bit); a consumer that
+    computes its frames from ``q`` itself (:func:`chain_frames`, TPIK) never pays for them.
+
     Attributes:
         robot: The robot model.
         q: Joint configuration [rad]. Shape (n,). Read-only.
@@ -109,27 +172,41 @@ class Kinematics:
         "_generation",
         "_jacobians",
         "_partial_jacobians",
+        "_pending",
         "_position_jacobians",
         "_positions",
         "q",
         "robot",
     )
 
-    def __init__(self, robot: Robot, q: np.ndarray, data: pin.Data, generation: int) -> None:
+    def __init__(self, robot: Robot, q: np.ndarray, data: pin.Data, generation: int, pending: bool = False) -> None:
         self.robot = robot
         self.q = q
         self.q.flags.writeable = False
         self._data = data
         self._generation = generation
+        self._pending = pending
         # Caches keyed by the frame name as given (the lookup of the frame index is skipped).
         self._jacobians: dict[str, np.ndarray] = {}
         self._position_jacobians: dict[str, np.ndarray] = {}
         self._positions: dict[str, np.ndarray] = {}
         self._partial_jacobians: dict[tuple[str, int | None], np.ndarray] = {}
 
-    def _check(self) -> None:
+    def check_current(self) -> None:
+        """Raise :class:`~robots.exceptions.StaleKinematics` if a newer snapshot of the robot was taken.
+
+        Only the check: pinocchio's data is not computed (for consumers that compute from ``q``).
+        """
         if self.robot._generation != self._generation:  # Robot.is_current, inlined (hot path)
             raise StaleKinematics("this Kinematics snapshot is stale: robot.kinematics() was called again since")
+
+    def _check(self) -> None:
+        """:meth:`check_current`, then pinocchio's data at ``q`` if it is still pending (once)."""
+        if self.robot._generation != self._generation:  # Robot.is_current, inlined (hot path)
+            raise StaleKinematics("this Kinematics snapshot is stale: robot.kinematics() was called again since")
+        if self._pending:
+            self.robot._compute_pinocchio(self.q)
+            self._pending = False
 
     @property
     def is_current(self) -> bool:

@@ -229,15 +229,22 @@ class Robot:
     def kinematics(self, q: np.ndarray) -> Kinematics:
         """Forward kinematics and joint Jacobians at ``q``, computed once.
 
-        The snapshot reads frames and Jacobians lazily from the robot's pinocchio data, so
-        only the most recent snapshot of a robot is valid (an older one raises
+        The snapshot reads frames and Jacobians lazily from the robot's pinocchio data
+        (computed at its first query, :class:`~robots.kinematics.Kinematics`), so only the
+        most recent snapshot of a robot is valid (an older one raises
         :class:`~robots.exceptions.StaleKinematics`).
         """
         q_arr = self.check_configuration(q)
-        pin.computeJointJacobians(self.pin_model, self._pin_data, q_arr)
-        pin.updateFramePlacements(self.pin_model, self._pin_data)
         self._generation += 1
-        return Kinematics(self, q_arr, self._pin_data, self._generation)
+        return Kinematics(self, q_arr, self._pin_data, self._generation, pending=True)
+
+    def _compute_pinocchio(self, q: np.ndarray) -> None:
+        """Forward kinematics, joint Jacobians and frame placements at ``q`` into the robot's pinocchio data.
+
+        Called by the current snapshot at its first query that reads the data.
+        """
+        pin.computeJointJacobians(self.pin_model, self._pin_data, q)
+        pin.updateFramePlacements(self.pin_model, self._pin_data)
 
     def is_current(self, generation: int) -> bool:
         """Whether a snapshot of this generation still matches the robot's data."""

@@ -184,6 +184,9 @@ class TaskEvaluation:
         fused: Whether the compiled pass alone completes the evaluation after :meth:`gather`
             (no Python-evaluated set task waits for its Jacobian), so a method may run
             :func:`evaluate_compiled` inside its own compiled step.
+        compiled_only: Whether every task is of a compiled kind: the frames
+            (:attr:`frame_names`) and :meth:`gather_inputs` are all the compiled pass reads, so
+            a method may compute the frames itself (:func:`robots.kinematics.chain_frames`).
     """
 
     def __init__(
@@ -209,6 +212,13 @@ class TaskEvaluation:
         self.frames = np.zeros((len(self._frames), 4, n))
         self._set_direct = {s: type(self.set_tasks[s]).compute_state is SetTask.compute_state for s in self._python_set}
         self.fused = not (self._python_set and not self.all_jacobians)
+        self.compiled_only = not (self._python_set or self._python_eq)
+        # What gather_inputs last wrote: the tasks' own arrays (set anew, as copies, by their
+        # setters) and the gains; an unchanged one is not written again.
+        self._seen_obstacles: list[np.ndarray | None] = [None] * len(self._obstacles)
+        self._seen_targets: list[tuple[np.ndarray | None, np.ndarray | None]] = [(None, None)] * len(self._positions)
+        self._seen_set_gains: list[float] = []
+        self._seen_eq_gains: list[float] = []
 
     def _frame(self, name: str) -> int:
         """Index of a frame in :attr:`frames` (added at first use)."""
@@ -287,32 +297,64 @@ class TaskEvaluation:
             self._python_candidate_jacobians(kin)
 
     def gather(self, kin: Kinematics) -> None:
-        """The Python part of :meth:`evaluate`: frames, obstacle points, targets, gains, Python-evaluated tasks."""
+        """The Python part of :meth:`evaluate`: frames, :meth:`gather_inputs`, Python-evaluated tasks."""
         kin.fill_frames(self.frame_names, self.frames, self.compiled_origins)
+        self.gather_inputs()
+        if self._python_set:
+            self._evaluate_python_set(kin)
+        if self._python_eq:
+            self._evaluate_python_eq(kin)
+
+    def gather_inputs(self) -> None:
+        """Obstacle points, targets and gains of this step into ``set_in`` / ``eq_in``.
+
+        Everything the compiled pass reads besides the frames (a method computing its frames
+        from ``q``, :attr:`compiled_only`, needs no more). A value that is the same object as
+        the one written last (a task's point or target is replaced, as a copy, by its setter)
+        or the same gains is not written again.
+
+        Raises:
+            tpik.exceptions.TargetNotSet: A position task has no target.
+        """
         set_in = self.set_in
+        seen = self._seen_obstacles
         # The tasks' own arrays, read without the copy their public properties make (same package).
-        for s, ob in self._obstacles:
+        for k, (s, ob) in enumerate(self._obstacles):
             point = ob._obstacle
+            if point is seen[k] and point is not None:
+                continue
             if point is None:
                 set_in[s, _HAS] = 0.0
             else:
                 set_in[s, _OBS : _OBS + 3] = point
                 set_in[s, _HAS] = 1.0
-        eq_in = self.eq_in
-        for e, pt in self._positions:
-            target = pt._target
+            seen[k] = point
+        if self._positions:
+            self._gather_targets()
+        if self.set_tasks:
+            gains = [t.gain for t in self.set_tasks]
+            if gains != self._seen_set_gains:
+                set_in[:, SET_GAIN] = gains
+                self._seen_set_gains = gains
+        if self.eq_tasks:
+            gains = [t.gain for t in self.eq_tasks]
+            if gains != self._seen_eq_gains:
+                self.eq_in[:, EQ_GAIN] = gains
+                self._seen_eq_gains = gains
+
+    def _gather_targets(self) -> None:
+        """Target p_d and its rate ṗ_d of every compiled position task into ``eq_in`` (when replaced)."""
+        eq_in, seen = self.eq_in, self._seen_targets
+        for k, (e, pt) in enumerate(self._positions):
+            target, velocity = pt._target, pt._velocity
             if target is None:
                 raise TargetNotSet(pt.name)
-            eq_in[e, :3] = target
-            eq_in[e, 3:6] = pt._velocity
-        if self.set_tasks:
-            set_in[:, SET_GAIN] = [t.gain for t in self.set_tasks]
-        if self.eq_tasks:
-            eq_in[:, EQ_GAIN] = [t.gain for t in self.eq_tasks]
-        if self._python_set:
-            self._evaluate_python_set(kin)
-        if self._python_eq:
-            self._evaluate_python_eq(kin)
+            last_target, last_velocity = seen[k]
+            if target is not last_target:
+                eq_in[e, :3] = target
+            if velocity is not last_velocity:
+                eq_in[e, 3:6] = velocity
+            seen[k] = (target, velocity)
 
     def _evaluate_python_set(self, kin: Kinematics) -> None:
         n = self.nq

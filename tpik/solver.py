@@ -93,7 +93,18 @@ from tpik.hierarchy import Hierarchy
 from tpik.limits import Limit, VelocityLimit, compose_box, scale_into_box
 from tpik.reference import ControlReference
 from tpik.step_result import SolveStatus, StepResult, failed
-from tpik.step_rows import OUT_CANDIDATES, OUT_EVALUATED, OUT_HOW, OUT_LEVELS, OUT_ROWS, OUT_STATUS, tpik_step
+from tpik.step_rows import (
+    OUT_CANDIDATES,
+    OUT_EVALUATED,
+    OUT_HOW,
+    OUT_LEVELS,
+    OUT_ROWS,
+    OUT_STATUS,
+    STAGE_EVALUATE,
+    STAGE_KINEMATICS,
+    STAGE_ROWS,
+    tpik_step,
+)
 from tpik.step_rows import warm_up as warm_up_step
 
 VARIANTS: tuple[str, ...] = ("nsb", "ss")
@@ -286,14 +297,67 @@ def _check_number(key: str, value: object, allow_zero: bool = False) -> None:
         raise InvalidSettings(f"{key}: must be finite and {'>=' if allow_zero else '>'} 0, got {value!r}")
 
 
+_Buffers = tuple[
+    np.ndarray,
+    np.ndarray,
+    np.ndarray,
+    np.ndarray,
+    np.ndarray,
+    np.ndarray,
+    np.ndarray,
+    np.ndarray,
+    np.ndarray,
+    np.ndarray,
+    np.ndarray,
+    np.ndarray,
+    np.ndarray,
+]
+"""The 13 array arguments of :func:`~tpik.step_rows.tpik_step` between ``q`` and ``stage``."""
+
+
 @dataclass
 class _Plan:
-    """What TPIK reads of one hierarchy object, built once: its evaluation and the output buffers."""
+    """What TPIK reads of one hierarchy object, built once: its evaluation and the output buffers.
+
+    Attributes:
+        evaluation: The shared task evaluation of the hierarchy's tasks.
+        level_names: Name of each hierarchy level.
+        iout, fout: Output buffers of :func:`~tpik.step_rows.tpik_step`.
+        buffers: Every array argument of :func:`~tpik.step_rows.tpik_step` between ``q`` and
+            ``stage``, in order (the chain, placements and support of the frames, then the
+            evaluation's buffers): one tuple, not a dozen attribute reads per step.
+        own_kinematics: Whether the compiled step computes the frames from ``q`` itself (every
+            task of a compiled kind and a chain of revolute joints).
+        last_ints: ``iout`` of the last step whose report fields were derived.
+        last_report: Those fields: inserted task names, names of the levels with rows, search name.
+    """
 
     evaluation: TaskEvaluation
     level_names: tuple[str, ...]
     iout: np.ndarray
     fout: np.ndarray
+    buffers: _Buffers
+    own_kinematics: bool
+    last_ints: list[int] = dataclasses.field(default_factory=list)
+    last_report: tuple[tuple[str, ...], list[str], str] = ((), [], "")
+
+
+def _frame_buffers(
+    robot: Robot, ev: TaskEvaluation
+) -> tuple[bool, tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]]:
+    """Whether the compiled step can compute ``ev``'s frames from ``q``, and the arrays it reads for that.
+
+    Needs every task of a compiled kind (:attr:`TaskEvaluation.compiled_only`) and the robot as a
+    chain of revolute joints (:meth:`Robot.revolute_chain`); otherwise the arrays are empty
+    placeholders of the right types and the frames come from the snapshot.
+    """
+    chain = robot.revolute_chain()
+    if chain is None or not ev.compiled_only:
+        chain_i, chain_f, parent = np.zeros((1, 3), dtype=np.int64), np.zeros((1, 12)), np.zeros(0, dtype=np.int64)
+        return False, (chain_i, chain_f, parent, np.zeros((0, 3)), np.zeros((0, ev.nq), dtype=np.bool_))
+    frame_parent, frame_t = robot.frame_placements(ev.frame_names)
+    _, support = robot.frame_support(ev.frame_names)
+    return True, (chain[0], chain[1], frame_parent, frame_t, support)
 
 
 class TpikSolver:
@@ -339,6 +403,8 @@ class TpikSolver:
         if v_max.shape != (self.nq,):
             raise InvalidSettings(f"robot '{robot.name}': joint velocity limits must have shape ({self.nq},)")
         self._box_limits = () if all(lim is velocity for lim in self.limits) else self.limits
+        # Only stateful limits have an observe hook of their own (Limit.observe is a no-op).
+        self._observers = tuple(lim for lim in self.limits if type(lim).observe is not Limit.observe)
         self._inv_v_max = 1.0 / v_max
         s = self.settings
         self.velocity_norm_max = (
@@ -384,15 +450,39 @@ class TpikSolver:
         iout = np.zeros(6 + 2 * n_set + n_levels, dtype=np.int64)
         fout = np.zeros(self.nq + 1 + n_levels)
         names = tuple(level.name for level in hierarchy.levels)
-        self._plan_for, self._plan = hierarchy, _Plan(evaluation, names, iout, fout)
+        own, chain = _frame_buffers(self.robot, evaluation)
+        ev = evaluation
+        buffers = (*chain, ev.frames, ev.set_i, ev.set_in, ev.set_out, ev.eq_i, ev.eq_in, ev.eq_out, ev.eq_level)
+        self._plan_for, self._plan = hierarchy, _Plan(evaluation, names, iout, fout, buffers, own)
         return self._plan
 
     def _check_call(self, kin: Kinematics, dt: float) -> None:
         n = self.nq
-        if kin.nq != n:
+        if kin.robot is not self.robot and kin.nq != n:
             raise TpikError(f"{self.name}: kinematics of a {kin.nq}-joint robot given to a solver for {n} joints")
-        if not (type(dt) is float or isinstance(dt, int | float)) or not (math.isfinite(dt) and dt > 0.0):
+        if type(dt) is float and 0.0 < dt < math.inf:
+            return
+        if not isinstance(dt, int | float) or not (math.isfinite(dt) and dt > 0.0):
             raise TpikError(f"{self.name}: dt must be a finite number > 0 [s], got {dt!r}")
+
+    @staticmethod
+    def _gather(plan: _Plan, kin: Kinematics) -> int:
+        """Step 1's Python part for this step; returns the stage the compiled step starts from.
+
+        The frames are computed in the compiled step from ``q`` when the plan allows it and
+        ``kin`` is a plain snapshot (:data:`~tpik.step_rows.STAGE_KINEMATICS`; pinocchio's data
+        is then never computed); otherwise they are read from ``kin``.
+        """
+        ev = plan.evaluation
+        if plan.own_kinematics and type(kin) is Kinematics:
+            kin.check_current()
+            ev.gather_inputs()
+            return STAGE_KINEMATICS
+        if ev.fused:
+            ev.gather(kin)
+            return STAGE_EVALUATE
+        ev.evaluate(kin)
+        return STAGE_ROWS
 
     def solve(self, hierarchy: Hierarchy, kin: Kinematics, dt: float) -> StepResult:
         """One control step (:meth:`_solve_step`), then into the box of :attr:`limits` (:mod:`tpik.limits`)."""
@@ -404,7 +494,7 @@ class TpikSolver:
                 result.status = SolveStatus.DEGRADED
                 note = f"velocity scaled by {scale:.3g} into the limits"
                 result.message = f"{result.message}; {note}" if result.message else f"{self.name}: {note}"
-        for limit in self.limits:
+        for limit in self._observers:
             limit.observe(result.qdot)
         return result
 
@@ -436,24 +526,13 @@ class TpikSolver:
         """
         t0 = time.perf_counter()
         self._check_call(kin, dt)
-        plan = self._compile(hierarchy)
-        ev = plan.evaluation
-        if ev.fused:
-            ev.gather(kin)
-        else:
-            ev.evaluate(kin)
+        plan = self._plan if self._plan_for is hierarchy and self._plan is not None else self._compile(hierarchy)
+        stage = self._gather(plan, kin)
         t1 = time.perf_counter()
         tpik_step(
             kin.q,
-            ev.frames,
-            ev.set_i,
-            ev.set_in,
-            ev.set_out,
-            ev.eq_i,
-            ev.eq_in,
-            ev.eq_out,
-            ev.eq_level,
-            ev.fused,
+            *plan.buffers,
+            stage,
             float(dt),
             self._flags,
             self._reals,
@@ -464,41 +543,68 @@ class TpikSolver:
         t2 = time.perf_counter()
         return self._result(plan, t0, t1, t2)
 
-    def _result(self, plan: _Plan, t0: float, t1: float, t2: float) -> StepResult:
-        """The :class:`StepResult` of the compiled step's outputs (status, names, reasons)."""
-        ints = plan.iout.tolist()  # one conversion: the rest is Python ints and floats
-        n, s = self.nq, self.settings
-        n_cand = ints[OUT_CANDIDATES]
-        extras: dict[str, Any] = {"candidates": n_cand, "variant": s.variant, "selection": self._selection}
-        if ints[OUT_ROWS] == 0:
-            # Only set-based tasks, all inside their activation thresholds: nothing to do.
-            extras.update(modes_evaluated=0, search="none", velocity_scale=1.0)
-            return StepResult(np.zeros(n), SolveStatus.OK, (), t2 - t0, 0.0, {}, "", extras)
-        status, search = ints[OUT_STATUS], SEARCH_NAMES[ints[OUT_HOW]]
-        extras["modes_evaluated"] = ints[OUT_EVALUATED]
-        extras["search"] = search
-        if status != STATUS_OK:
-            return self._failure(plan, status, extras)
-        fout = plan.fout
-        floats = fout.tolist()
-        scale = floats[n]
-        extras["velocity_scale"] = scale
-        n_levels = ints[OUT_LEVELS]
+    @staticmethod
+    def _report_fields(plan: _Plan, ints: list[int]) -> tuple[tuple[str, ...], list[str], str]:
+        """Inserted set-task names, names of the levels with rows and the search name of ``iout`` = ``ints``."""
+        n_cand, n_levels = ints[OUT_CANDIDATES], ints[OUT_LEVELS]
         cands, inserted = ints[6 : 6 + n_cand], ints[6 + n_cand : 6 + 2 * n_cand]
         levels = ints[6 + 2 * n_cand : 6 + 2 * n_cand + n_levels]
         set_tasks, names = plan.evaluation.set_tasks, plan.level_names
         active = tuple(set_tasks[c].name for c, on in zip(cands, inserted, strict=True) if on)
-        damping = dict(zip([names[li] for li in levels], floats[n + 1 : n + 1 + n_levels], strict=True))
+        return active, [names[li] for li in levels], SEARCH_NAMES[ints[OUT_HOW]]
+
+    def _result(self, plan: _Plan, t0: float, t1: float, t2: float) -> StepResult:
+        """The :class:`StepResult` of the compiled step's outputs (status, names, reasons).
+
+        The names derived from the integer outputs are reused while those outputs repeat.
+        """
+        ints = plan.iout.tolist()  # one conversion: the rest is Python ints and floats
+        n, n_cand = self.nq, ints[OUT_CANDIDATES]
+        if ints[OUT_ROWS] == 0:
+            # Only set-based tasks, all inside their activation thresholds: nothing to do.
+            extras = self._extras(n_cand, 0, "none")
+            extras["velocity_scale"] = 1.0
+            return StepResult(np.zeros(n), SolveStatus.OK, (), t2 - t0, 0.0, {}, "", extras)
+        if ints[OUT_STATUS] != STATUS_OK:
+            extras = self._extras(n_cand, ints[OUT_EVALUATED], SEARCH_NAMES[ints[OUT_HOW]])
+            return self._failure(plan, ints[OUT_STATUS], extras)
+        if ints != plan.last_ints:
+            plan.last_ints, plan.last_report = ints, self._report_fields(plan, ints)
+        active, level_names, search = plan.last_report
+        extras = self._extras(n_cand, ints[OUT_EVALUATED], search)
+        fout = plan.fout
+        floats = fout.tolist()
+        scale = floats[n]
+        extras["velocity_scale"] = scale
+        damping = dict(zip(level_names, floats[n + 1 : n + 1 + len(level_names)], strict=True))
+        message = self._reasons(scale, damping, search, n_cand)
+        status_out = SolveStatus.DEGRADED if message else SolveStatus.OK
+        return StepResult(fout[:n].copy(), status_out, active, t1 - t0, t2 - t1, damping, message, extras)
+
+    def _extras(self, n_cand: int, evaluated: int, search: str) -> dict[str, Any]:
+        """``extras`` of a step: |C|, variant, selection rule, modes evaluated, search."""
+        return {
+            "candidates": n_cand,
+            "variant": self.settings.variant,
+            "selection": self._selection,
+            "modes_evaluated": evaluated,
+            "search": search,
+        }
+
+    @staticmethod
+    def _reasons(scale: float, damping: dict[str, float], search: str, n_cand: int) -> str:
+        """Why a solved step is DEGRADED (empty when it is OK): scaling, damped levels, greedy search."""
+        damped = [name for name, lam in damping.items() if lam > 0.0]
+        if scale >= 1.0 and not damped and search != "greedy":
+            return ""
         reasons = []
         if scale < 1.0:
             reasons.append(f"velocity scaled by {scale:.3g} to the joint limits")
-        damped = [name for name, lam in damping.items() if lam > 0.0]
         if damped:
             reasons.append(f"damped level(s): {', '.join(damped)}")
         if search == "greedy":
             reasons.append(f"greedy active-set search over {n_cand} candidates")
-        status_out = SolveStatus.DEGRADED if reasons else SolveStatus.OK
-        return StepResult(fout[:n].copy(), status_out, active, t1 - t0, t2 - t1, damping, "; ".join(reasons), extras)
+        return "; ".join(reasons)
 
     def _failure(self, plan: _Plan, status: int, extras: dict[str, Any]) -> StepResult:
         """FAILED result of a non-OK search status (or the error naming a non-finite Jacobian)."""

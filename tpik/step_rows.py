@@ -14,6 +14,7 @@ from __future__ import annotations
 import numba
 import numpy as np
 
+from robots.kinematics import chain_frames
 from tpik.cascade import search_modes
 from tpik.evaluation import (
     EQ_ERROR,
@@ -29,6 +30,11 @@ from tpik.evaluation import (
     SET_SIGMA,
     evaluate_compiled,
 )
+
+STAGE_ROWS, STAGE_EVALUATE, STAGE_KINEMATICS = 0, 1, 2
+"""Where :func:`tpik_step` starts: from the evaluated buffers, from the frames (the compiled
+evaluation pass first), or from ``q`` (the frames by :func:`robots.kinematics.chain_frames`
+first)."""
 
 OUT_STATUS, OUT_EVALUATED, OUT_HOW, OUT_ROWS, OUT_CANDIDATES, OUT_LEVELS = 0, 1, 2, 3, 4, 5
 """Entries of the integer output of :func:`tpik_step`, followed by the candidates' set-task
@@ -138,6 +144,11 @@ def assemble_rows(
 @numba.njit(cache=True, nogil=True)
 def tpik_step(
     q: np.ndarray,
+    chain_i: np.ndarray,
+    chain_f: np.ndarray,
+    frame_parent: np.ndarray,
+    frame_t: np.ndarray,
+    support: np.ndarray,
     frames: np.ndarray,
     set_i: np.ndarray,
     set_in: np.ndarray,
@@ -146,7 +157,7 @@ def tpik_step(
     eq_in: np.ndarray,
     eq_out: np.ndarray,
     eq_level: np.ndarray,
-    evaluate: bool,
+    stage: int,
     dt: float,
     flags: np.ndarray,
     reals: np.ndarray,
@@ -154,8 +165,12 @@ def tpik_step(
     iout: np.ndarray,
     fout: np.ndarray,
 ) -> None:
-    """The compiled part of a TPIK step: evaluation (when ``evaluate``), rows, mode search.
+    """The compiled part of a TPIK step: frames and evaluation (from ``stage`` on), rows, mode search.
 
+    ``stage`` (:data:`STAGE_KINEMATICS` ...): with :data:`STAGE_KINEMATICS` the frames come from
+    ``q`` and the revolute chain (``chain_i``, ``chain_f``, ``frame_parent``, ``frame_t``,
+    ``support``: :meth:`robots.Robot.revolute_chain`, :meth:`~robots.Robot.frame_placements`,
+    :meth:`~robots.Robot.frame_support`); otherwise those are not read.
     ``flags``: (ss, compensate, largest_norm, return_rate, star_from_error, gain_cap);
     ``reals``: (1/v_max per joint..., ‖q̇‖_max, rank tolerance, admissibility tolerance).
     The number of hierarchy levels is ``iout``'s: ``iout`` has 6 + 2·S + L entries (S set
@@ -163,7 +178,9 @@ def tpik_step(
 
     Outputs: ``iout`` (:data:`OUT_STATUS` ...; R = 0: nothing was solved), ``fout``.
     """
-    if evaluate:
+    if stage == STAGE_KINEMATICS:
+        chain_frames(q, chain_i, chain_f, frame_parent, frame_t, support, frames)
+    if stage >= STAGE_EVALUATE:
         evaluate_compiled(q, frames, set_i, set_in, set_out, eq_i, eq_in, eq_out)
     S = set_out.shape[0]
     n_levels = iout.shape[0] - 6 - 2 * S
@@ -172,11 +189,7 @@ def tpik_step(
         set_i, set_in, set_out, eq_i, eq_in, eq_out, eq_level, n_levels, dt, flags[5]
     )
     R = A.shape[0]
-    C = cand_task.shape[0]
-    L = level_map.shape[0]
-    iout[OUT_ROWS] = R
-    iout[OUT_CANDIDATES] = C
-    iout[OUT_LEVELS] = L
+    iout[OUT_ROWS], iout[OUT_CANDIDATES], iout[OUT_LEVELS] = R, cand_task.shape[0], level_map.shape[0]
     if R == 0:
         return
     star_from_error = flags[4]
@@ -197,9 +210,7 @@ def tpik_step(
         float(reals[n + 2]),
         max_exhaustive,
     )
-    iout[OUT_STATUS] = status
-    iout[OUT_EVALUATED] = evaluated
-    iout[OUT_HOW] = how
+    iout[OUT_STATUS], iout[OUT_EVALUATED], iout[OUT_HOW] = status, evaluated, how
     _write_outputs(qdot, active, lams, scale, cand_task, level_map, iout, fout)
 
 
@@ -236,9 +247,15 @@ def warm_up(nq: int) -> None:
         return
     q = np.zeros(nq)
     q.flags.writeable = False  # as a snapshot's
-    for evaluate in (True, False):
+    chain_i = np.zeros((1, 3), dtype=np.int64)
+    for stage in (STAGE_ROWS, STAGE_EVALUATE, STAGE_KINEMATICS):
         tpik_step(
             q,
+            chain_i,
+            np.zeros((1, 12)),
+            np.zeros(0, dtype=np.int64),
+            np.zeros((0, 3)),
+            np.zeros((0, nq), dtype=np.bool_),
             np.zeros((0, 4, nq)),
             np.zeros((0, 4), dtype=np.int64),
             np.zeros((0, 13)),
@@ -247,7 +264,7 @@ def warm_up(nq: int) -> None:
             np.zeros((0, 7)),
             np.zeros((0, EQ_JAC + nq)),
             np.zeros(0, dtype=np.int64),
-            evaluate,
+            stage,
             0.01,
             np.zeros(6, dtype=np.bool_),
             np.ones(nq + 3),
@@ -264,6 +281,9 @@ __all__ = [
     "OUT_LEVELS",
     "OUT_ROWS",
     "OUT_STATUS",
+    "STAGE_EVALUATE",
+    "STAGE_KINEMATICS",
+    "STAGE_ROWS",
     "assemble_rows",
     "tpik_step",
 ]

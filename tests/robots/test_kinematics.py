@@ -145,3 +145,51 @@ def test_fill_frames_of_a_stale_snapshot_raises(jaco):
     jaco.kinematics(jaco.home)
     with pytest.raises(robots.StaleKinematics):
         kin.fill_frames(["link_4"], np.zeros((1, 4, 7)))
+
+
+@pytest.mark.parametrize("name", ["jaco2", "panda", "ur5"])
+def test_chain_frames_matches_fill_frames_from_pinocchio(name):
+    """The compiled frames from q alone (TPIK's step) equal fill_frames' from pinocchio's joint Jacobians."""
+    from robots.kinematics import chain_frames
+
+    robot = robots.load(name)
+    chain = robot.revolute_chain()
+    assert chain is not None
+    frames = list(robot.frame_names)
+    parent, offset = robot.frame_placements(frames)
+    _, support = robot.frame_support(frames)
+    want, got = np.zeros((2, len(frames), 4, robot.nq))
+    rng = np.random.default_rng(11)
+    for _ in range(50):
+        kin = robot.kinematics(random_configuration(robot, rng))
+        kin.fill_frames(frames, want, compiled_origins=True)
+        got[:] = np.nan
+        chain_frames(kin.q, chain[0], chain[1], parent, offset, support, got)
+        np.testing.assert_allclose(got[:, 0, :3], want[:, 0, :3], rtol=0.0, atol=1e-15)
+        np.testing.assert_allclose(got[:, 1:4], want[:, 1:4], rtol=0.0, atol=1e-12)
+
+
+def test_a_snapshot_computes_pinocchio_at_its_first_query_bit_for_bit(jaco):
+    """robot.kinematics defers pinocchio to the first query; the numbers are those of the eager calls."""
+    import pinocchio as pin
+
+    rng = np.random.default_rng(3)
+    data = jaco.pin_model.createData()
+    for _ in range(10):
+        q = random_configuration(jaco, rng)
+        kin = jaco.kinematics(q)
+        pin.computeJointJacobians(jaco.pin_model, data, q)
+        pin.updateFramePlacements(jaco.pin_model, data)
+        for frame in FRAMES:
+            fid = jaco.frame_id(frame)
+            assert np.array_equal(kin.frame_position(frame), data.oMf[fid].translation)
+            want = pin.getFrameJacobian(jaco.pin_model, data, fid, pin.ReferenceFrame.LOCAL_WORLD_ALIGNED)
+            assert np.array_equal(kin.frame_jacobian(frame), want)
+
+
+def test_check_current_raises_on_a_stale_snapshot_without_computing(jaco):
+    kin = jaco.kinematics(jaco.home)
+    kin.check_current()
+    jaco.kinematics(jaco.home)
+    with pytest.raises(robots.StaleKinematics):
+        kin.check_current()

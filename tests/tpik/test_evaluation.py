@@ -131,3 +131,24 @@ def test_building_a_solver_loads_every_kernel_its_step_uses(jaco, method):
     apply_state(hierarchy, state)
     assert solver.solve(hierarchy, jaco.kinematics(state.q), 0.01).ok
     assert [len(k.signatures) for k in kernels] == before
+
+
+def test_gather_inputs_writes_a_replaced_obstacle_target_or_gain(jaco):
+    """Unchanged inputs are skipped; a new obstacle point, target or gain reaches the buffers."""
+    ob = ObstacleDistanceTask("ob", "link_6", Thresholds(0.1, 0.35, math.inf, math.inf, 0.05))
+    pt = PositionTask("ee", "end_effector")
+    ev = TaskEvaluation([ob, pt], jaco)
+    pt.set_target([0.1, 0.2, 0.3])
+    ob.set_obstacle([1.0, 0.0, 0.5])
+    ev.gather_inputs()
+    ev.gather_inputs()
+    np.testing.assert_array_equal(ev.set_in[0, 8:12], [1.0, 0.0, 0.5, 1.0])
+    ob.set_obstacle([0.5, 0.5, 0.5])
+    pt.set_target([0.3, 0.2, 0.1], [0.0, 0.0, 1.0])
+    ob.gain, pt.gain = 4.0, 5.0
+    ev.gather_inputs()
+    np.testing.assert_array_equal(ev.set_in[0, 8:13], [0.5, 0.5, 0.5, 1.0, 4.0])
+    np.testing.assert_array_equal(ev.eq_in[0], [0.3, 0.2, 0.1, 0.0, 0.0, 1.0, 5.0])
+    ob.set_obstacle(None)
+    ev.gather_inputs()
+    assert ev.set_in[0, 11] == 0.0

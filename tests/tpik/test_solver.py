@@ -434,3 +434,25 @@ def test_building_a_solver_loads_the_compiled_search_the_first_step_uses():
     )
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300, check=True)
     assert out.stdout.split() == ["2", "2"]
+
+
+def test_frames_from_q_in_the_compiled_step_match_the_snapshot_path():
+    """TPIK's frames computed from q in its step (pinocchio never run) give the snapshot path's velocities."""
+    import robots
+    from compare.bench.solver_cases import apply_state, case2_hierarchy, case2_states
+
+    class _PerFrame(robots.Kinematics):  # a subclass: TPIK reads its frames through the snapshot
+        __slots__ = ()
+
+    robot = robots.load(robots.DEFAULT_ROBOT)
+    for state in case2_states(robot):
+        h = case2_hierarchy(robot)
+        apply_state(h, state)
+        solver = TpikSolver(robot)
+        kin = robot.kinematics(state.q)
+        own = solver.solve(h, kin, 0.01)
+        assert kin._pending  # type: ignore[attr-defined]
+        snap = robot.kinematics(state.q)
+        via = solver.solve(h, _PerFrame(robot, snap.q, robot._pin_data, robot._generation, pending=True), 0.01)
+        np.testing.assert_allclose(own.qdot, via.qdot, rtol=0.0, atol=1e-9)
+        assert own.active_set == via.active_set and own.damping.keys() == via.damping.keys()
