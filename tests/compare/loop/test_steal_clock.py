@@ -163,3 +163,22 @@ def test_the_qp_budget_takes_out_the_steal_of_the_guards_clock_before_refusing_a
     _busy(0.006)
     with pytest.raises(TimeLimitReached):
         budget.backend_kwargs("daqp")
+
+
+def test_the_steps_solve_time_is_the_methods_own_call_not_the_guards_counter_reads(stat: Path, monkeypatch) -> None:
+    from compare.loop.closed_loop import timed_solve
+
+    guard = MeasuredDeadline(StealingSolver(stat, cpu_s=0.0, ticks=0), 0.005, "cpu", stat=stat)
+    if not guard.excludes_steal:
+        pytest.skip("no sched_getcpu on this platform")
+    slow_begin = guard._steal.begin  # type: ignore[union-attr]
+
+    def begin() -> None:
+        _busy(0.004)  # a counter read made slow: harness time, not the method's
+        slow_begin()
+
+    monkeypatch.setattr(guard._steal, "begin", begin)
+    *_, missed, solve_us = timed_solve(guard, None, _Kin(), 0.01)  # type: ignore[arg-type]
+    assert not missed
+    assert solve_us < 3000.0
+    assert guard.last_call_wall_ns is not None and guard.last_call_wall_ns < 3_000_000
