@@ -104,6 +104,7 @@ class StealClock:
         if not self.available:
             log.debug("no per-CPU steal counter (%s): the solve time limit uses the plain CPU clock", stat)
         self._t0 = time.thread_time()
+        self._wall0_ns = time.perf_counter_ns()
         self._cpu0 = 0
         self._steal0: tuple[int, ...] | None = None
 
@@ -121,11 +122,16 @@ class StealClock:
             assert self._getcpu is not None
             self._cpu0 = self._getcpu()
             self._steal0 = self._steal()
+        self._wall0_ns = time.perf_counter_ns()  # just before the CPU start: the wall window encloses it
         self._t0 = time.thread_time()
 
     def began_s(self) -> float:
         """Thread CPU time when the current call began (:meth:`begin`) [s]."""
         return self._t0
+
+    def began_wall_ns(self) -> int:
+        """``time.perf_counter_ns()`` just before the current call's CPU start [ns]."""
+        return self._wall0_ns
 
     def elapsed_s(self) -> float:
         """Thread CPU time since :meth:`begin` [s], steal included (cheap)."""
