@@ -63,6 +63,7 @@ from compare.campaign.manifest import (
     write_manifest,
 )
 from compare.config import Config, parse_config
+from compare.loop.steal_clock import steal_ticks
 
 log = logging.getLogger(__name__)
 
@@ -285,9 +286,8 @@ def machine_steal_s(stat: Path = Path("/proc/stat")) -> float | None:
             fields = fh.readline().split()
     except OSError:
         return None
-    if len(fields) < 9 or fields[0] != "cpu" or not fields[8].isdigit():
-        return None
-    return int(fields[8]) / os.sysconf("SC_CLK_TCK")
+    ticks = steal_ticks(fields) if fields and fields[0] == "cpu" else None
+    return None if ticks is None else ticks / os.sysconf("SC_CLK_TCK")
 
 
 def _cpu_since(start: os.times_result) -> float:

@@ -27,7 +27,7 @@ import ctypes
 import logging
 import os
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from pathlib import Path
 
 log = logging.getLogger(__name__)
@@ -36,6 +36,13 @@ STAT = Path("/proc/stat")
 STEAL_FIELD = 8
 """Index of the steal count in a ``cpuN`` line of ``/proc/stat`` (after the name: user, nice,
 system, idle, iowait, irq, softirq, steal)."""
+
+
+def steal_ticks(fields: Sequence[bytes] | Sequence[str]) -> int | None:
+    """The steal count of one split ``cpu``/``cpuN`` line of ``/proc/stat`` [ticks]; None when malformed."""
+    if len(fields) <= STEAL_FIELD or not fields[STEAL_FIELD].isdigit():
+        return None
+    return int(fields[STEAL_FIELD])
 
 
 def parse_steal(text: bytes) -> tuple[int, ...] | None:
@@ -53,10 +60,10 @@ def parse_steal(text: bytes) -> tuple[int, ...] | None:
         fields = line.split()
         if fields[0] == b"cpu":
             continue
-        try:
-            out.append(int(fields[STEAL_FIELD]))
-        except (IndexError, ValueError):
+        ticks = steal_ticks(fields)
+        if ticks is None:
             return None
+        out.append(ticks)
     return tuple(out) or None
 
 
@@ -95,7 +102,6 @@ class StealClock:
     """
 
     def __init__(self, stat: Path = STAT) -> None:
-        self._stat = stat
         self.tick_s = 1.0 / float(os.sysconf("SC_CLK_TCK")) if hasattr(os, "sysconf") else 0.01
         self._getcpu = _sched_getcpu()
         self._fd = _stat_fd(stat)
