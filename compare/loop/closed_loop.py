@@ -40,6 +40,7 @@ and :func:`run_loop` repeats it.
 from __future__ import annotations
 
 import gc
+import math
 import time
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
@@ -264,6 +265,9 @@ class _Step:
         self.io, self.robot, self.hierarchy, self.solver = io, robot, hierarchy, solver
         self.waypoints, self.settings, self.truth = waypoints, settings, truth
         self.set_tasks = hierarchy.set_tasks  # looked up once (a property building a tuple)
+        # Activation thresholds (σ_{a,l}, σ_{a,u}) of each set task, read once (Thresholds are frozen):
+        # the step's status check visits only the tasks at or past one of them.
+        self.bands = [(t.thresholds.activation_lower, t.thresholds.activation_upper) for t in self.set_tasks]
         obstacle_tasks = [t for t in self.set_tasks if isinstance(t, ObstacleDistanceTask)]
         cps = control_points(hierarchy, robot)
         self.events: list[str] = []
@@ -308,7 +312,12 @@ class _Step:
         rec.flags(i, solve_us, missed, self.waypoints.index, fallback, self.gate.blind, stop_why)
         sigmas = rec.set_tasks(i, kin, active)
         if status is SolveStatus.OK and fallback is None:
-            if unmet_set_rates(self.set_tasks, sigmas, kin, qdot, dt, self.reference):
+            # unmet_set_rates skips the tasks between their activation thresholds and the non-finite σ
+            # itself; left out here first, it sees only the few it checks (the same verdict).
+            bands = enumerate(zip(sigmas, self.bands, strict=True))
+            near = [k for k, (s, (lo, hi)) in bands if (s >= hi or s <= lo) and math.isfinite(s)]
+            tasks = [self.set_tasks[k] for k in near]
+            if near and unmet_set_rates(tasks, [sigmas[k] for k in near], kin, qdot, dt, self.reference):
                 status = SolveStatus.DEGRADED  # a set task's reference rate missed: the same rule for every method
         rec.status(i, status.value)
         rec.distances(i, self.gate.measured, self.gate.source, self.truth(kin) if self.truth is not None else {})

@@ -108,10 +108,16 @@ class DecoupledVelocityDrive:
         """Advance ``substeps`` physics steps, recomputing the torque before each."""
         qd_c = np.minimum(np.maximum(command, self._ctrl_lo), self._ctrl_hi)  # np.clip, without its overhead
         applied = data.qfrc_applied[: self.nq]
+        # :meth:`_torque_into` inlined, its arrays looked up once: ``data``'s arrays are views of
+        # fixed MuJoCo buffers, so the same ones serve every sub-step.
+        qvel, bias, gravcomp, mass = data.qvel, data.qfrc_bias, data.qfrc_gravcomp, self._mass
+        damping, h, lam, tau_max = self._damping, self._step_s, self.bandwidth_rad_s, self._tau_max
+        step1, step2, full_mass = mujoco.mj_step1, mujoco.mj_step2, mujoco.mj_fullM
         for _ in range(substeps):
-            mujoco.mj_step1(model, data)
-            self._torque_into(model, data, qd_c, applied)
-            mujoco.mj_step2(model, data)
+            step1(model, data)
+            full_mass(model, data, mass)
+            _drive_torque(qd_c, qvel, bias, gravcomp, mass, damping, h, lam, tau_max, applied)
+            step2(model, data)
 
 
 @numba.njit(cache=True, nogil=True)
