@@ -414,6 +414,46 @@ def ablation(
     typer.echo(f"sweep report:   {out_dir}/sweep_report.md")
 
 
+@app.command("recheck-misses")
+def recheck_misses(
+    sweep_dir: Annotated[Path, typer.Argument(help="A sweep directory.")],
+    replays: Annotated[
+        int, typer.Option("--replays", min=1, help="Copies of the method timed at each missed step.")
+    ] = 5,
+    methods: MethodsOpt = None,
+) -> None:
+    """Re-time the deadline misses of a sweep: the method's own cost at that state, or a pause of the machine?
+
+    Every miss: its run is simulated again to that step (earlier misses made again), where copies
+    of the method solve the same state, timed on the CPU clock; the miss is reproduced when their
+    median exceeds the limit. Writes deadline_recheck.json, adds deadline_recheck to sweep_summary.json and
+    redraws sweep_report.md.
+    """
+    from rich.console import Console
+    from rich.table import Table
+
+    from compare.analysis.report import render_sweep_report
+    from compare.campaign.miss_recheck import RECHECK_FILE, recheck_sweep
+
+    def step(done: int, total: int) -> None:
+        typer.echo(f"rechecked {done}/{total}", err=True)
+
+    result = recheck_sweep(sweep_dir, replays, list(methods) if methods else None, progress=step)
+    columns = ("method", "misses", "rechecked", "reproduced", "not reproduced", "unverified", "max median replay [µs]")
+    table = Table(*columns)
+    for name, m in result["methods"].items():
+        worst = m["replay_median_us_max"]
+        table.add_row(
+            name,
+            *(str(m[k]) for k in ("misses", "rechecked", "reproduced", "not_reproduced", "unverified")),
+            "–" if worst is None else f"{worst:.0f}",
+        )
+    Console().print(table)
+    if (sweep_dir / "sweep_summary.json").exists():
+        render_sweep_report(sweep_dir)
+    typer.echo(f"rechecks: {sweep_dir / RECHECK_FILE}")
+
+
 @app.command()
 def plot(results: Annotated[Path, typer.Argument(help="A run or sweep results directory.")]) -> None:
     """Draw the plots of a finished run (summary.json) or sweep (runs/)."""

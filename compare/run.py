@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import logging
 import time
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -27,6 +28,7 @@ from compare.loop.warmup import warm_up_process
 from compare.loop.waypoints import WaypointSchedule
 from compare.methods import make_method
 from tpik.hierarchy import Hierarchy
+from tpik.step_result import IkSolver
 from tpik.tasks import ObstacleDistanceTask
 
 log = logging.getLogger(__name__)
@@ -112,8 +114,23 @@ def write_plots(out_dir: Path) -> None:
         log.warning("plots failed: %s", exc)
 
 
-def run_method(config: Config, method: str, robot: robots.Robot, progress: Progress | None = None) -> dict[str, Any]:
-    """Simulate ``config`` (already realized) with one method; return summary and steps."""
+SolverHook = Callable[[IkSolver, IkSolver], IkSolver]
+"""``hook(guarded, method)``: what the loop calls instead of the guarded solver (a probe; see
+:mod:`compare.campaign.miss_recheck`)."""
+
+
+def run_method(
+    config: Config,
+    method: str,
+    robot: robots.Robot,
+    progress: Progress | None = None,
+    solver_hook: SolverHook | None = None,
+) -> dict[str, Any]:
+    """Simulate ``config`` (already realized) with one method; return summary and steps.
+
+    ``solver_hook`` (None in every run) receives the time-limited solver and the method behind
+    it, and returns what the loop calls.
+    """
     hierarchy = config.build_hierarchy(robot)
     solver = make_method(method, robot, config.methods.settings.get(method))
     sc = config.scenario
@@ -138,7 +155,10 @@ def run_method(config: Config, method: str, robot: robots.Robot, progress: Progr
         obstacles = injector.wrap_obstacles(obstacles)  # geometric mode: frame faults emulated
     warm_up_process(config, method, robot, q0)  # once per process: kernels loaded, caches built (throwaway copy)
     warmup_steps = warm_up_solver(solver, hierarchy, robot, q0, sc.dt)  # before faults and timing
-    solver = guard_solver(injector.wrap_solver(solver), config.solver_limit, sc.dt)
+    inner = injector.wrap_solver(solver)
+    solver = guard_solver(inner, config.solver_limit, sc.dt)
+    if solver_hook is not None:
+        solver = solver_hook(solver, inner)
     stale_after_s = (
         None if settings.stale_frame_periods is None else settings.stale_frame_periods * settings.sensing_period_s
     )

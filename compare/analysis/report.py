@@ -93,12 +93,21 @@ _ACCOUNTING_HEADERS = [
 
 
 def misses_cell(m: dict[str, Any]) -> str:
-    """Deadline misses, with the solves kept once the hypervisor's steal was taken out ("+ k steal")."""
+    """Deadline misses, with the solves kept once the hypervisor's steal was taken out ("+ k steal").
+
+    After ``tpik-compare recheck-misses``: how many misses were re-timed and how many of them
+    the method's own cost at that state reproduced (:mod:`compare.campaign.miss_recheck`).
+    """
     excused = m.get("deadline_steal_excused")
     if isinstance(excused, dict):
         excused = excused.get("steps")
     text = str(m.get("deadline_misses", "–"))
-    return f"{text} (+{excused} steal)" if isinstance(excused, int) and excused > 0 else text
+    if isinstance(excused, int) and excused > 0:
+        text += f" (+{excused} steal)"
+    recheck = m.get("deadline_recheck")  # tpik-compare recheck-misses (compare.campaign.miss_recheck)
+    if isinstance(recheck, dict) and recheck.get("rechecked"):
+        text += f"; re-timed {recheck['rechecked']}: {recheck.get('reproduced', 0)} reproduced"
+    return text
 
 
 def _accounting_cells(name: str, m: dict[str, Any]) -> list[str]:

@@ -68,7 +68,8 @@ from compare.loop.steal_clock import steal_ticks
 log = logging.getLogger(__name__)
 
 
-def _seeded(config: Config, seed: int, methods: list[str] | None) -> Config:
+def seeded_config(config: Config, seed: int, methods: list[str] | None) -> Config:
+    """The configuration of one run of a sweep: ``config`` with ``scenario.seed = seed`` and only ``methods``."""
     data = config.model_dump(mode="python")
     data["scenario"]["seed"] = seed
     if methods:
@@ -114,7 +115,7 @@ def sweep_jobs(
         if not todo:
             skipped += 1
             continue
-        jobs.append(Job(_seeded(config, seed, todo), config_text, run_dir, overwrite))
+        jobs.append(Job(seeded_config(config, seed, todo), config_text, run_dir, overwrite))
     return jobs, skipped
 
 

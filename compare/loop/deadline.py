@@ -45,7 +45,8 @@ CLOCKS: dict[str, Callable[[], float]] = {"cpu": time.thread_time, "wall": time.
 """What a :class:`MeasuredDeadline` measures a solve on."""
 
 
-def _late(nq: int, limit_s: float, why: str) -> StepResult:
+def late_result(nq: int, limit_s: float, why: str) -> StepResult:
+    """The FAILED deadline miss that stands for an answer later than ``limit_s`` [s] (zero velocity)."""
     # The message names the configured limit only, so that events stay reproducible.
     return failed(nq, f"deadline: {why} within the {1e3 * limit_s:.3g} ms solver time limit", deadline_miss=True)
 
@@ -94,6 +95,11 @@ class MeasuredDeadline:
         return getattr(self._inner, name)
 
     @property
+    def steal_clock(self) -> StealClock | None:
+        """The clock of the calls when it takes steal out (shared with the method's own budget), else None."""
+        return self._steal
+
+    @property
     def excludes_steal(self) -> bool:
         """Whether the hypervisor's steal is taken out of late calls (CPU clock, counter readable)."""
         return self._steal is not None
@@ -124,7 +130,7 @@ class MeasuredDeadline:
         if took > self.worst_s:
             self.worst_s = took
         if took > self.deadline_s:
-            late = _late(kin.nq, self.deadline_s, f"no answer ({self.clock} time)")
+            late = late_result(kin.nq, self.deadline_s, f"no answer ({self.clock} time)")
             late.extras["took_s"] = took
             return late
         return result
@@ -186,13 +192,13 @@ class ThreadedDeadline:
         """
         if self._running is not None:
             if not self._running.done.is_set():
-                return _late(kin.nq, self.deadline_s, "the previous solve is still running: no answer")
+                return late_result(kin.nq, self.deadline_s, "the previous solve is still running: no answer")
             self._running = None  # its late answer is dropped
         call = _Call((hierarchy, kin, dt))
         self._requests.put(call)
         if not call.done.wait(self.deadline_s):
             self._running = call
-            return _late(kin.nq, self.deadline_s, "no answer")
+            return late_result(kin.nq, self.deadline_s, "no answer")
         if call.error is not None:
             raise call.error
         assert call.result is not None

@@ -11,12 +11,9 @@ warm as well. The run's own solver is untouched: its state, and so every step it
 the same as without this warm-up. The run then still makes
 :data:`~compare.loop.closed_loop.WARMUP_SOLVES` untimed solves of its own
 (:func:`~compare.loop.closed_loop.warm_up_solver`, ``warmup_steps`` in ``summary.json``).
-After a warm-up the process's objects are frozen for the garbage collector (``gc.freeze``).
 """
 
 from __future__ import annotations
-
-import gc
 
 import numpy as np
 
@@ -72,9 +69,4 @@ def warm_up_process(config: Config, method: str, robot: Robot, q0: np.ndarray) -
     close = getattr(solver, "close", None)
     if close is not None:
         close()
-    # What the process holds now (modules, compiled kernels, caches) outlives every run: moved out
-    # of the cyclic collector's reach, a full collection later walks only the runs' own objects
-    # (it took ~60 ms per collection in a sweep worker before; answers are unchanged).
-    gc.collect()
-    gc.freeze()
     return done

@@ -27,7 +27,7 @@ from compare.analysis.results import (
 )
 from compare.campaign.manifest import make_manifest, run_config_hash
 from compare.campaign.random_scenario import realize
-from compare.campaign.sweep import _seeded, run_sweep
+from compare.campaign.sweep import run_sweep, seeded_config
 from compare.cli import app
 from compare.config import load_config
 from compare.config_hash import config_hash
@@ -255,7 +255,8 @@ def test_a_run_s_config_hash_is_the_sweep_fingerprint_with_its_seed():
     config, _ = load_config(CONFIGS / "random.toml")
     manifest = make_manifest(config, 5, ["tpik"])
     for i in (0, 3):
-        assert run_config_hash(manifest, i) == config_hash(_seeded(config, config.scenario.seed + i, ["hqp-daqp"]))
+        seeded = seeded_config(config, config.scenario.seed + i, ["hqp-daqp"])
+        assert run_config_hash(manifest, i) == config_hash(seeded)
     assert run_config_hash(manifest, 0) != run_config_hash(manifest, 1)
 
 
