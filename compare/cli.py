@@ -262,6 +262,13 @@ def sweep(
         ),
     ] = False,
     oracle: OracleOpt = None,
+    recheck: Annotated[
+        bool,
+        typer.Option(
+            "--recheck-misses",
+            help="Afterwards, re-time every deadline miss on its own state (as the recheck-misses command).",
+        ),
+    ] = False,
 ) -> None:
     """Run a randomized batch in parallel; re-running the same command resumes it.
 
@@ -296,6 +303,10 @@ def sweep(
     except (ConfigError, ResultsError) as exc:
         _fail(str(exc))
         return
+    if recheck:
+        from compare.campaign.miss_recheck import DEFAULT_REPLAYS
+
+        _recheck(out_dir, DEFAULT_REPLAYS, None)
     typer.echo(f"sweep summary: {out_dir}/sweep_summary.json ({summary.get('runs', n)} runs)")
     typer.echo(f"sweep report:  {out_dir}/sweep_report.md")
 
@@ -429,6 +440,11 @@ def recheck_misses(
     median exceeds the limit. Writes deadline_recheck.json, adds deadline_recheck to sweep_summary.json and
     redraws sweep_report.md.
     """
+    _recheck(sweep_dir, replays, list(methods) if methods else None)
+
+
+def _recheck(sweep_dir: Path, replays: int, methods: list[str] | None) -> None:
+    """Re-time a sweep's misses (compare.campaign.miss_recheck), print the table, redraw the report."""
     from rich.console import Console
     from rich.table import Table
 
@@ -438,7 +454,7 @@ def recheck_misses(
     def step(done: int, total: int) -> None:
         typer.echo(f"rechecked {done}/{total}", err=True)
 
-    result = recheck_sweep(sweep_dir, replays, list(methods) if methods else None, progress=step)
+    result = recheck_sweep(sweep_dir, replays, methods, progress=step)
     columns = ("method", "misses", "rechecked", "reproduced", "not reproduced", "unverified", "max median replay [µs]")
     table = Table(*columns)
     for name, m in result["methods"].items():

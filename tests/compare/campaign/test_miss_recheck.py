@@ -164,6 +164,19 @@ def test_cli_rechecks_writes_and_the_report_shows_it(tmp_path):
     assert "re-timed 1: 0 reproduced" in (out / "sweep_report.md").read_text()
 
 
+def test_sweep_recheck_misses_flag_rechecks_after_the_sweep(tmp_path):
+    config = tmp_path / "limit.toml"
+    text = (ROOT / "configs" / "random.toml").read_text(encoding="utf-8")
+    config.write_text(text + "\n[solver_limit]\ntime_limit_s = 1e-6\n", encoding="utf-8")
+    out = tmp_path / "sweep"
+    args = ["sweep", str(config), "--n", "1", "--workers", "1", "--duration", "0.03", "-m", "tpik"]
+    result = CliRunner().invoke(app, [*args, "--out", str(out), "--recheck-misses"])
+    assert result.exit_code == 0, result.output
+    stats = json.loads((out / "sweep_summary.json").read_text())["methods"]["tpik"]["deadline_recheck"]
+    assert stats["misses"] == stats["rechecked"] == stats["reproduced"] == 3
+    assert "re-timed 3: 3 reproduced" in (out / "sweep_report.md").read_text()
+
+
 def test_misses_cell_names_steal_and_rechecks():
     m = {"deadline_misses": 3, "deadline_steal_excused": {"steps": 1}, "deadline_recheck": {"rechecked": 3}}
     assert misses_cell(m) == "3 (+1 steal); re-timed 3: 0 reproduced"
