@@ -327,8 +327,7 @@ class StandIn:
                 if self.world.render_depth is not None and now >= next_depth:
                     next_depth = max(next_depth + self.depth_period_s, now - self.depth_period_s)
                     if self.stop_depth_after_s is None or self.scene_t < self.stop_depth_after_s:
-                        taken = self.ros.rospy.Time.now()  # the header stamp: when the scene was captured
-                        self._publish_depth(self._render(), taken)
+                        self._publish_depth(*self._render())
                         self.record["depth_t"].append(time.monotonic())
                 self._stop.wait(max(0.0, min(next_depth - time.monotonic(), 0.05)))
         finally:
@@ -343,11 +342,18 @@ class StandIn:
                     self._bag.close()
                     self._bag = None
 
-    def _render(self) -> DepthFrame:
+    def _render(self) -> tuple[DepthFrame, Any]:
+        """The camera's view of the scene now, and its header stamp: the moment the scene was copied.
+
+        The stamp is taken under the simulation lock with the copy (a camera stamps its exposure):
+        taken before the lock, a thread kept waiting for it would stamp a scene older than the
+        one it renders, and the bridge would self-filter the arm where it had been.
+        """
         assert self.world.render_depth is not None and self._snapshot is not None
         with self._sim_lock:
+            taken = self.ros.rospy.Time.now()
             mujoco.mj_copyData(self._snapshot, self.world.io.model, self.world.io.data)
-        return self.world.render_depth(self._snapshot)
+        return self.world.render_depth(self._snapshot), taken
 
     def _write_bag(self, topic: str, msg: Any, stamp: Any) -> None:
         if self._bag is None:

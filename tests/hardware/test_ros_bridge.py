@@ -27,7 +27,10 @@ import pytest
 
 from tests.hardware.conftest import CONFIGS, ROOT, Proc, read_json, ros_skip_reason, start, write_config
 
-pytestmark = pytest.mark.skipif(ros_skip_reason() is not None, reason=f"ROS 1 not available: {ros_skip_reason()}")
+pytestmark = [
+    pytest.mark.skipif(ros_skip_reason() is not None, reason=f"ROS 1 not available: {ros_skip_reason()}"),
+    pytest.mark.realtime,
+]
 
 RUN_S = 9.0  # loop time of the case-1 run (the person steps in at 5 s, arrives at 7 s)
 TIME_SCALE = 1.0
@@ -286,13 +289,23 @@ def test_case1_through_the_driver_model_is_as_safe_as_in_simulation(
     # the model's jitter is judged on its 99th percentile, not on the one gap the load made.
     starved = report["executed_motion_ratio"] < EXECUTED_FULLY and connection != "usb"
     assert (np.percentile(model_gaps, 99) if starved else model_gaps.max()) < real_timeout
+    # A trip is justified by the stand-in not publishing for the timeout, or by states published
+    # on time that reached the bridge late: rospy sends from its own thread and reads in another,
+    # so on a starved machine a state can sit for longer than the timeout between the stand-in's
+    # publish() and the bridge's callback. The bridge's own arrival gaps show that, and the age
+    # the trip reports must itself exceed the timeout.
     published = np.array(rec["joint_state_t"])
+    arrival_gap_max_s = report["rates"]["joint_state"]["interval_max_ms"] / 1e3
     for event in report["watchdog_events"]:
         assert event["message"].startswith("watchdog: ")
         if event["reason"] and event["reason"].startswith("joint state stale"):
             t_event = t0 + event["t_s"]
             last = published[published <= t_event]
-            assert last.size and t_event - last[-1] >= timeout - 0.005, event
+            assert last.size, event
+            age = re.search(r"last one (\d+) ms ago", event["reason"])
+            assert age and float(age.group(1)) / 1e3 >= timeout - 0.001, event
+            delivered_late = arrival_gap_max_s >= timeout - 0.005
+            assert t_event - last[-1] >= timeout - 0.005 or delivered_late, (event, arrival_gap_max_s)
     # in/start before the first motion, in/stop at the end (the driver left stopped, FIFO erased).
     services = _services(rec)
     assert services[0][0] == "start" and services[-1][0] == "stop"
