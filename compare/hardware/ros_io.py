@@ -650,7 +650,6 @@ class RosRobotIO(RobotIO):
             log.warning("ignored %s message (%d so far): %s", what, self.bad_messages[what], message)
 
     def _on_joint_state(self, msg: Any) -> None:
-        now = time.monotonic()
         names = tuple(msg.name)
         try:
             if names != self._index_names:
@@ -667,6 +666,9 @@ class RosRobotIO(RobotIO):
         vel = np.asarray(msg.velocity, dtype=float)
         qdot = vel[idx] if vel.size == len(names) else np.zeros(self.nq)
         with self._lock:
+            # Arrival read under the lock: a watchdog check that held the lock first judged a
+            # time before this state's arrival, so a trip never overlooks a state it could see.
+            now = time.monotonic()
             self._joint = (q, qdot, now)
             self._history.append((now, q))
         self.rates["joint_state"].add(now)
@@ -712,6 +714,29 @@ class RosRobotIO(RobotIO):
 
     # -- report --------------------------------------------------------------------------------
 
+    def _event_report(self) -> list[dict[str, Any]]:
+        """Watchdog events with the joint-state arrivals around each one (controller clock, s).
+
+        ``state_t_s`` is the arrival of the latest joint state the verdict was judged on and
+        ``next_state_t_s`` the first arrival after it (None: none). A joint-state trip at ``t_s``
+        is justified when ``next_state_t_s`` is None or not before ``t_s``: the bridge held no
+        fresher state than the one it judged stale.
+        """
+        arrivals = np.array(self.rates["joint_state"].times) - self._epoch
+        out = []
+        for e in self.watchdog.events:
+            following = arrivals[arrivals > e.state_t_s] if e.state_t_s is not None else arrivals
+            out.append(
+                {
+                    "t_s": e.t_s,
+                    "reason": e.reason,
+                    "message": e.message,
+                    "state_t_s": e.state_t_s,
+                    "next_state_t_s": float(following[0]) if following.size else None,
+                }
+            )
+        return out
+
     def report(self) -> dict[str, Any]:
         """Measured rates, watchdog events and counters since :meth:`start_clock` (for summary.json)."""
         since = self._clock_start
@@ -721,7 +746,7 @@ class RosRobotIO(RobotIO):
             "connection_type": self.hw.connection_type,
             "clock_start_monotonic_s": self._clock_start,
             "rates": {name: counter.stats(since) for name, counter in self.rates.items()},
-            "watchdog_events": [{"t_s": e.t_s, "reason": e.reason, "message": e.message} for e in self.watchdog.events],
+            "watchdog_events": self._event_report(),
             "startup_watchdog_events": [e.message for e in self.startup_events],
             "clamped_commands": self.clamp_count,
             "zero_commands": self.zero_commands,

@@ -82,11 +82,14 @@ class WatchdogEvent:
         t_s: Time on the controller's clock [s].
         reason: Why commands are zeroed, or None when the watchdog recovered.
         message: Log line.
+        state_t_s: Arrival time of the latest joint state the verdict was judged on [s], on the
+            same clock as ``t_s`` (None: none yet).
     """
 
     t_s: float
     reason: str | None
     message: str
+    state_t_s: float | None = None
 
 
 @dataclass
@@ -132,7 +135,7 @@ class Watchdog:
                 message = f"watchdog: zero velocity at t={now:.3f} s: {reason}"
             level = logging.INFO if reason is None else logging.WARNING
             log.log(logging.DEBUG if self.quiet else level, message)
-            self.events.append(WatchdogEvent(now, reason, message))
+            self.events.append(WatchdogEvent(now, reason, message, state_t))
         self._reason = reason
         return reason
 

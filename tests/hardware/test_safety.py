@@ -47,6 +47,8 @@ def test_watchdog_trips_on_stale_state_depth_or_loop_and_logs_each_change_once()
     assert "stalled" in wd.check(1.3, 1.29, 1.25, 1.2)
     assert [e.reason is None for e in wd.events] == [False, True, False, False]
     assert all(e.message.startswith("watchdog: ") for e in wd.events)
+    # Each event keeps the arrival of the state it judged (the bridge reports what came next).
+    assert [e.state_t_s for e in wd.events] == [1.0, 1.055, 1.19, 1.29]
 
 
 def test_watchdog_without_depth_ignores_depth():
