@@ -490,7 +490,7 @@ def plot(results: Annotated[Path, typer.Argument(help="A run or sweep results di
 def bench(
     json_out: Annotated[Path | None, typer.Option("--json", help="Write results as JSON (DESIGN §7).")] = None,
     repeats: Annotated[int, typer.Option(min=10, help="Timed calls per case.")] = 300,
-    only: Annotated[str | None, typer.Option(help="solvers | sensing | correctness (default all).")] = None,
+    only: Annotated[str | None, typer.Option(help="solvers | sensing | plant | correctness (default all).")] = None,
     methods: MethodsOpt = None,
     config: Annotated[
         Path | None,
@@ -515,16 +515,22 @@ def bench(
         list[str] | None,
         typer.Option("--backends", help="Correctness: HQP methods to judge (repeatable; default all six)."),
     ] = None,
+    sweep_dir: Annotated[
+        Path | None,
+        typer.Option("--sweep", help="Plant: a finished sweep, for its throughput ceiling (solves + plant only)."),
+    ] = None,
 ) -> None:
     """Solver, sensing and QP-correctness benchmarks: medians, p95, ratios, timing vs correctness.
 
     ``--only correctness`` judges every HQP backend against the stored lexicographic reference
     (compare/bench/data/qp_reference.json): success rate, level errors, qpbenchmark residuals, time.
+    ``--only plant`` times a sweep's plant alone; with ``--sweep DIR`` it adds that sweep's
+    throughput ceiling (compare/bench/plant.py).
     """
     from compare.bench.__main__ import main as bench_main
 
-    if only is not None and only not in ("solvers", "sensing", "correctness"):
-        _fail(f"--only must be solvers, sensing or correctness, got '{only}'")
+    if only is not None and only not in ("solvers", "sensing", "plant", "correctness"):
+        _fail(f"--only must be solvers, sensing, plant or correctness, got '{only}'")
     if not export_method.startswith("hqp-"):
         _fail(f"--export-method must be an hqp-<backend> method, got '{export_method}'")
     argv: list[str] = ["--repeats", str(repeats), "--rounds", str(rounds), "--tolerance", str(tolerance)]
@@ -542,7 +548,7 @@ def bench(
         if bad:
             _fail(f"--backends takes hqp-<backend> methods only, got {', '.join(bad)}")
         argv += ["--backends", *backends]
-    for flag, value in (("--plot", plot_out), ("--csv", csv_out), ("--export-qps", export_qps)):
+    for flag, value in (("--plot", plot_out), ("--csv", csv_out), ("--export-qps", export_qps), ("--sweep", sweep_dir)):
         if value is not None:
             argv += [flag, str(value)]
     code = bench_main(argv)

@@ -6,6 +6,7 @@ returned here is expressed in it.
 
 from __future__ import annotations
 
+import copy
 import math
 from collections.abc import Sequence
 
@@ -79,6 +80,7 @@ class Robot:
         self._support_cache: dict[tuple[str, ...], tuple[list[int], np.ndarray]] = {}
         self._placement_cache: dict[tuple[str, ...], tuple[np.ndarray, np.ndarray]] = {}
         self._chain: tuple[np.ndarray, np.ndarray] | None | bool = False  # not built yet
+        self._workcell: mujoco.MjModel | None = None  # compiled once, copied for each caller
         for full, fid in self._frame_ids.items():
             entry = (fid, self._frame_joint[full])
             self._frame_by_any_name[full] = entry
@@ -103,10 +105,16 @@ class Robot:
         return workcell_spec(self)
 
     def workcell_model(self) -> mujoco.MjModel:
-        """The compiled work cell; the arm's joints are its first ``nq`` DoFs."""
-        from robots.workcell import workcell_model
+        """The compiled work cell; the arm's joints are its first ``nq`` DoFs.
 
-        return workcell_model(self)
+        Compiled on the first call; every call returns its own copy (``mj_copyModel``, ~1 ms
+        against ~25 ms for a compile), so a caller that edits its model changes no other's.
+        """
+        if self._workcell is None:
+            from robots.workcell import workcell_model
+
+            self._workcell = workcell_model(self)
+        return copy.copy(self._workcell)
 
     def _home(self) -> np.ndarray:
         path = self.spec.description

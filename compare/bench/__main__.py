@@ -8,12 +8,14 @@ Examples::
     python -m compare.bench --only solvers --config configs/panda_case2.toml   # that config's robot and levels
     python -m compare.bench --only correctness --rounds 3 --plot time_vs_correctness.png
     python -m compare.bench --only correctness --export-qps qp_testset/
+    python -m compare.bench --only plant --sweep results/ref40    # plant alone; a sweep's throughput ceiling
 
 Prints tables (medians, p95, ratio to ``mink-native`` — the same problem written with mink alone
 — measured in the same interleaved run; ``mink`` is the project's adapter, timed beside it) and,
 with ``--json``, writes ``{"versions": ..., "command": ..., "results": [row, ...], "correctness": {...}}``
 (DESIGN §7; ``ratio_to_mink`` of a row is against ``mink-native``; ``correctness``: every HQP backend
-against the stored lexicographic reference, :mod:`compare.bench.correctness`).
+against the stored lexicographic reference, :mod:`compare.bench.correctness`; ``throughput_ceiling``
+with ``--sweep``: :mod:`compare.bench.plant`).
 """
 
 from __future__ import annotations
@@ -37,6 +39,9 @@ from compare.bench.timing import BenchRow
 from compare.versions import versions
 from robots import DEFAULT_ROBOT
 
+RANDOM_CONFIG = Path(__file__).resolve().parents[2] / "configs" / "random.toml"
+"""The randomized family whose plant the ``plant`` group times by default."""
+
 
 def _parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="python -m compare.bench", description=__doc__.splitlines()[0])
@@ -48,7 +53,9 @@ def _parser() -> argparse.ArgumentParser:
     )
     p.add_argument("--repeats", type=int, default=300, help="timed calls per method and case (default 300)")
     p.add_argument("--json", type=Path, default=None, help="write the results as JSON to this file")
-    p.add_argument("--only", choices=("solvers", "sensing", "correctness"), default=None, help="run one group only")
+    p.add_argument(
+        "--only", choices=("solvers", "sensing", "plant", "correctness"), default=None, help="run one group only"
+    )
     p.add_argument(
         "--config",
         type=Path,
@@ -61,6 +68,19 @@ def _parser() -> argparse.ArgumentParser:
         type=int,
         default=8,
         help="largest |C| of the TPIK-vs-candidates table, 0..12; -1 skips it (default 8)",
+    )
+    pl = p.add_argument_group("plant (a sweep's plant alone, and the throughput ceiling it leaves)")
+    pl.add_argument(
+        "--plant-config",
+        type=Path,
+        default=RANDOM_CONFIG,
+        help="scenario family whose plant is timed (default configs/random.toml, geometric sensing)",
+    )
+    pl.add_argument(
+        "--sweep",
+        type=Path,
+        default=None,
+        help="a finished sweep: with its mean solve time per step, the throughput ceiling",
     )
     c = p.add_argument_group("correctness (timing vs correctness of the HQP backends)")
     c.add_argument(
@@ -253,6 +273,37 @@ def _run_correctness(args: argparse.Namespace, args_list: list[str], console: Co
     }
 
 
+def _run_plant(args: argparse.Namespace, console: Console) -> tuple[BenchRow, dict[str, Any] | None] | None:
+    """The plant row and, with ``--sweep``, the throughput ceiling; None after a printed error."""
+    from compare.bench.plant import run_plant_bench, throughput_ceiling
+    from compare.config import ConfigError, load_config
+
+    if args.sweep is not None and not any(Path(args.sweep).glob("runs/*/steps/*.parquet")):
+        print(f"error: {args.sweep}: no runs/*/steps/*.parquet (not a finished sweep)", file=sys.stderr)
+        return None
+    try:
+        config, _ = load_config(args.plant_config, {"scenario.sensing": "geometric"})
+    except ConfigError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return None
+    row = run_plant_bench(config, steps=max(args.repeats, 200))
+    console.print(_generic_table([row], f"Plant alone, one control period ({args.plant_config.name})"))
+    if args.sweep is None:
+        return row, None
+    try:
+        ceiling = throughput_ceiling(args.sweep, row.extra["mean_us"])
+    except FileNotFoundError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return None
+    solves = ", ".join(f"{m} {us:.1f}" for m, us in ceiling["mean_solve_us"].items())  # type: ignore[union-attr]
+    console.print(
+        f"throughput ceiling of {args.sweep}: mean solve per step [µs] {solves} "
+        f"(all {ceiling['mean_solve_all_us']:.1f}) + plant {row.extra['mean_us']:.1f} → "
+        f"{ceiling['ceiling_sim_s_per_cpu_s']:.1f} simulated s per CPU s"
+    )
+    return row, ceiling
+
+
 def main(argv: list[str] | None = None) -> int:
     """Run the benchmarks; returns the process exit code."""
     args_list = sys.argv[1:] if argv is None else list(argv)
@@ -308,6 +359,13 @@ def main(argv: list[str] | None = None) -> int:
             sens = sensing.run_sensing_bench(args.repeats, robot)
             console.print(_generic_table(sens, "Sensing, one 512×424 frame"))
             rows += sens
+    ceiling = None
+    if args.only in (None, "plant"):
+        plant = _run_plant(args, console)
+        if plant is None:
+            return 2
+        rows.append(plant[0])
+        ceiling = plant[1]
     correctness = None
     if args.only in (None, "correctness"):
         correctness = _run_correctness(args, args_list, console)
@@ -322,6 +380,8 @@ def main(argv: list[str] | None = None) -> int:
         }
         if correctness is not None:
             payload["correctness"] = correctness
+        if ceiling is not None:
+            payload["throughput_ceiling"] = ceiling
         args.json.parent.mkdir(parents=True, exist_ok=True)
         args.json.write_text(json.dumps(payload, indent=2) + "\n", encoding="utf-8")
         console.print(f"wrote {args.json}")

@@ -123,3 +123,19 @@ def test_the_self_filter_leaves_no_arm_pixel_and_keeps_a_hand_beside_it(name):
         assert abs(depth.readings[cp].distance_m - truth[cp]) < 0.02
     finally:
         pipeline.close()
+
+
+def test_each_caller_gets_its_own_copy_of_the_compiled_work_cell(cell):
+    """Compiled once per robot, copied per call: an edit of one model changes no other, and a copy
+    is the compile (same sizes, same geometry)."""
+    from robots.workcell import workcell_model
+
+    arm, model = cell
+    mine, fresh = arm.workcell_model(), workcell_model(arm)
+    assert mine is not model and (mine.nbody, mine.ngeom, mine.nq) == (fresh.nbody, fresh.ngeom, fresh.nq)
+    np.testing.assert_array_equal(mine.geom_size, fresh.geom_size)
+    np.testing.assert_array_equal(mine.body_pos, fresh.body_pos)
+    before = model.geom_size.copy()
+    mine.geom_size[:] = 9.0
+    np.testing.assert_array_equal(model.geom_size, before)
+    np.testing.assert_array_equal(arm.workcell_model().geom_size, fresh.geom_size)

@@ -380,3 +380,14 @@ def test_merge_run_summary_keeps_the_methods_already_there(tmp_path):
     merged = merge_run_summary(tmp_path, incoming)
     assert set(merged["methods"]) == {"tpik", "mink"} and "errors" not in merged
     assert load_summary(tmp_path) == merged
+
+
+def test_versions_are_read_once_and_each_caller_gets_its_own_dict():
+    from importlib import metadata
+
+    from compare.versions import versions
+
+    first = versions()
+    assert first["project"] == metadata.version("tpik-compare") and first["numpy"] == metadata.version("numpy")
+    first["numpy"] = "edited"
+    assert versions()["numpy"] == metadata.version("numpy")

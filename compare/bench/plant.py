@@ -1,0 +1,109 @@
+r"""The campaign's plant alone, and the throughput ceiling it leaves with the methods' solves (issue 21).
+
+:func:`run_plant_bench` times one control period of the simulated plant of a randomized sweep
+(``SimRobotIO.wait`` after ``send_velocity``: the scripted person's mocap update, the decoupled
+velocity drive's torque and MuJoCo's sub-steps) on a realized scenario of the config's family,
+driven by a fixed random command sequence within ±0.3 rad/s. Nothing of a method, of sensing or
+of recording runs in it.
+
+:func:`throughput_ceiling` reads a finished sweep's per-step solve times and answers: how many
+simulated seconds per CPU second could the sweep reach if each control step cost only its
+method's solve and the plant,
+
+.. math:: \text{ceiling} = \frac{\Delta t}{\overline{t}_{solve} + \overline{t}_{plant}}
+
+with :math:`\overline{t}_{solve}` the mean solve time over every step of every method (each method
+runs the same number of steps) and :math:`\Delta t` the control period. A sweep's measured rate
+is below it by what the rest of the loop costs (sensing, ground truth, recording, the status
+check, start-up, results) and by two workers sharing a machine.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from compare.bench.timing import BenchRow, summarize
+from compare.config import Config
+
+COMMAND_RAD_S = 0.3
+"""Largest joint velocity of the random command sequence [rad/s]."""
+
+
+def run_plant_bench(config: Config, steps: int = 2000, seed: int = 0) -> BenchRow:
+    """Time ``steps`` control periods of ``config``'s plant (module docstring).
+
+    Args:
+        config: A scenario (``kind = "random"`` families are realized first); its
+            ``scenario.simulation`` / ``drive`` choose the plant.
+        steps: Timed control periods, after 50 untimed ones on a separate copy of the plant.
+        seed: Seed of the command sequence.
+
+    Returns:
+        Row ``plant`` / ``<simulation>-<drive>``: median and p95 per period [µs]; ``extra`` holds
+        the mean [µs], the control period [s] and the physics sub-steps per period.
+    """
+    import time
+
+    from compare.campaign.random_scenario import realize
+    from compare.loop.simulation import build_simulation
+
+    robot = config.load_robot()
+    realized = realize(config, robot) if config.scenario.kind == "random" else config
+    sc = realized.scenario
+    q0 = np.array(sc.start_q) if sc.start_q is not None else robot.home.copy()
+    commands = np.random.default_rng(seed).uniform(-COMMAND_RAD_S, COMMAND_RAD_S, (steps, robot.nq))
+    warm = build_simulation(realized, robot, q0).io
+    for k in range(min(50, steps)):
+        warm.send_velocity(commands[k])
+        warm.wait()
+    io = build_simulation(realized, robot, q0).io
+    out = np.empty(steps)
+    clock = time.perf_counter_ns
+    for k in range(steps):
+        t0 = clock()
+        io.send_velocity(commands[k])
+        io.wait()
+        out[k] = (clock() - t0) * 1e-3
+    substeps = float(getattr(io, "_substeps", 1))
+    row = summarize("plant", f"{sc.simulation}-{sc.drive}", out, mean_us=float(out.mean()), dt_s=sc.dt)
+    row.extra["substeps"] = substeps
+    return row
+
+
+def throughput_ceiling(sweep_dir: Path, plant_us: float) -> dict[str, float | dict[str, float]]:
+    """The simulated seconds per CPU second a sweep could reach with only solves and plant (module docstring).
+
+    Args:
+        sweep_dir: A finished sweep (``runs/*/steps/<method>.parquet``).
+        plant_us: Mean cost of the plant per control period [µs] (:func:`run_plant_bench`).
+
+    Returns:
+        ``mean_solve_us`` per method, their mean ``mean_solve_all_us``, ``plant_us``, ``dt_s`` and
+        ``ceiling_sim_s_per_cpu_s``.
+
+    Raises:
+        FileNotFoundError: ``sweep_dir`` holds no per-step tables.
+    """
+    files = sorted(Path(sweep_dir).glob("runs/*/steps/*.parquet"))
+    if not files:
+        raise FileNotFoundError(f"{sweep_dir}: no runs/*/steps/*.parquet (not a finished sweep)")
+    per_method: dict[str, list[np.ndarray]] = {}
+    dts: list[float] = []
+    for f in files:
+        steps = pd.read_parquet(f, columns=["t", "solve_time_us"])
+        per_method.setdefault(f.stem, []).append(steps["solve_time_us"].to_numpy(dtype=float))
+        if len(steps) > 1:
+            dts.append(float(np.median(np.diff(steps["t"].to_numpy(dtype=float)))))
+    means = {m: float(np.concatenate(v).mean()) for m, v in per_method.items()}
+    solve_all = float(np.mean(list(means.values())))
+    dt = float(np.median(dts))
+    return {
+        "mean_solve_us": means,
+        "mean_solve_all_us": solve_all,
+        "plant_us": plant_us,
+        "dt_s": dt,
+        "ceiling_sim_s_per_cpu_s": dt / ((solve_all + plant_us) * 1e-6),
+    }

@@ -1,0 +1,59 @@
+"""The plant benchmark and the throughput ceiling (compare.bench.plant): the ceiling's arithmetic on
+a sweep of known solve times, and the plant row of a real randomized scenario."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from compare.bench.__main__ import RANDOM_CONFIG
+from compare.bench.__main__ import main as bench_main
+from compare.bench.plant import run_plant_bench, throughput_ceiling
+from compare.config import load_config
+
+
+def _sweep(root: Path, solve_us: dict[str, list[float]], dt: float = 0.01) -> Path:
+    """A sweep directory with one steps table per (run, method): the given solve times per run."""
+    for method, per_run in solve_us.items():
+        for run, us in enumerate(per_run):
+            steps = root / "runs" / f"{run:05d}" / "steps"
+            steps.mkdir(parents=True, exist_ok=True)
+            n = 10
+            table = pd.DataFrame({"t": np.arange(n) * dt, "solve_time_us": np.full(n, us)})
+            table.to_parquet(steps / f"{method}.parquet")
+    return root
+
+
+def test_ceiling_is_the_period_over_the_mean_solve_plus_the_plant(tmp_path):
+    sweep = _sweep(tmp_path, {"tpik": [20.0, 40.0], "mink": [300.0, 340.0]})
+    c = throughput_ceiling(sweep, plant_us=40.0)
+    assert c["mean_solve_us"] == pytest.approx({"tpik": 30.0, "mink": 320.0})
+    assert c["mean_solve_all_us"] == pytest.approx(175.0)
+    assert c["dt_s"] == pytest.approx(0.01)
+    assert c["ceiling_sim_s_per_cpu_s"] == pytest.approx(0.01 / 215e-6)
+    with pytest.raises(FileNotFoundError, match="not a finished sweep"):
+        throughput_ceiling(tmp_path / "nothing", 40.0)
+
+
+def test_plant_row_times_every_period_of_the_dynamic_plant():
+    config, _ = load_config(RANDOM_CONFIG, {"scenario.sensing": "geometric"})
+    row = run_plant_bench(config, steps=200)
+    assert (row.name, row.case, row.samples) == ("plant", "dynamic-decoupled", 200)
+    assert row.extra["dt_s"] == config.scenario.dt and row.extra["substeps"] >= 1
+    assert 0 < row.median_us <= row.p95_us and row.extra["mean_us"] > 0
+
+
+def test_bench_cli_writes_the_ceiling_and_refuses_a_directory_without_a_sweep(tmp_path):
+    sweep = _sweep(tmp_path / "sweep", {"tpik": [30.0], "hqp-daqp": [150.0]})
+    out = tmp_path / "bench.json"
+    assert bench_main(["--only", "plant", "--repeats", "200", "--sweep", str(sweep), "--json", str(out)]) == 0
+    payload = json.loads(out.read_text())
+    (row,) = payload["results"]
+    assert row["name"] == "plant"
+    ceiling = payload["throughput_ceiling"]
+    assert ceiling["ceiling_sim_s_per_cpu_s"] == pytest.approx(0.01 / ((90.0 + ceiling["plant_us"]) * 1e-6))
+    assert bench_main(["--only", "plant", "--repeats", "200", "--sweep", str(tmp_path / "none")]) == 2
