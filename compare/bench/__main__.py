@@ -275,27 +275,21 @@ def _run_correctness(args: argparse.Namespace, args_list: list[str], console: Co
 
 def _run_plant(args: argparse.Namespace, console: Console) -> tuple[BenchRow, dict[str, Any] | None] | None:
     """The plant row and, with ``--sweep``, the throughput ceiling; None after a printed error."""
-    from compare.bench.plant import run_plant_bench, throughput_ceiling
+    from compare.bench.plant import read_sweep_solves, run_plant_bench, throughput_ceiling
     from compare.config import ConfigError, load_config
 
-    if args.sweep is not None and not any(Path(args.sweep).glob("runs/*/steps/*.parquet")):
-        print(f"error: {args.sweep}: no runs/*/steps/*.parquet (not a finished sweep)", file=sys.stderr)
-        return None
-    try:
+    try:  # the sweep first: a wrong directory is refused before the plant is timed
+        sweep = read_sweep_solves(args.sweep) if args.sweep is not None else None
         config, _ = load_config(args.plant_config, {"scenario.sensing": "geometric"})
-    except ConfigError as exc:
+    except (FileNotFoundError, ConfigError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return None
     row = run_plant_bench(config, steps=max(args.repeats, 200))
     console.print(_generic_table([row], f"Plant alone, one control period ({args.plant_config.name})"))
-    if args.sweep is None:
+    if sweep is None:
         return row, None
-    try:
-        ceiling = throughput_ceiling(args.sweep, row.extra["mean_us"])
-    except FileNotFoundError as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return None
-    solves = ", ".join(f"{m} {us:.1f}" for m, us in ceiling["mean_solve_us"].items())  # type: ignore[union-attr]
+    ceiling = throughput_ceiling(sweep, row.extra["mean_us"])
+    solves = ", ".join(f"{m} {us:.1f}" for m, us in sweep.mean_solve_us.items())
     console.print(
         f"throughput ceiling of {args.sweep}: mean solve per step [µs] {solves} "
         f"(all {ceiling['mean_solve_all_us']:.1f}) + plant {row.extra['mean_us']:.1f} → "

@@ -20,6 +20,8 @@ check, start-up, results) and by two workers sharing a machine.
 
 from __future__ import annotations
 
+import time
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -45,8 +47,6 @@ def run_plant_bench(config: Config, steps: int = 2000, seed: int = 0) -> BenchRo
         Row ``plant`` / ``<simulation>-<drive>``: median and p95 per period [µs]; ``extra`` holds
         the mean [µs], the control period [s] and the physics sub-steps per period.
     """
-    import time
-
     from compare.campaign.random_scenario import realize
     from compare.loop.simulation import build_simulation
 
@@ -67,22 +67,25 @@ def run_plant_bench(config: Config, steps: int = 2000, seed: int = 0) -> BenchRo
         io.send_velocity(commands[k])
         io.wait()
         out[k] = (clock() - t0) * 1e-3
-    substeps = float(getattr(io, "_substeps", 1))
-    row = summarize("plant", f"{sc.simulation}-{sc.drive}", out, mean_us=float(out.mean()), dt_s=sc.dt)
-    row.extra["substeps"] = substeps
-    return row
+    case = f"{sc.simulation}-{sc.drive}"
+    return summarize("plant", case, out, mean_us=float(out.mean()), dt_s=sc.dt, substeps=float(io.substeps))
 
 
-def throughput_ceiling(sweep_dir: Path, plant_us: float) -> dict[str, float | dict[str, float]]:
-    """The simulated seconds per CPU second a sweep could reach with only solves and plant (module docstring).
+@dataclass(frozen=True)
+class SweepSolves:
+    """A finished sweep's mean solve time per step of each method, and its control period.
 
-    Args:
-        sweep_dir: A finished sweep (``runs/*/steps/<method>.parquet``).
-        plant_us: Mean cost of the plant per control period [µs] (:func:`run_plant_bench`).
+    Attributes:
+        mean_solve_us: Mean ``solve_time_us`` over every step of every run, by method [µs].
+        dt_s: Control period [s] (median step interval of the tables).
+    """
 
-    Returns:
-        ``mean_solve_us`` per method, their mean ``mean_solve_all_us``, ``plant_us``, ``dt_s`` and
-        ``ceiling_sim_s_per_cpu_s``.
+    mean_solve_us: dict[str, float]
+    dt_s: float
+
+
+def read_sweep_solves(sweep_dir: Path) -> SweepSolves:
+    """The per-step solve times of a finished sweep (``runs/*/steps/<method>.parquet``).
 
     Raises:
         FileNotFoundError: ``sweep_dir`` holds no per-step tables.
@@ -98,12 +101,25 @@ def throughput_ceiling(sweep_dir: Path, plant_us: float) -> dict[str, float | di
         if len(steps) > 1:
             dts.append(float(np.median(np.diff(steps["t"].to_numpy(dtype=float)))))
     means = {m: float(np.concatenate(v).mean()) for m, v in per_method.items()}
-    solve_all = float(np.mean(list(means.values())))
-    dt = float(np.median(dts))
+    return SweepSolves(means, float(np.median(dts)))
+
+
+def throughput_ceiling(solves: SweepSolves, plant_us: float) -> dict[str, float | dict[str, float]]:
+    """The simulated seconds per CPU second a sweep could reach with only solves and plant (module docstring).
+
+    Args:
+        solves: The sweep's solve times (:func:`read_sweep_solves`).
+        plant_us: Mean cost of the plant per control period [µs] (:func:`run_plant_bench`).
+
+    Returns:
+        ``mean_solve_us`` per method, their mean ``mean_solve_all_us``, ``plant_us``, ``dt_s`` and
+        ``ceiling_sim_s_per_cpu_s``.
+    """
+    solve_all = float(np.mean(list(solves.mean_solve_us.values())))
     return {
-        "mean_solve_us": means,
+        "mean_solve_us": dict(solves.mean_solve_us),
         "mean_solve_all_us": solve_all,
         "plant_us": plant_us,
-        "dt_s": dt,
-        "ceiling_sim_s_per_cpu_s": dt / ((solve_all + plant_us) * 1e-6),
+        "dt_s": solves.dt_s,
+        "ceiling_sim_s_per_cpu_s": solves.dt_s / ((solve_all + plant_us) * 1e-6),
     }

@@ -93,6 +93,11 @@ class SimRobotIO(RobotIO):
             scene_update(0.0, self.data)
         mujoco.mj_forward(model, self.data)
 
+    @property
+    def substeps(self) -> int:
+        """Physics steps per control period (``dt`` / the model's timestep, at least 1)."""
+        return self._substeps
+
     def now(self) -> float:
         """Simulated time [s]."""
         return float(self.data.time)

@@ -12,7 +12,7 @@ import pytest
 
 from compare.bench.__main__ import RANDOM_CONFIG
 from compare.bench.__main__ import main as bench_main
-from compare.bench.plant import run_plant_bench, throughput_ceiling
+from compare.bench.plant import read_sweep_solves, run_plant_bench, throughput_ceiling
 from compare.config import load_config
 
 
@@ -30,13 +30,13 @@ def _sweep(root: Path, solve_us: dict[str, list[float]], dt: float = 0.01) -> Pa
 
 def test_ceiling_is_the_period_over_the_mean_solve_plus_the_plant(tmp_path):
     sweep = _sweep(tmp_path, {"tpik": [20.0, 40.0], "mink": [300.0, 340.0]})
-    c = throughput_ceiling(sweep, plant_us=40.0)
+    c = throughput_ceiling(read_sweep_solves(sweep), plant_us=40.0)
     assert c["mean_solve_us"] == pytest.approx({"tpik": 30.0, "mink": 320.0})
     assert c["mean_solve_all_us"] == pytest.approx(175.0)
     assert c["dt_s"] == pytest.approx(0.01)
     assert c["ceiling_sim_s_per_cpu_s"] == pytest.approx(0.01 / 215e-6)
     with pytest.raises(FileNotFoundError, match="not a finished sweep"):
-        throughput_ceiling(tmp_path / "nothing", 40.0)
+        read_sweep_solves(tmp_path / "nothing")
 
 
 def test_plant_row_times_every_period_of_the_dynamic_plant():
