@@ -11,8 +11,11 @@ in ``/proc/stat`` (the 8th value of each ``cpuN`` line, in ``USER_HZ`` ticks, 10
 
 .. math::  t_{own} = \Delta t_{thread} - \Delta s \cdot \tau
 
-with :math:`\Delta s` the steal ticks counted on the virtual CPU(s) the thread was on at the
-start and at the end of the call (``sched_getcpu``) and :math:`\tau` the tick. Ticks are
+with :math:`\Delta s` the steal ticks counted on the virtual CPU the thread was on at the start
+and at the end of the call (``sched_getcpu``) and :math:`\tau` the tick. A thread that moved
+between two virtual CPUs during the call takes the larger of their two counts, not their sum:
+it ran on one of them at a time, and a host pause lands on every virtual CPU at once (on a
+loaded CI worker the sum counted such a pause twice, excusing twice the time it cost). Ticks are
 whole: the true steal :math:`S` lies in :math:`((\Delta s - 1)\tau, (\Delta s + 1)\tau)`, so
 :math:`t_{own}` is right to one tick either way; with no tick counted nothing is taken out (a
 pause shorter than a tick stays in the solve's time). Reading ``/proc/stat`` costs ≈ 6 µs:
@@ -148,7 +151,10 @@ class StealClock:
         return time.thread_time() - self._t0
 
     def stolen_s(self) -> float:
-        """Steal counted since :meth:`begin` on the CPU(s) the thread was on at its start and now [s]."""
+        """Steal counted since :meth:`begin` on the CPU the thread was on at its start and now [s].
+
+        When the thread moved between the two, the larger of the two CPUs' counts (module docstring).
+        """
         if not self.available or self._raw0 is None:
             return 0.0
         assert self._getcpu is not None
@@ -157,7 +163,7 @@ class StealClock:
         if now is None or before is None or len(now) != len(before):
             return 0.0
         cpus = {self._cpu0, cpu1}
-        ticks = sum(now[c] - before[c] for c in cpus if 0 <= c < len(now))
+        ticks = max((now[c] - before[c] for c in cpus if 0 <= c < len(now)), default=0)
         return max(0, ticks) * self.tick_s
 
     def own_elapsed_s(self) -> tuple[float, float]:

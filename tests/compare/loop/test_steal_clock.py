@@ -91,6 +91,21 @@ def test_the_clock_takes_out_the_steal_counted_on_its_cpu_during_the_call(stat: 
     assert stolen == 0.0 and own >= 0.002
 
 
+def test_a_thread_that_moved_between_two_cpus_takes_the_larger_count_not_the_sum(stat: Path) -> None:
+    clock = StealClock(stat)
+    if not clock.available:
+        pytest.skip("no sched_getcpu on this platform")
+    cpus = iter([0, 1])
+    clock._getcpu = lambda: next(cpus)  # starts on cpu0, ends on cpu1
+    clock.begin()
+    _write_stat(stat, (12, 22))  # one host pause of two ticks, counted on both virtual CPUs
+    assert clock.stolen_s() == pytest.approx(2 * clock.tick_s)  # once, not four ticks
+    cpus = iter([0, 1])
+    clock.begin()
+    _write_stat(stat, (15, 23))  # three more ticks on cpu0, one on cpu1
+    assert clock.stolen_s() == pytest.approx(3 * clock.tick_s)
+
+
 def test_a_solve_late_only_by_the_steal_keeps_its_answer_and_is_not_a_miss(stat: Path) -> None:
     inner = StealingSolver(stat, cpu_s=0.012, ticks=2)  # 12 ms of CPU of which ~20 ms "stolen"
     guard = MeasuredDeadline(inner, 0.005, "cpu", stat=stat)
