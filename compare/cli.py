@@ -490,7 +490,9 @@ def plot(results: Annotated[Path, typer.Argument(help="A run or sweep results di
 def bench(
     json_out: Annotated[Path | None, typer.Option("--json", help="Write results as JSON (DESIGN §7).")] = None,
     repeats: Annotated[int, typer.Option(min=10, help="Timed calls per case.")] = 300,
-    only: Annotated[str | None, typer.Option(help="solvers | sensing | plant | correctness (default all).")] = None,
+    only: Annotated[
+        str | None, typer.Option(help="solvers | sensing | plant | loop | correctness (default all).")
+    ] = None,
     methods: MethodsOpt = None,
     config: Annotated[
         Path | None,
@@ -519,18 +521,45 @@ def bench(
         Path | None,
         typer.Option("--sweep", help="Plant: a finished sweep, for its throughput ceiling (solves + plant only)."),
     ] = None,
+    loop_config: Annotated[
+        Path | None,
+        typer.Option(
+            "--loop-config",
+            help="Loop: scenario family whose runs are timed "
+            "(default: the --sweep's config.toml, else configs/random.toml).",
+        ),
+    ] = None,
+    loop_methods: Annotated[
+        list[str] | None,
+        typer.Option(
+            "--loop-method", help="Loop: a method, alone in its runs (repeatable; default tpik hqp-daqp mink)."
+        ),
+    ] = None,
+    loop_seeds: Annotated[
+        list[int] | None,
+        typer.Option("--loop-seed", help="Loop: scenario seed of a timed run (repeatable; default 100001-100003)."),
+    ] = None,
+    plant_config: Annotated[
+        Path | None,
+        typer.Option(
+            "--plant-config",
+            help="Plant: scenario family whose plant is timed "
+            "(default: the --sweep's config.toml, else configs/random.toml).",
+        ),
+    ] = None,
 ) -> None:
     """Solver, sensing and QP-correctness benchmarks: medians, p95, ratios, timing vs correctness.
 
     ``--only correctness`` judges every HQP backend against the stored lexicographic reference
     (compare/bench/data/qp_reference.json): success rate, level errors, qpbenchmark residuals, time.
     ``--only plant`` times a sweep's plant alone; with ``--sweep DIR`` it adds that sweep's
-    throughput ceiling (compare/bench/plant.py).
+    throughput ceiling (compare/bench/plant.py). ``--only loop`` times the closed loop's parts on
+    whole runs, one method at a time: where a campaign step goes (compare/bench/loop_parts.py).
     """
     from compare.bench.__main__ import main as bench_main
 
-    if only is not None and only not in ("solvers", "sensing", "plant", "correctness"):
-        _fail(f"--only must be solvers, sensing, plant or correctness, got '{only}'")
+    if only is not None and only not in ("solvers", "sensing", "plant", "loop", "correctness"):
+        _fail(f"--only must be solvers, sensing, plant, loop or correctness, got '{only}'")
     if not export_method.startswith("hqp-"):
         _fail(f"--export-method must be an hqp-<backend> method, got '{export_method}'")
     argv: list[str] = ["--repeats", str(repeats), "--rounds", str(rounds), "--tolerance", str(tolerance)]
@@ -548,7 +577,18 @@ def bench(
         if bad:
             _fail(f"--backends takes hqp-<backend> methods only, got {', '.join(bad)}")
         argv += ["--backends", *backends]
-    for flag, value in (("--plot", plot_out), ("--csv", csv_out), ("--export-qps", export_qps), ("--sweep", sweep_dir)):
+    if loop_methods:
+        argv += ["--loop-methods", *loop_methods]
+    if loop_seeds:
+        argv += ["--loop-seeds", *map(str, loop_seeds)]
+    for flag, value in (
+        ("--plot", plot_out),
+        ("--csv", csv_out),
+        ("--export-qps", export_qps),
+        ("--sweep", sweep_dir),
+        ("--plant-config", plant_config),
+        ("--loop-config", loop_config),
+    ):
         if value is not None:
             argv += [flag, str(value)]
     code = bench_main(argv)

@@ -29,6 +29,34 @@ import pytest  # noqa: E402
 
 import robots  # noqa: E402
 
+REALTIME_ALONE = "pytest -m realtime -n 0"
+
+
+def _parallel(config: pytest.Config) -> bool:
+    """Whether this is an xdist run: its controller (``-n`` > 0) or one of its workers."""
+    return hasattr(config, "workerinput") or bool(config.getoption("numprocesses", default=None))
+
+
+def pytest_configure(config: pytest.Config) -> None:
+    """Leave the wall-clock ROS tests (marker ``realtime``) out of a parallel run that did not choose by marker.
+
+    Their timing, and so what they check, must not depend on the tests sharing the cores with
+    them: ``make test`` runs them alone afterwards (``REALTIME_ALONE``).
+    """
+    if _parallel(config) and not config.option.markexpr:
+        config.option.markexpr = "not realtime"
+        config.stash[_REALTIME_LEFT_OUT] = True
+
+
+_REALTIME_LEFT_OUT = pytest.StashKey[bool]()
+
+
+def pytest_terminal_summary(terminalreporter: pytest.TerminalReporter, exitstatus: int, config: pytest.Config) -> None:
+    if config.stash.get(_REALTIME_LEFT_OUT, False):
+        terminalreporter.write_line(
+            f"realtime tests left out of this parallel run: run them alone with `{REALTIME_ALONE}`"
+        )
+
 
 @pytest.fixture(scope="session")
 def jaco() -> robots.Robot:

@@ -9,13 +9,14 @@ Examples::
     python -m compare.bench --only correctness --rounds 3 --plot time_vs_correctness.png
     python -m compare.bench --only correctness --export-qps qp_testset/
     python -m compare.bench --only plant --sweep results/ref40    # plant alone; a sweep's throughput ceiling
+    python -m compare.bench --only loop                           # where a campaign step goes, part by part
 
 Prints tables (medians, p95, ratio to ``mink-native`` — the same problem written with mink alone
 — measured in the same interleaved run; ``mink`` is the project's adapter, timed beside it) and,
 with ``--json``, writes ``{"versions": ..., "command": ..., "results": [row, ...], "correctness": {...}}``
 (DESIGN §7; ``ratio_to_mink`` of a row is against ``mink-native``; ``correctness``: every HQP backend
 against the stored lexicographic reference, :mod:`compare.bench.correctness`; ``throughput_ceiling``
-with ``--sweep``: :mod:`compare.bench.plant`).
+with ``--sweep``: :mod:`compare.bench.plant`; ``loop_parts``: :mod:`compare.bench.loop_parts`).
 """
 
 from __future__ import annotations
@@ -33,6 +34,7 @@ from rich.console import Console
 from rich.table import Table
 
 from compare.analysis.metrics import to_jsonable
+from compare.analysis.results import CONFIG_FILE
 from compare.bench.correctness import HQP_BACKENDS, TOLERANCE, StepRecord, Summary
 from compare.bench.solvers import DEFAULT_METHODS, run_candidate_bench, run_solver_bench
 from compare.bench.timing import BenchRow
@@ -41,6 +43,12 @@ from robots import DEFAULT_ROBOT
 
 RANDOM_CONFIG = Path(__file__).resolve().parents[2] / "configs" / "random.toml"
 """The randomized family whose plant the ``plant`` group times by default."""
+
+
+LOOP_METHODS = ("tpik", "hqp-daqp", "mink")
+"""The reference campaign's methods: the ``loop`` group's default."""
+LOOP_SEEDS = (100001, 100002, 100003)
+"""Seeds of the ``loop`` group's timed runs by default (of the reference campaign's 100000–100999)."""
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -54,7 +62,10 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--repeats", type=int, default=300, help="timed calls per method and case (default 300)")
     p.add_argument("--json", type=Path, default=None, help="write the results as JSON to this file")
     p.add_argument(
-        "--only", choices=("solvers", "sensing", "plant", "correctness"), default=None, help="run one group only"
+        "--only",
+        choices=("solvers", "sensing", "plant", "loop", "correctness"),
+        default=None,
+        help="run one group only",
     )
     p.add_argument(
         "--config",
@@ -73,14 +84,35 @@ def _parser() -> argparse.ArgumentParser:
     pl.add_argument(
         "--plant-config",
         type=Path,
-        default=RANDOM_CONFIG,
-        help="scenario family whose plant is timed (default configs/random.toml, geometric sensing)",
+        default=None,
+        help="scenario family whose plant is timed (default: the --sweep's own config.toml, else "
+        "configs/random.toml; geometric sensing)",
     )
     pl.add_argument(
         "--sweep",
         type=Path,
         default=None,
         help="a finished sweep: with its mean solve time per step, the throughput ceiling",
+    )
+    lp = p.add_argument_group("loop (where a campaign step goes: the closed loop's parts, one method at a time)")
+    lp.add_argument(
+        "--loop-config",
+        type=Path,
+        default=None,
+        help="scenario family whose runs are timed (default: the --sweep's own config.toml, else configs/random.toml)",
+    )
+    lp.add_argument(
+        "--loop-methods",
+        nargs="+",
+        default=list(LOOP_METHODS),
+        help=f"methods, each alone in its runs (default: {' '.join(LOOP_METHODS)})",
+    )
+    lp.add_argument(
+        "--loop-seeds",
+        nargs="+",
+        type=int,
+        default=list(LOOP_SEEDS),
+        help=f"scenario seeds of the timed runs (default: {' '.join(map(str, LOOP_SEEDS))})",
     )
     c = p.add_argument_group("correctness (timing vs correctness of the HQP backends)")
     c.add_argument(
@@ -273,6 +305,15 @@ def _run_correctness(args: argparse.Namespace, args_list: list[str], console: Co
     }
 
 
+def plant_config_of(explicit: Path | None, sweep_dir: Path | None) -> Path:
+    """The config whose plant is timed: the one given, else the sweep's own copy, else the random family."""
+    if explicit is not None:
+        return explicit
+    if sweep_dir is not None and (sweep_dir / CONFIG_FILE).is_file():
+        return sweep_dir / CONFIG_FILE
+    return RANDOM_CONFIG
+
+
 def _run_plant(args: argparse.Namespace, console: Console) -> tuple[BenchRow, dict[str, Any] | None] | None:
     """The plant row and, with ``--sweep``, the throughput ceiling; None after a printed error."""
     from compare.bench.plant import read_sweep_solves, run_plant_bench, throughput_ceiling
@@ -280,15 +321,16 @@ def _run_plant(args: argparse.Namespace, console: Console) -> tuple[BenchRow, di
 
     try:  # the sweep first: a wrong directory is refused before the plant is timed
         sweep = read_sweep_solves(args.sweep) if args.sweep is not None else None
-        config, _ = load_config(args.plant_config, {"scenario.sensing": "geometric"})
+        plant_config = plant_config_of(args.plant_config, args.sweep)
+        config, _ = load_config(plant_config, {"scenario.sensing": "geometric"})
     except (FileNotFoundError, ConfigError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return None
     row = run_plant_bench(config, steps=max(args.repeats, 200))
-    console.print(_generic_table([row], f"Plant alone, one control period ({args.plant_config.name})"))
+    console.print(_generic_table([row], f"Plant alone, one control period ({plant_config})"))
     if sweep is None:
         return row, None
-    ceiling = throughput_ceiling(sweep, row.extra["mean_us"])
+    ceiling = {**throughput_ceiling(sweep, row.extra["mean_us"]), "plant_config": str(plant_config)}
     solves = ", ".join(f"{m} {us:.1f}" for m, us in sweep.mean_solve_us.items())
     console.print(
         f"throughput ceiling of {args.sweep}: mean solve per step [µs] {solves} "
@@ -296,6 +338,46 @@ def _run_plant(args: argparse.Namespace, console: Console) -> tuple[BenchRow, di
         f"{ceiling['ceiling_sim_s_per_cpu_s']:.1f} simulated s per CPU s"
     )
     return row, ceiling
+
+
+def _run_loop_parts(args: argparse.Namespace, console: Console) -> tuple[list[BenchRow], dict[str, Any]] | None:
+    """The ``loop-step`` rows and the ``loop_parts`` entry; None after a printed error."""
+    from compare.bench.loop_parts import OWN_SOLVE, loop_parts_rows, run_loop_parts, wrapper_cost_ns
+    from compare.config import ConfigError, load_config
+    from compare.methods import available_methods
+
+    unknown = [m for m in args.loop_methods if m not in available_methods()]
+    if unknown:
+        print(f"error: unknown method(s) {', '.join(unknown)} (see `tpik-compare methods`)", file=sys.stderr)
+        return None
+    family = plant_config_of(args.loop_config, args.sweep)
+    try:
+        config, _ = load_config(family)
+    except (FileNotFoundError, ConfigError) as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return None
+    cost_ns = wrapper_cost_ns()
+    results = []
+    for method in args.loop_methods:
+        console.print(f"loop parts: {method}, seeds {' '.join(map(str, args.loop_seeds))} ({family}) …")
+        results.append(run_loop_parts(config, method, args.loop_seeds))
+    rows, entry = loop_parts_rows(results, cost_ns)
+    entry["config"] = str(family)
+    entry["seeds"] = list(args.loop_seeds)
+    table = Table(title=f"Where a control step goes [µs per step, exclusive] ({family.name}, one method per run)")
+    table.add_column("part")
+    for r in results:
+        table.add_column(r.method, justify="right")
+    for label in results[0].parts_us:
+        table.add_row(label if label != OWN_SOLVE else f"  {label}", *(f"{r.parts_us[label]:.1f}" for r in results))
+    table.add_row("[bold]total, profiled", *(f"[bold]{r.total_us:.1f}" for r in results))
+    table.add_row(
+        f"  of which timers ({cost_ns:.0f} ns per call)",
+        *(f"{r.timed_calls_per_step * cost_ns * 1e-3:.1f}" for r in results),
+    )
+    table.add_row("[bold]CPU per step, no timer", *(f"[bold]{r.unprofiled_cpu_us_per_step:.1f}" for r in results))
+    console.print(table)
+    return rows, entry
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -360,6 +442,13 @@ def main(argv: list[str] | None = None) -> int:
             return 2
         rows.append(plant[0])
         ceiling = plant[1]
+    loop_parts = None
+    if args.only in (None, "loop"):
+        loop = _run_loop_parts(args, console)
+        if loop is None:
+            return 2
+        rows += loop[0]
+        loop_parts = loop[1]
     correctness = None
     if args.only in (None, "correctness"):
         correctness = _run_correctness(args, args_list, console)
@@ -376,6 +465,8 @@ def main(argv: list[str] | None = None) -> int:
             payload["correctness"] = correctness
         if ceiling is not None:
             payload["throughput_ceiling"] = ceiling
+        if loop_parts is not None:
+            payload["loop_parts"] = loop_parts
         args.json.parent.mkdir(parents=True, exist_ok=True)
         args.json.write_text(json.dumps(payload, indent=2) + "\n", encoding="utf-8")
         console.print(f"wrote {args.json}")

@@ -210,6 +210,7 @@ class RosRobotIO(RobotIO):
         self.bad_messages: dict[str, int] = {}
         self._clock_start = 0.0
         self.startup_events: list[WatchdogEvent] = []
+        self._events_given_next = 0  # watchdog events before this index know their next joint state
         self.start_check: dict[str, Any] = {}
         self._services: dict[str, Any] = {}
         self.driver = DriverControl(self._call_service, self.now, enabled=not dry_run)
@@ -396,6 +397,7 @@ class RosRobotIO(RobotIO):
             self._clock_start = self._epoch
             self.startup_events.extend(self.watchdog.events)
             self.watchdog.events.clear()
+            self._events_given_next = 0
             self.watchdog.quiet = False
             self.zero_commands = self.clamp_count = self.overruns = self.pump_overruns = 0
 
@@ -671,6 +673,11 @@ class RosRobotIO(RobotIO):
             now = time.monotonic()
             self._joint = (q, qdot, now)
             self._history.append((now, q))
+            # Every verdict since the previous state judged that state (or none): this is the next one.
+            events = self.watchdog.events
+            for e in events[self._events_given_next :]:
+                e.next_state_t_s = now - self._epoch
+            self._events_given_next = len(events)
         self.rates["joint_state"].add(now)
 
     def _on_camera_info(self, msg: Any) -> None:
@@ -718,24 +725,21 @@ class RosRobotIO(RobotIO):
         """Watchdog events with the joint-state arrivals around each one (controller clock, s).
 
         ``state_t_s`` is the arrival of the latest joint state the verdict was judged on and
-        ``next_state_t_s`` the first arrival after it (None: none). A joint-state trip at ``t_s``
-        is justified when ``next_state_t_s`` is None or not before ``t_s``: the bridge held no
-        fresher state than the one it judged stale.
+        ``next_state_t_s`` the first arrival after it (None: none), recorded when it arrived. A
+        joint-state trip at ``t_s`` is justified when ``next_state_t_s`` is None or not before
+        ``t_s``: the bridge held no fresher state than the one it judged stale.
         """
-        arrivals = np.array(self.rates["joint_state"].times) - self._epoch
-        out = []
-        for e in self.watchdog.events:
-            following = arrivals[arrivals > e.state_t_s] if e.state_t_s is not None else arrivals
-            out.append(
+        with self._lock:
+            return [
                 {
                     "t_s": e.t_s,
                     "reason": e.reason,
                     "message": e.message,
                     "state_t_s": e.state_t_s,
-                    "next_state_t_s": float(following[0]) if following.size else None,
+                    "next_state_t_s": e.next_state_t_s,
                 }
-            )
-        return out
+                for e in self.watchdog.events
+            ]
 
     def report(self) -> dict[str, Any]:
         """Measured rates, watchdog events and counters since :meth:`start_clock` (for summary.json)."""

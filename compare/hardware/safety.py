@@ -84,12 +84,15 @@ class WatchdogEvent:
         message: Log line.
         state_t_s: Arrival time of the latest joint state the verdict was judged on [s], on the
             same clock as ``t_s`` (None: none yet).
+        next_state_t_s: Arrival time of the first joint state after that one [s], same clock;
+            filled by the bridge when that state arrives (None: none arrived since).
     """
 
     t_s: float
     reason: str | None
     message: str
     state_t_s: float | None = None
+    next_state_t_s: float | None = None
 
 
 @dataclass

@@ -74,3 +74,51 @@ def test_our_joint_velocity_definition_is_the_drivers():
     text = joint_velocity_definition()
     assert text.split() == [w for i in range(1, 8) for w in ("float32", f"joint{i}")]
     assert hashlib.md5(text.strip().encode()).hexdigest() == JOINT_VELOCITY_MD5
+
+
+def test_the_bridge_records_each_verdicts_next_joint_state_when_it_arrives_not_from_its_bounded_log(monkeypatch):
+    """``next_state_t_s`` of a trip is the first arrival after the state it judged, even when
+    the bridge's bounded arrival log (the measured rates) no longer reaches back to it."""
+    from types import SimpleNamespace
+
+    from compare.config import HardwareConfig
+    from compare.hardware import ros_io
+
+    clock = [100.0]
+    monkeypatch.setattr(ros_io.time, "monotonic", lambda: clock[0])
+    hw = HardwareConfig()
+    io = ros_io.RosRobotIO(hw, V_MAX, 0.01, use_depth=False, dry_run=True)  # bookkeeping only, no ROS node
+    io.rates["joint_state"] = ros_io._RateCounter(maxlen=3)  # a log far shorter than the run
+    io.start_clock()
+
+    def state_at(t: float) -> None:
+        clock[0] = 100.0 + t
+        io._on_joint_state(SimpleNamespace(name=list(hw.joint_names), position=[0.0] * 7, velocity=[]))
+
+    def check_at(t: float) -> None:
+        clock[0] = 100.0 + t
+        with io._lock:
+            io.watchdog.check(*io._times(clock[0]))
+
+    io._command_t = None
+    state_at(0.00)
+    check_at(0.005)  # no command yet: the first verdict judges the state of t = 0
+    for k in range(1, 5):
+        state_at(0.01 * k)
+        io._command_t = clock[0]
+        check_at(0.01 * k + 0.001)  # recovered at the first check with a command
+    check_at(0.2)  # stale: judged the state of t = 0.04, trips
+    for k in range(10):  # states resume, many more than the log keeps
+        state_at(0.25 + 0.01 * k)
+    events = io._event_report()
+    trip = next(e for e in events if e["reason"] and "joint state stale" in e["reason"])
+    assert trip["state_t_s"] == pytest.approx(0.04)
+    assert trip["next_state_t_s"] == pytest.approx(0.25)  # the log kept only 0.32–0.34
+    assert events[0]["state_t_s"] == pytest.approx(0.0) and events[0]["next_state_t_s"] == pytest.approx(0.01)
+    io._command_t = 100.345
+    check_at(0.345)  # recovered: judged the state of t = 0.34
+    check_at(0.5)  # stale again, and nothing arrives after it
+    *_, recovery, last = io._event_report()
+    assert recovery["reason"] is None and last["reason"] and "joint state stale" in last["reason"]
+    assert recovery["next_state_t_s"] is None and last["state_t_s"] == pytest.approx(0.34)
+    assert last["next_state_t_s"] is None

@@ -57,3 +57,31 @@ def test_bench_cli_writes_the_ceiling_and_refuses_a_directory_without_a_sweep(tm
     ceiling = payload["throughput_ceiling"]
     assert ceiling["ceiling_sim_s_per_cpu_s"] == pytest.approx(0.01 / ((90.0 + ceiling["plant_us"]) * 1e-6))
     assert bench_main(["--only", "plant", "--repeats", "200", "--sweep", str(tmp_path / "none")]) == 2
+
+
+def test_the_plant_timed_for_a_sweep_is_its_own_unless_another_is_given(tmp_path):
+    from typer.testing import CliRunner
+
+    from compare.bench.__main__ import plant_config_of
+    from compare.cli import app
+
+    sweep = _sweep(tmp_path / "sweep", {"tpik": [30.0]})
+    assert plant_config_of(None, sweep) == RANDOM_CONFIG  # a sweep without its config.toml
+    assert plant_config_of(None, None) == RANDOM_CONFIG
+    text = RANDOM_CONFIG.read_text().replace('simulation = "dynamic"', 'simulation = "kinematic"', 1)
+    assert 'simulation = "kinematic"' in text
+    (sweep / "config.toml").write_text(text)
+    assert plant_config_of(None, sweep) == sweep / "config.toml"
+    assert plant_config_of(RANDOM_CONFIG, sweep) == RANDOM_CONFIG
+    out = tmp_path / "bench.json"
+    args = ["bench", "--only", "plant", "--repeats", "10", "--sweep", str(sweep), "--json", str(out)]
+    result = CliRunner().invoke(app, args)
+    assert result.exit_code == 0, result.output
+    payload = json.loads(out.read_text())
+    assert payload["results"][0]["case"].startswith("kinematic-")  # the sweep's plant, not the default's
+    assert payload["throughput_ceiling"]["plant_config"] == str(sweep / "config.toml")
+    result = CliRunner().invoke(app, [*args, "--plant-config", str(RANDOM_CONFIG)])
+    assert result.exit_code == 0, result.output
+    payload = json.loads(out.read_text())
+    assert payload["results"][0]["case"] == "dynamic-decoupled"
+    assert payload["throughput_ceiling"]["plant_config"] == str(RANDOM_CONFIG)

@@ -1,0 +1,335 @@
+r"""Where a campaign step goes: the closed loop's parts timed one by one (issue 21, item 4).
+
+:func:`run_loop_parts` runs whole runs of one scenario family, one method at a time, in this
+process (a sweep worker's steady state: one untimed run first loads the kernels and builds the
+caches), with a timer around each named part of the loop (:data:`PARTS`: the plant, the guarded
+solve, sensing, the ground truth, recording, ...). Each part is charged its *exclusive* time:
+the time inside it minus the time inside the parts it calls, so the parts add up to the whole
+run and nothing is counted twice,
+
+.. math::
+
+    t_{excl}(p) = \sum_{\text{calls of } p} (t_{end} - t_{start})
+                - \sum_{\text{timed calls } c \text{ inside them}} (t_{end}(c) - t_{start}(c)),
+
+reported per control step (the run's time divided by its steps). The method's own solve comes
+from the run's per-step table (``solve_time_us``, what the loop records) and is taken out of
+the guarded solve's row, which keeps the time-limit guard and its bookkeeping.
+
+The timers cost time themselves (:func:`wrapper_cost_ns`, measured here on a no-op part): the
+table says how many timed calls a step makes and what they cost, and beside it the same runs'
+CPU time per step with no timer installed (process CPU time, the figure a sweep is judged on).
+Timers are installed by replacing the named attributes for the duration of the call and are
+always restored.
+"""
+
+from __future__ import annotations
+
+import functools
+import importlib
+import tempfile
+import time
+from collections.abc import Callable, Iterator, Sequence
+from contextlib import contextmanager
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pandas as pd
+
+from compare.bench.timing import BenchRow, summarize
+from compare.config import Config
+
+
+@dataclass(frozen=True)
+class Part:
+    """One timed part of the loop: ``attribute`` (``name`` or ``Class.name``) of ``module``.
+
+    Attributes:
+        label: Row of the table.
+        module: Module that holds the attribute the loop calls (for a function imported by name,
+            the module that calls it).
+        attribute: ``function`` or ``Class.method``.
+        returns_callable: The attribute builds the callable the loop calls (time that instead).
+    """
+
+    label: str
+    module: str
+    attribute: str
+    returns_callable: bool = False
+
+
+RUN_PART = "per run: scenario, results files"
+"""The label of the outermost part (a whole run): its inclusive times are the runs' whole time."""
+
+PARTS: tuple[Part, ...] = (
+    Part("plant (person, drive, MuJoCo sub-steps)", "compare.loop.sim_io", "SimRobotIO.wait"),
+    Part("guarded solve (the method's own call taken out below)", "compare.loop.closed_loop", "timed_solve"),
+    Part("kinematics snapshot", "robots.robot", "Robot.kinematics"),
+    Part("sensing gate (obstacle source, ISO/TS 15066 monitor)", "compare.loop.sensing_gate", "SensingGate.step"),
+    Part("ground-truth distance", "compare.loop.simulation", "truth_function", returns_callable=True),
+    Part("fallback policy", "compare.loop.fallback", "FallbackPolicy.decide"),
+    Part("waypoints", "compare.loop.waypoints", "WaypointSchedule.update"),
+    Part("joint reading, command, clock", "compare.loop.sim_io", "SimRobotIO.read_joints"),
+    Part("joint reading, command, clock", "compare.loop.sim_io", "SimRobotIO.send_velocity"),
+    Part("joint reading, command, clock", "compare.loop.sim_io", "SimRobotIO.now"),
+    Part("σ of every set task recorded", "compare.loop.recorder", "StepRecorder.set_tasks"),
+    Part("status check (set-task reference rates)", "compare.loop.closed_loop", "unmet_set_rates"),
+    Part("motion, flags, status, distances recorded", "compare.loop.recorder", "StepRecorder.motion"),
+    Part("motion, flags, status, distances recorded", "compare.loop.recorder", "StepRecorder.flags"),
+    Part("motion, flags, status, distances recorded", "compare.loop.recorder", "StepRecorder.status"),
+    Part("motion, flags, status, distances recorded", "compare.loop.recorder", "StepRecorder.distances"),
+    Part("the step's own code", "compare.loop.closed_loop", "_Step.run"),
+    Part("the loop around the steps", "compare.run", "run_loop"),
+    Part("per run: method set-up, warm-up, summary", "compare.run", "run_method"),
+    Part(RUN_PART, "compare.run", "run_scenario"),
+)
+"""The parts, in table order; parts with the same label are added up."""
+
+STEP_PART = "the step's own code"
+"""The label whose calls are the control steps (their inclusive times give the step's median)."""
+
+OWN_SOLVE = "the method's own solve (solve_time_us)"
+"""The row of the method's own call, taken out of the guarded solve's."""
+
+
+@dataclass
+class _Tally:
+    calls: int = 0
+    exclusive_ns: int = 0
+    inclusive_ns: list[int] = field(default_factory=list)
+
+
+class PartProfiler:
+    """Exclusive time per labelled part (module docstring); nested timed calls are subtracted."""
+
+    def __init__(self, keep_inclusive: Sequence[str] = ()) -> None:
+        self.tallies: dict[str, _Tally] = {}
+        self._children = [0]  # time inside timed parts, per open timed call (outermost: unused)
+        self._keep = set(keep_inclusive)
+
+    def wrap(self, label: str, fn: Callable[..., Any]) -> Callable[..., Any]:
+        """``fn`` with its calls charged to ``label``."""
+        tally = self.tallies.setdefault(label, _Tally())
+        children, clock = self._children, time.perf_counter_ns
+        inclusive = tally.inclusive_ns if label in self._keep else None
+
+        @functools.wraps(fn)
+        def timed(*args: Any, **kwargs: Any) -> Any:
+            children.append(0)
+            t0 = clock()
+            try:
+                return fn(*args, **kwargs)
+            finally:
+                elapsed = clock() - t0
+                tally.calls += 1
+                tally.exclusive_ns += elapsed - children.pop()
+                children[-1] += elapsed
+                if inclusive is not None:
+                    inclusive.append(elapsed)
+
+        return timed
+
+    def wrap_factory(self, label: str, factory: Callable[..., Any]) -> Callable[..., Any]:
+        """``factory`` whose returned callable is charged to ``label`` (building it is not)."""
+
+        @functools.wraps(factory)
+        def build(*args: Any, **kwargs: Any) -> Any:
+            return self.wrap(label, factory(*args, **kwargs))
+
+        return build
+
+
+def _owner(part: Part) -> tuple[Any, str]:
+    obj: Any = importlib.import_module(part.module)
+    *path, name = part.attribute.split(".")
+    for attr in path:
+        obj = getattr(obj, attr)
+    return obj, name
+
+
+def check_parts(parts: Sequence[Part] = PARTS) -> None:
+    """Raise ``AttributeError`` naming a part whose attribute no longer exists (a renamed loop part)."""
+    for part in parts:
+        owner, name = _owner(part)
+        if not callable(getattr(owner, name, None)):
+            raise AttributeError(f"loop part {part.label!r}: {part.module}.{part.attribute} is not a callable")
+
+
+@contextmanager
+def timers(profiler: PartProfiler, parts: Sequence[Part] = PARTS) -> Iterator[None]:
+    """Install a timer on every part for the duration of the block; the originals are restored."""
+    check_parts(parts)
+    saved: list[tuple[Any, str, Any]] = []
+    try:
+        for part in parts:
+            owner, name = _owner(part)
+            original = owner.__dict__[name] if isinstance(owner, type) else getattr(owner, name)
+            saved.append((owner, name, original))
+            fn = getattr(owner, name)
+            timed = profiler.wrap_factory(part.label, fn) if part.returns_callable else profiler.wrap(part.label, fn)
+            setattr(owner, name, timed)
+        yield
+    finally:
+        for owner, name, original in reversed(saved):
+            setattr(owner, name, original)
+
+
+def wrapper_cost_ns(calls: int = 20_000) -> float:
+    """What one timed call adds to a run [ns]: a no-op part inside a timed parent, against the bare loop."""
+
+    def noop() -> None:
+        return None
+
+    def loop(fn: Callable[[], None]) -> None:
+        for _ in range(calls):
+            fn()
+
+    best = []
+    for _ in range(5):
+        profiler = PartProfiler()
+        child, parent = profiler.wrap("child", noop), profiler.wrap("parent", loop)
+        t0 = time.perf_counter_ns()
+        loop(noop)
+        bare = time.perf_counter_ns() - t0
+        t0 = time.perf_counter_ns()
+        parent(child)
+        timed = time.perf_counter_ns() - t0
+        best.append((timed - bare) / calls)
+    return float(np.median(best))
+
+
+@dataclass(frozen=True)
+class LoopParts:
+    """One method's loop parts over the timed runs.
+
+    Attributes:
+        method: The method.
+        parts_us: Exclusive time per control step by part [µs] (table order; the method's own
+            solve in :data:`OWN_SOLVE`, out of the guarded solve's row).
+        steps: Control steps of the timed runs.
+        timed_calls_per_step: Timer calls per step (per-run parts spread over the steps).
+        step_us: Inclusive time of each control step, the plant not included [µs].
+        unprofiled_cpu_us_per_step: Process CPU time per step of the same runs with no timer [µs].
+        runs_us_per_step: The timed runs' whole time per step [µs] (what the parts add up to).
+    """
+
+    method: str
+    parts_us: dict[str, float]
+    steps: int
+    timed_calls_per_step: float
+    step_us: np.ndarray
+    unprofiled_cpu_us_per_step: float
+    runs_us_per_step: float
+
+    @property
+    def total_us(self) -> float:
+        """Sum of the parts per step [µs] (the profiled runs' whole time)."""
+        return float(sum(self.parts_us.values()))
+
+
+def _own_solve_us(out_dir: Path, method: str) -> float:
+    steps = pd.read_parquet(out_dir / "steps" / f"{method}.parquet", columns=["solve_time_us"])
+    return float(steps["solve_time_us"].sum())
+
+
+def _run(config: Config, out: Path) -> None:
+    from compare.run import run_scenario
+
+    run_scenario(config, out, progress=False, make_plots=False, overwrite=True)
+
+
+def run_loop_parts(config: Config, method: str, seeds: Sequence[int]) -> LoopParts:
+    """Time the loop's parts on runs of ``config`` with ``method`` alone (module docstring).
+
+    Args:
+        config: A scenario or a ``kind = "random"`` family.
+        method: The method driving the arm.
+        seeds: Scenario seeds of the timed runs; one untimed run of the first seed comes before.
+
+    Returns:
+        :class:`LoopParts` of the timed runs.
+    """
+    from compare.campaign.sweep import seeded_config
+
+    configs = [seeded_config(config, int(s), [method]) for s in seeds]
+    with tempfile.TemporaryDirectory(prefix="loop-parts-") as tmp:
+        root = Path(tmp)
+        _run(configs[0], root / "warm")
+        cpu = 0.0
+        profiler = PartProfiler(keep_inclusive=(STEP_PART, RUN_PART))
+        own_solve_us = 0.0
+        for k, cfg in enumerate(configs):  # each seed unprofiled (the CPU a sweep worker spends), then timed
+            t0 = time.process_time()
+            _run(cfg, root / f"plain{k}")
+            cpu += time.process_time() - t0
+            with timers(profiler):
+                _run(cfg, root / f"timed{k}")
+            own_solve_us += _own_solve_us(root / f"timed{k}", method)
+    step_tally = profiler.tallies[STEP_PART]
+    steps = step_tally.calls
+    parts: dict[str, float] = {}
+    for part in PARTS:
+        tally = profiler.tallies[part.label]
+        parts[part.label] = tally.exclusive_ns * 1e-3 / steps
+        if part.label.startswith("guarded solve"):
+            parts[OWN_SOLVE] = own_solve_us / steps
+            parts[part.label] -= own_solve_us / steps
+    calls = sum(t.calls for t in profiler.tallies.values())
+    return LoopParts(
+        method,
+        parts,
+        steps,
+        calls / steps,
+        np.asarray(step_tally.inclusive_ns, dtype=float) * 1e-3,
+        cpu * 1e6 / steps,
+        sum(profiler.tallies[RUN_PART].inclusive_ns) * 1e-3 / steps,
+    )
+
+
+def loop_parts_rows(results: Sequence[LoopParts], cost_ns: float) -> tuple[list[BenchRow], dict[str, Any]]:
+    """The ``bench --json`` rows and the ``loop_parts`` entry of the methods' loop parts.
+
+    Rows: name ``loop-step``, case the method, the inclusive time of a step without the plant.
+    Entry: per method, its parts, totals and the timers' cost.
+    """
+    rows = [
+        summarize(
+            "loop-step",
+            r.method,
+            r.step_us,
+            total_us_per_step=r.total_us,
+            unprofiled_cpu_us_per_step=r.unprofiled_cpu_us_per_step,
+        )
+        for r in results
+    ]
+    entry: dict[str, Any] = {
+        "timer_cost_ns": cost_ns,
+        "methods": {
+            r.method: {
+                "steps": r.steps,
+                "parts_us_per_step": r.parts_us,
+                "total_us_per_step": r.total_us,
+                "timed_calls_per_step": r.timed_calls_per_step,
+                "timer_cost_us_per_step": r.timed_calls_per_step * cost_ns * 1e-3,
+                "unprofiled_cpu_us_per_step": r.unprofiled_cpu_us_per_step,
+            }
+            for r in results
+        },
+    }
+    return rows, entry
+
+
+__all__ = [
+    "OWN_SOLVE",
+    "PARTS",
+    "LoopParts",
+    "Part",
+    "PartProfiler",
+    "check_parts",
+    "loop_parts_rows",
+    "run_loop_parts",
+    "timers",
+    "wrapper_cost_ns",
+]

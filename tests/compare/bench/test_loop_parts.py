@@ -1,0 +1,124 @@
+"""Where a campaign step goes (compare.bench.loop_parts): exclusive times that add up to the whole,
+timers that always come off, the parts named in the loop as it is, and the bench group."""
+
+from __future__ import annotations
+
+import json
+import time
+from pathlib import Path
+
+import pandas as pd
+import pytest
+
+from compare.bench import loop_parts
+from compare.bench.__main__ import RANDOM_CONFIG
+from compare.bench.__main__ import main as bench_main
+from compare.bench.loop_parts import (
+    OWN_SOLVE,
+    PARTS,
+    Part,
+    PartProfiler,
+    check_parts,
+    run_loop_parts,
+    timers,
+)
+from compare.config import load_config
+
+
+def _busy(seconds: float) -> None:
+    start = time.perf_counter()
+    while time.perf_counter() - start < seconds:
+        pass
+
+
+def test_a_part_is_charged_its_time_without_the_timed_parts_it_calls():
+    profiler = PartProfiler(keep_inclusive=("parent",))
+    child = profiler.wrap("child", lambda: _busy(0.004))
+
+    def body() -> None:
+        _busy(0.002)
+        child()
+        child()
+
+    profiler.wrap("parent", body)()
+    parent, kid = profiler.tallies["parent"], profiler.tallies["child"]
+    assert (parent.calls, kid.calls) == (1, 2)
+    assert kid.exclusive_ns >= 8_000_000 and 2_000_000 <= parent.exclusive_ns < 4_000_000
+    # Nothing counted twice: the exclusive times add up to the outermost call's whole time.
+    assert parent.exclusive_ns + kid.exclusive_ns == parent.inclusive_ns[0]
+
+
+def test_a_timed_call_that_raises_is_still_charged_and_the_timers_come_off():
+    profiler = PartProfiler()
+    target = loop_parts.Part("fake", "compare.bench.timing", "summarize")
+    import compare.bench.timing as timing
+
+    original = timing.summarize
+    with pytest.raises(ZeroDivisionError), timers(profiler, [target]):
+        assert timing.summarize is not original
+        timing.summarize = profiler.wrap("inner", lambda: 1 / 0)  # replaced again inside: still restored
+        timing.summarize()
+    assert timing.summarize is original
+    assert profiler.tallies["inner"].calls == 1
+
+
+def test_every_part_names_a_callable_of_the_loop_as_it_is():
+    check_parts()  # a renamed loop function fails here, not silently in the table
+    with pytest.raises(AttributeError, match="no_such_step"):
+        check_parts([Part("gone", "compare.loop.closed_loop", "_Step.no_such_step")])
+    methods_before = {p.attribute: loop_parts._owner(p)[0].__dict__.get(loop_parts._owner(p)[1]) for p in PARTS}
+    with timers(PartProfiler()):
+        pass
+    assert {p.attribute: loop_parts._owner(p)[0].__dict__.get(loop_parts._owner(p)[1]) for p in PARTS} == methods_before
+
+
+def _short_family(tmp_path: Path) -> Path:
+    text = RANDOM_CONFIG.read_text().replace("duration_s = 20.0", "duration_s = 0.5", 1)
+    assert "duration_s = 0.5" in text
+    path = tmp_path / "short.toml"
+    path.write_text(text)
+    return path
+
+
+def test_the_parts_of_real_runs_add_up_to_the_runs_and_the_own_solve_is_the_step_tables(tmp_path, monkeypatch):
+    config, _ = load_config(_short_family(tmp_path))
+    solved: list[float] = []
+    own = loop_parts._own_solve_us
+
+    def spy(out_dir: Path, method: str) -> float:
+        total = own(out_dir, method)
+        table = pd.read_parquet(out_dir / "steps" / f"{method}.parquet")
+        solved.append(float(table["solve_time_us"].sum()))
+        return total
+
+    monkeypatch.setattr(loop_parts, "_own_solve_us", spy)
+    result = run_loop_parts(config, "tpik", [100001, 100002])
+    steps_per_run = round(config.scenario.duration_s / config.scenario.dt)
+    assert result.steps == 2 * steps_per_run and result.step_us.size == result.steps
+    assert result.total_us == pytest.approx(result.runs_us_per_step, rel=1e-9)
+    assert result.parts_us[OWN_SOLVE] == pytest.approx(sum(solved) / result.steps)
+    assert all(v >= 0.0 for v in result.parts_us.values()), result.parts_us
+    assert set(result.parts_us) == {p.label for p in PARTS} | {OWN_SOLVE}
+    assert result.unprofiled_cpu_us_per_step > 0.0 and result.timed_calls_per_step > 10
+
+
+def test_bench_loop_group_writes_its_entry_and_refuses_an_unknown_method(tmp_path):
+    family = _short_family(tmp_path)
+    out = tmp_path / "bench.json"
+    from typer.testing import CliRunner
+
+    from compare.cli import app
+
+    argv = ["--only", "loop", "--loop-config", str(family), "--json", str(out)]
+    cli = ["bench", *argv, "--loop-method", "tpik", "--loop-seed", "100001"]  # tpik-compare bench
+    result = CliRunner().invoke(app, cli)
+    assert result.exit_code == 0, result.output
+    payload = json.loads(out.read_text())
+    (row,) = payload["results"]
+    assert (row["name"], row["case"]) == ("loop-step", "tpik")
+    entry = payload["loop_parts"]
+    assert entry["config"] == str(family) and entry["seeds"] == [100001]
+    tpik = entry["methods"]["tpik"]
+    assert tpik["total_us_per_step"] == pytest.approx(sum(tpik["parts_us_per_step"].values()))
+    assert bench_main([*argv, "--loop-methods", "no-such-method"]) == 2
+    assert CliRunner().invoke(app, ["bench", "--only", "nothing"]).exit_code == 2
