@@ -521,14 +521,6 @@ def bench(
         Path | None,
         typer.Option("--sweep", help="Plant: a finished sweep, for its throughput ceiling (solves + plant only)."),
     ] = None,
-    loop_config: Annotated[
-        Path | None,
-        typer.Option(
-            "--loop-config",
-            help="Loop: scenario family whose runs are timed "
-            "(default: the --sweep's config.toml, else configs/random.toml).",
-        ),
-    ] = None,
     loop_methods: Annotated[
         list[str] | None,
         typer.Option(
@@ -539,11 +531,12 @@ def bench(
         list[int] | None,
         typer.Option("--loop-seed", help="Loop: scenario seed of a timed run (repeatable; default 100001-100003)."),
     ] = None,
-    plant_config: Annotated[
+    family: Annotated[
         Path | None,
         typer.Option(
+            "--family",
             "--plant-config",
-            help="Plant: scenario family whose plant is timed "
+            help="Plant and loop: scenario family whose plant and runs are timed "
             "(default: the --sweep's config.toml, else configs/random.toml).",
         ),
     ] = None,
@@ -586,8 +579,7 @@ def bench(
         ("--csv", csv_out),
         ("--export-qps", export_qps),
         ("--sweep", sweep_dir),
-        ("--plant-config", plant_config),
-        ("--loop-config", loop_config),
+        ("--family", family),
     ):
         if value is not None:
             argv += [flag, str(value)]

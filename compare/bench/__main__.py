@@ -80,13 +80,15 @@ def _parser() -> argparse.ArgumentParser:
         default=8,
         help="largest |C| of the TPIK-vs-candidates table, 0..12; -1 skips it (default 8)",
     )
-    pl = p.add_argument_group("plant (a sweep's plant alone, and the throughput ceiling it leaves)")
+    pl = p.add_argument_group("plant and loop (a sweep's plant alone, its throughput ceiling; a step's parts)")
     pl.add_argument(
+        "--family",
         "--plant-config",
+        dest="family",
         type=Path,
         default=None,
-        help="scenario family whose plant is timed (default: the --sweep's own config.toml, else "
-        "configs/random.toml; geometric sensing)",
+        help="scenario family whose plant (geometric sensing) and runs are timed "
+        "(default: the --sweep's own config.toml, else configs/random.toml)",
     )
     pl.add_argument(
         "--sweep",
@@ -95,12 +97,6 @@ def _parser() -> argparse.ArgumentParser:
         help="a finished sweep: with its mean solve time per step, the throughput ceiling",
     )
     lp = p.add_argument_group("loop (where a campaign step goes: the closed loop's parts, one method at a time)")
-    lp.add_argument(
-        "--loop-config",
-        type=Path,
-        default=None,
-        help="scenario family whose runs are timed (default: the --sweep's own config.toml, else configs/random.toml)",
-    )
     lp.add_argument(
         "--loop-methods",
         nargs="+",
@@ -321,7 +317,7 @@ def _run_plant(args: argparse.Namespace, console: Console) -> tuple[BenchRow, di
 
     try:  # the sweep first: a wrong directory is refused before the plant is timed
         sweep = read_sweep_solves(args.sweep) if args.sweep is not None else None
-        plant_config = plant_config_of(args.plant_config, args.sweep)
+        plant_config = plant_config_of(args.family, args.sweep)
         config, _ = load_config(plant_config, {"scenario.sensing": "geometric"})
     except (FileNotFoundError, ConfigError) as exc:
         print(f"error: {exc}", file=sys.stderr)
@@ -350,7 +346,7 @@ def _run_loop_parts(args: argparse.Namespace, console: Console) -> tuple[list[Be
     if unknown:
         print(f"error: unknown method(s) {', '.join(unknown)} (see `tpik-compare methods`)", file=sys.stderr)
         return None
-    family = plant_config_of(args.loop_config, args.sweep)
+    family = plant_config_of(args.family, args.sweep)
     try:
         config, _ = load_config(family)
     except (FileNotFoundError, ConfigError) as exc:

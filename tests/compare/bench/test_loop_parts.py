@@ -109,7 +109,7 @@ def test_bench_loop_group_writes_its_entry_and_refuses_an_unknown_method(tmp_pat
 
     from compare.cli import app
 
-    argv = ["--only", "loop", "--loop-config", str(family), "--json", str(out)]
+    argv = ["--only", "loop", "--family", str(family), "--json", str(out)]
     cli = ["bench", *argv, "--loop-method", "tpik", "--loop-seed", "100001"]  # tpik-compare bench
     result = CliRunner().invoke(app, cli)
     assert result.exit_code == 0, result.output
