@@ -338,7 +338,7 @@ def _run_plant(args: argparse.Namespace, console: Console) -> tuple[BenchRow, di
 
 def _run_loop_parts(args: argparse.Namespace, console: Console) -> tuple[list[BenchRow], dict[str, Any]] | None:
     """The ``loop-step`` rows and the ``loop_parts`` entry; None after a printed error."""
-    from compare.bench.loop_parts import OWN_SOLVE, loop_parts_rows, run_loop_parts, wrapper_cost_ns
+    from compare.bench.loop_parts import OWN_SOLVE, LoopRunFailed, loop_parts_rows, run_loop_parts, wrapper_cost_ns
     from compare.config import ConfigError, load_config
     from compare.methods import available_methods
 
@@ -356,7 +356,11 @@ def _run_loop_parts(args: argparse.Namespace, console: Console) -> tuple[list[Be
     results = []
     for method in args.loop_methods:
         console.print(f"loop parts: {method}, seeds {' '.join(map(str, args.loop_seeds))} ({family}) …")
-        results.append(run_loop_parts(config, method, args.loop_seeds))
+        try:
+            results.append(run_loop_parts(config, method, args.loop_seeds))
+        except LoopRunFailed as exc:
+            print(f"error: loop parts of {method}: {exc}", file=sys.stderr)
+            return None
     rows, entry = loop_parts_rows(results, cost_ns)
     entry["config"] = str(family)
     entry["seeds"] = list(args.loop_seeds)

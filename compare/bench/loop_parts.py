@@ -40,6 +40,7 @@ import pandas as pd
 
 from compare.bench.timing import BenchRow, summarize
 from compare.config import Config
+from compare.exceptions import CompareError
 
 
 @dataclass(frozen=True)
@@ -234,10 +235,18 @@ def _own_solve_us(out_dir: Path, method: str) -> float:
     return float(steps["solve_time_us"].sum())
 
 
+class LoopRunFailed(CompareError):
+    """A run timed by :func:`run_loop_parts` ended in an error of its method (nothing to time)."""
+
+
 def _run(config: Config, out: Path) -> None:
     from compare.run import run_scenario
 
-    run_scenario(config, out, progress=False, make_plots=False, overwrite=True)
+    summary = run_scenario(config, out, progress=False, make_plots=False, overwrite=True)
+    errors = summary.get("errors") or {}
+    if errors:
+        what = "; ".join(f"{m}: {e}" for m, e in errors.items())
+        raise LoopRunFailed(f"the run of seed {config.scenario.seed} failed ({what})")
 
 
 def run_loop_parts(config: Config, method: str, seeds: Sequence[int]) -> LoopParts:
@@ -250,6 +259,9 @@ def run_loop_parts(config: Config, method: str, seeds: Sequence[int]) -> LoopPar
 
     Returns:
         :class:`LoopParts` of the timed runs.
+
+    Raises:
+        LoopRunFailed: A run's method ended in an error.
     """
     from compare.campaign.sweep import seeded_config
 
@@ -325,6 +337,7 @@ __all__ = [
     "OWN_SOLVE",
     "PARTS",
     "LoopParts",
+    "LoopRunFailed",
     "Part",
     "PartProfiler",
     "check_parts",

@@ -122,3 +122,17 @@ def test_bench_loop_group_writes_its_entry_and_refuses_an_unknown_method(tmp_pat
     assert tpik["total_us_per_step"] == pytest.approx(sum(tpik["parts_us_per_step"].values()))
     assert bench_main([*argv, "--loop-methods", "no-such-method"]) == 2
     assert CliRunner().invoke(app, ["bench", "--only", "nothing"]).exit_code == 2
+
+
+def test_a_method_that_fails_in_its_runs_is_one_error_not_a_traceback(tmp_path, monkeypatch, capsys):
+    import compare.run
+
+    def broken(*args, **kwargs):
+        raise RuntimeError("solver exploded")
+
+    monkeypatch.setattr(compare.run, "run_method", broken)
+    family = _short_family(tmp_path)
+    argv = ["--only", "loop", "--family", str(family), "--loop-methods", "tpik", "--loop-seeds", "100001"]
+    assert bench_main(argv) == 2
+    err = capsys.readouterr().err
+    assert "error: loop parts of tpik" in err and "solver exploded" in err and "Traceback" not in err
