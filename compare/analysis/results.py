@@ -46,7 +46,7 @@ import math
 import os
 import shutil
 import subprocess
-from collections.abc import Iterable, Mapping
+from collections.abc import Iterable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -450,8 +450,8 @@ def load_summary(results_dir: Path) -> dict[str, Any]:
         return json.load(fh)
 
 
-def load_steps(results_dir: Path, method: str) -> pd.DataFrame:
-    """Read the per-step table of ``method`` (Parquet or CSV).
+def load_steps(results_dir: Path, method: str, columns: Sequence[str] | None = None) -> pd.DataFrame:
+    """Read the per-step table of ``method`` (Parquet or CSV), only ``columns`` when given.
 
     Raises:
         FileNotFoundError: No table for ``method``; the message lists the available ones.
@@ -459,11 +459,12 @@ def load_steps(results_dir: Path, method: str) -> pd.DataFrame:
     steps_dir = Path(results_dir) / STEPS_DIR
     stem = safe_name(method)
     parquet = steps_dir / f"{stem}.parquet"
+    wanted = list(columns) if columns is not None else None
     if parquet.is_file():
-        return pd.read_parquet(parquet)
+        return pd.read_parquet(parquet, columns=wanted)
     csv = steps_dir / f"{stem}.csv"
     if csv.is_file():
-        return pd.read_csv(csv)
+        return pd.read_csv(csv, usecols=wanted)
     available = sorted(p.stem for p in steps_dir.glob("*") if not is_temporary(p)) if steps_dir.is_dir() else []
     raise FileNotFoundError(
         f"no per-step table for method '{method}' in {steps_dir} (available: {', '.join(available) or 'none'})"

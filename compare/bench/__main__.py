@@ -339,16 +339,14 @@ def _run_plant(args: argparse.Namespace, console: Console) -> tuple[BenchRow, di
 def _run_loop_parts(args: argparse.Namespace, console: Console) -> tuple[list[BenchRow], dict[str, Any]] | None:
     """The ``loop-step`` rows and the ``loop_parts`` entry; None after a printed error."""
     from compare.bench.loop_parts import OWN_SOLVE, LoopRunFailed, loop_parts_rows, run_loop_parts, wrapper_cost_ns
+    from compare.campaign.sweep import seeded_config
     from compare.config import ConfigError, load_config
-    from compare.methods import available_methods
 
-    unknown = [m for m in args.loop_methods if m not in available_methods()]
-    if unknown:
-        print(f"error: unknown method(s) {', '.join(unknown)} (see `tpik-compare methods`)", file=sys.stderr)
-        return None
     family = plant_config_of(args.family, args.sweep)
     try:
         config, _ = load_config(family)
+        # The methods (names and settings) checked as a config's are, before any run.
+        seeded_config(config, args.loop_seeds[0], list(args.loop_methods))
     except (FileNotFoundError, ConfigError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return None
@@ -371,9 +369,10 @@ def _run_loop_parts(args: argparse.Namespace, console: Console) -> tuple[list[Be
     for label in results[0].parts_us:
         table.add_row(label if label != OWN_SOLVE else f"  {label}", *(f"{r.parts_us[label]:.1f}" for r in results))
     table.add_row("[bold]total, profiled", *(f"[bold]{r.total_us:.1f}" for r in results))
+    per_method = entry["methods"]
     table.add_row(
         f"  of which timers ({cost_ns:.0f} ns per call)",
-        *(f"{r.timed_calls_per_step * cost_ns * 1e-3:.1f}" for r in results),
+        *(f"{per_method[r.method]['timer_cost_us_per_step']:.1f}" for r in results),
     )
     table.add_row("[bold]CPU per step, no timer", *(f"[bold]{r.unprofiled_cpu_us_per_step:.1f}" for r in results))
     console.print(table)

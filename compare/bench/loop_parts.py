@@ -36,8 +36,8 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-import pandas as pd
 
+from compare.analysis.results import load_steps
 from compare.bench.timing import BenchRow, summarize
 from compare.config import Config
 from compare.exceptions import CompareError
@@ -64,9 +64,12 @@ class Part:
 RUN_PART = "per run: scenario, results files"
 """The label of the outermost part (a whole run): its inclusive times are the runs' whole time."""
 
+GUARD_PART = "guarded solve (the method's own call taken out below)"
+"""The label of the guarded solve, whose row keeps all but the method's own call (:data:`OWN_SOLVE`)."""
+
 PARTS: tuple[Part, ...] = (
     Part("plant (person, drive, MuJoCo sub-steps)", "compare.loop.sim_io", "SimRobotIO.wait"),
-    Part("guarded solve (the method's own call taken out below)", "compare.loop.closed_loop", "timed_solve"),
+    Part(GUARD_PART, "compare.loop.closed_loop", "timed_solve"),
     Part("kinematics snapshot", "robots.robot", "Robot.kinematics"),
     Part("sensing gate (obstacle source, ISO/TS 15066 monitor)", "compare.loop.sensing_gate", "SensingGate.step"),
     Part("ground-truth distance", "compare.loop.simulation", "truth_function", returns_callable=True),
@@ -187,7 +190,7 @@ def wrapper_cost_ns(calls: int = 20_000) -> float:
         for _ in range(calls):
             fn()
 
-    best = []
+    samples = []
     for _ in range(5):
         profiler = PartProfiler()
         child, parent = profiler.wrap("child", noop), profiler.wrap("parent", loop)
@@ -197,8 +200,8 @@ def wrapper_cost_ns(calls: int = 20_000) -> float:
         t0 = time.perf_counter_ns()
         parent(child)
         timed = time.perf_counter_ns() - t0
-        best.append((timed - bare) / calls)
-    return float(np.median(best))
+        samples.append((timed - bare) / calls)
+    return float(np.median(samples))
 
 
 @dataclass(frozen=True)
@@ -231,8 +234,7 @@ class LoopParts:
 
 
 def _own_solve_us(out_dir: Path, method: str) -> float:
-    steps = pd.read_parquet(out_dir / "steps" / f"{method}.parquet", columns=["solve_time_us"])
-    return float(steps["solve_time_us"].sum())
+    return float(load_steps(out_dir, method, columns=["solve_time_us"])["solve_time_us"].sum())
 
 
 class LoopRunFailed(CompareError):
@@ -282,12 +284,11 @@ def run_loop_parts(config: Config, method: str, seeds: Sequence[int]) -> LoopPar
     step_tally = profiler.tallies[STEP_PART]
     steps = step_tally.calls
     parts: dict[str, float] = {}
-    for part in PARTS:
-        tally = profiler.tallies[part.label]
-        parts[part.label] = tally.exclusive_ns * 1e-3 / steps
-        if part.label.startswith("guarded solve"):
+    for label in dict.fromkeys(p.label for p in PARTS):  # table order, each label once
+        parts[label] = profiler.tallies[label].exclusive_ns * 1e-3 / steps
+        if label == GUARD_PART:
             parts[OWN_SOLVE] = own_solve_us / steps
-            parts[part.label] -= own_solve_us / steps
+            parts[label] -= own_solve_us / steps
     calls = sum(t.calls for t in profiler.tallies.values())
     return LoopParts(
         method,
@@ -334,6 +335,7 @@ def loop_parts_rows(results: Sequence[LoopParts], cost_ns: float) -> tuple[list[
 
 
 __all__ = [
+    "GUARD_PART",
     "OWN_SOLVE",
     "PARTS",
     "LoopParts",

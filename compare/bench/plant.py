@@ -25,8 +25,8 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-import pandas as pd
 
+from compare.analysis.results import RUNS_DIR, load_steps, load_summary
 from compare.bench.timing import BenchRow, summarize
 from compare.config import Config
 
@@ -85,21 +85,28 @@ class SweepSolves:
 
 
 def read_sweep_solves(sweep_dir: Path) -> SweepSolves:
-    """The per-step solve times of a finished sweep (``runs/*/steps/<method>.parquet``).
+    """The per-step solve times of a finished sweep: every method of every run's ``summary.json``.
 
     Raises:
-        FileNotFoundError: ``sweep_dir`` holds no per-step tables.
+        FileNotFoundError: ``sweep_dir`` holds no finished run, or a run's method has no step table.
     """
-    files = sorted(Path(sweep_dir).glob("runs/*/steps/*.parquet"))
-    if not files:
-        raise FileNotFoundError(f"{sweep_dir}: no runs/*/steps/*.parquet (not a finished sweep)")
+    runs_dir = Path(sweep_dir) / RUNS_DIR
     per_method: dict[str, list[np.ndarray]] = {}
     dts: list[float] = []
-    for f in files:
-        steps = pd.read_parquet(f, columns=["t", "solve_time_us"])
-        per_method.setdefault(f.stem, []).append(steps["solve_time_us"].to_numpy(dtype=float))
-        if len(steps) > 1:
-            dts.append(float(np.median(np.diff(steps["t"].to_numpy(dtype=float)))))
+    for run_dir in sorted(p for p in runs_dir.iterdir() if p.is_dir()) if runs_dir.is_dir() else []:
+        try:
+            summary = load_summary(run_dir)
+        except (OSError, ValueError):  # not finished (or being written)
+            continue
+        for method in summary.get("methods") or {}:
+            steps = load_steps(run_dir, method, columns=["t", "solve_time_us"])
+            per_method.setdefault(method, []).append(steps["solve_time_us"].to_numpy(dtype=float))
+            if len(steps) > 1:
+                dts.append(float(np.median(np.diff(steps["t"].to_numpy(dtype=float)))))
+    if not per_method:
+        raise FileNotFoundError(
+            f"{sweep_dir}: no finished run with step tables under {RUNS_DIR}/ (not a finished sweep)"
+        )
     means = {m: float(np.concatenate(v).mean()) for m, v in per_method.items()}
     return SweepSolves(means, float(np.median(dts)))
 

@@ -20,11 +20,16 @@ def _sweep(root: Path, solve_us: dict[str, list[float]], dt: float = 0.01) -> Pa
     """A sweep directory with one steps table per (run, method): the given solve times per run."""
     for method, per_run in solve_us.items():
         for run, us in enumerate(per_run):
-            steps = root / "runs" / f"{run:05d}" / "steps"
+            run_dir = root / "runs" / f"{run:05d}"
+            steps = run_dir / "steps"
             steps.mkdir(parents=True, exist_ok=True)
             n = 10
             table = pd.DataFrame({"t": np.arange(n) * dt, "solve_time_us": np.full(n, us)})
             table.to_parquet(steps / f"{method}.parquet")
+            summary = run_dir / "summary.json"
+            listed = json.loads(summary.read_text()) if summary.exists() else {"methods": {}}
+            listed["methods"][method] = {}
+            summary.write_text(json.dumps(listed))
     return root
 
 
