@@ -11,6 +11,8 @@ the same MJCF: their frame positions and Jacobians agree to ~1e-14
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+
 import mink
 import mujoco
 import numpy as np
@@ -103,6 +105,20 @@ class MinkKinematics(Kinematics):
             jac.flags.writeable = False
             self._position_jacobians[name] = jac
         return jac
+
+    def fill_frames(self, names: Sequence[str], out: np.ndarray, compiled_origins: bool = False) -> None:
+        """Origin and position Jacobian of each frame into ``out`` (F, 4, n), from mink's data.
+
+        The numbers of :meth:`frame_position` and :meth:`position_jacobian` bit for bit (MuJoCo's
+        ``xpos`` and ``mj_jacBody``), written straight into ``out`` without the per-frame caches
+        (``compiled_origins`` is not used: the origins are MuJoCo's).
+        """
+        del compiled_origins
+        xpos = self._data.xpos
+        for f, name in enumerate(names):
+            body = self._body(name)
+            out[f, 0, :3] = xpos[body]
+            mujoco.mj_jacBody(self._model, self._data, out[f, 1:4], None, body)
 
     def joint_origins(self) -> np.ndarray:
         """Anchors of the joints 1..n in the base frame [m]. Shape (n, 3)."""

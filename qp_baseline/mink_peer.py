@@ -15,7 +15,10 @@ satisfies, as ``ConfigurationLimit`` and ``CollisionAvoidanceLimit`` are written
 
 * **Kinematics**: every task is evaluated on :class:`~qp_baseline.mink_kinematics.MinkKinematics`,
   mink's own ``Configuration`` (MuJoCo data), not on our pinocchio snapshot. The obstacle points
-  are those of the shared sensing, set on the same task objects as for every method.
+  are those of the shared sensing, set on the same task objects as for every method. Every
+  task is evaluated in one pass of the shared evaluation (:class:`tpik.evaluation.TaskEvaluation`,
+  as TPIK and HQP evaluate theirs): σ, J and the limit rows of the set-based tasks, σ̃ and σ̇_d
+  of the equality tasks.
 * **Frame tasks**: position / orientation / pose tasks become a :class:`mink.FrameTask` on the
   same MJCF body (position cost only for a position task, orientation cost only for an
   orientation task). The one control reference :math:`r = \dot\sigma_d + K\tilde\sigma` of
@@ -63,10 +66,11 @@ import math
 import time
 import warnings
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, fields
+from dataclasses import dataclass, field, fields
 from typing import Any
 
 import mink
+import mujoco
 import numpy as np
 import qpsolvers
 
@@ -76,11 +80,12 @@ from qp_baseline.mink_kinematics import MinkKinematics
 from qp_baseline.set_rows import SetRowBuilder, SetRows
 from qp_baseline.time_limits import TimeLimited
 from robots import Kinematics, Robot
+from tpik.evaluation import EQ_ERROR, EQ_FEEDFORWARD, EQ_JAC, SET_JAC, TaskEvaluation
 from tpik.hierarchy import Hierarchy
 from tpik.limits import Limit, PositionLimit, VelocityLimit, stack_inequalities
 from tpik.reference import ControlReference
 from tpik.step_result import SolveStatus, StepResult, failed
-from tpik.tasks import OrientationTask, PoseTask, PositionTask, SetTask, Task, TaskState
+from tpik.tasks import OrientationTask, PoseTask, PositionTask, SetTask, Task
 
 FORMULATIONS: dict[str, str] = {"soft_return": "mink", "hard": "mink-hard"}
 """Set-task formulation → method name (module docstring)."""
@@ -225,6 +230,16 @@ class _Adapter:
     mink_task: mink.Task
     kind: str  # "position" | "orientation" | "pose" | "state"
     body: str = ""
+    body_id: int = -1
+    rows: slice = field(default_factory=lambda: slice(0, 0))  # the task's rows of the evaluation's ``eq_out``
+
+
+def _frame_target(rotation: np.ndarray, position: np.ndarray) -> mink.SE3:
+    """``mink.SE3.from_matrix`` of the pose (rotation, position) without building the 4×4 matrix (same numbers)."""
+    wxyz_xyz = np.empty(7)
+    mujoco.mju_mat2Quat(wxyz_xyz[:4], rotation.ravel())  # what mink's SO3.from_matrix does
+    wxyz_xyz[4:] = position
+    return mink.SE3(wxyz_xyz=wxyz_xyz)
 
 
 def _so3_exp(omega: np.ndarray) -> np.ndarray:
@@ -297,7 +312,10 @@ class MinkSolver(TimeLimited):
         self._hierarchy: Hierarchy | None = None
         self._adapters: list[_Adapter] = []
         self._rows = SetRowBuilder((), nv, self.reference)
+        self._evaluation: TaskEvaluation | None = None
         self._return: SetTaskReturn | None = None
+        self._no_return: tuple[np.ndarray, np.ndarray] = (np.zeros(0), np.zeros((0, nv)))
+        self._safety_bounds: list[tuple[float, float]] = []
         self._tasks: list[mink.Task] = []
         probe_settings(s.solver, s.qp_settings or {})  # a bad backend setting fails here, not mid-run
 
@@ -327,7 +345,17 @@ class MinkSolver(TimeLimited):
         self._adapters = adapters
         soft = self.formulation == "soft_return"
         self._rows = SetRowBuilder(set_tasks, self.robot.nq, self.reference, hold_at_zero=soft)
+        # One pass evaluates every task (set rows and the equality tasks' errors), as for TPIK and HQP.
+        self._evaluation = TaskEvaluation([*set_tasks, *(a.task for a in adapters)], self.robot)
+        ptr = self._evaluation.eq_ptr.tolist()
+        for e, adapter in enumerate(adapters):
+            adapter.rows = slice(ptr[e], ptr[e + 1])
         self._return = SetTaskReturn(np.array(set_costs)) if soft and set_tasks else None
+        zeros = (np.zeros(len(set_tasks)), np.zeros((len(set_tasks), self.robot.nq)))
+        for array in zeros:
+            array.flags.writeable = False
+        self._no_return = zeros
+        self._safety_bounds = [(t.thresholds.safety_lower, t.thresholds.safety_upper) for t in set_tasks]
         self._tasks = [a.mink_task for a in adapters] + ([self._return] if self._return is not None else [])
         self._hierarchy = hierarchy
 
@@ -342,21 +370,29 @@ class MinkSolver(TimeLimited):
                 frame = str(task.frame)  # type: ignore[attr-defined]
                 body = self.robot.mujoco_body(frame)
                 frame_task = mink.FrameTask(body, "body", position_cost=pos_cost, orientation_cost=rot_cost)
-                return _Adapter(task, frame_task, kind, body)
+                body_id = int(mujoco.mj_name2id(self.robot.mj_model, mujoco.mjtObj.mjOBJ_BODY, body))
+                return _Adapter(task, frame_task, kind, body, body_id)
         return _Adapter(task, _StateTask(np.full(task.dim, cost)), "state")
 
-    def _update_task(self, adapter: _Adapter, state: TaskState, mkin: MinkKinematics, dt: float) -> None:
+    def _update_task(self, adapter: _Adapter, ev: TaskEvaluation, dt: float) -> None:
+        r"""Load one equality task's mink task from the evaluated rows (σ̃, σ̇_d of ``ev.eq_out``).
+
+        :math:`r = \dot\sigma_d + K\tilde\sigma` (paper eq. 2, :meth:`ControlReference.equality`'s
+        arithmetic); a frame task gets the target :math:`p + r\,dt/\alpha` (module docstring).
+        """
         task = adapter.task
-        r = self.reference.equality(task, state, dt)  # the one control reference (paper eq. 2)
+        rows = ev.eq_out[adapter.rows]
+        K = self.reference.gain(task, dt)
+        r = rows[:, EQ_FEEDFORWARD] + K * rows[:, EQ_ERROR]  # the one control reference (paper eq. 2)
         if adapter.kind == "state":
             stask = adapter.mink_task
             assert isinstance(stask, _StateTask)
             stask.error = -r * dt
-            stask.jacobian = state.jacobian
+            stask.jacobian = ev.eq_out[adapter.rows, EQ_JAC:].copy()
             return
-        alpha = min(1.0, self.reference.gain(task, dt) * dt)
-        frame = mkin.frame_pose(adapter.body)
-        p, R = frame[:3, 3], frame[:3, :3]
+        alpha = min(1.0, K * dt)
+        data = self.configuration.data
+        p, R = data.xpos[adapter.body_id], data.xmat[adapter.body_id].reshape(3, 3)
         scale = dt / alpha
         if adapter.kind == "position":
             p_t, R_t = p + r * scale, R
@@ -364,31 +400,34 @@ class MinkSolver(TimeLimited):
             p_t, R_t = p, _so3_exp(r * scale) @ R
         else:
             p_t, R_t = p + r[:3] * scale, _so3_exp(r[3:] * scale) @ R
-        target = np.eye(4)
-        target[:3, :3], target[:3, 3] = R_t, p_t
         ftask = adapter.mink_task
         assert isinstance(ftask, mink.FrameTask)
         ftask.gain = alpha
-        ftask.set_target(mink.SE3.from_matrix(target))
+        ftask.set_target(_frame_target(R_t, p_t))
 
-    def _update_return(self, mkin: MinkKinematics, sigma: np.ndarray, dt: float) -> list[tuple[int, float, float]]:
-        """Rows of the return task; returns (task index, reference rate, side) of the tasks it pulls back."""
+    def _update_return(self, ev: TaskEvaluation, sigma: np.ndarray, dt: float) -> list[tuple[int, float, float]]:
+        """Rows of the return task; returns (task index, reference rate, side) of the tasks it pulls back.
+
+        A task is pulled back when its σ is finite and outside its safety thresholds; its row is
+        the evaluated Jacobian row (the one its limit rows use) and the error −rate·dt.
+        """
         ret = self._return
         assert ret is not None
         tasks = self._rows.tasks
+        bounds = zip(sigma.tolist(), self._safety_bounds, strict=True)
+        past = [i for i, (s, (lo, hi)) in enumerate(bounds) if not lo <= s <= hi and math.isfinite(s)]
+        if not past:  # the usual step: no row (read-only zeros, shared between steps)
+            ret.error, ret.jacobian = self._no_return
+            return []
         error = np.zeros(len(tasks))
         jac = np.zeros((len(tasks), self.robot.nq))
         pulled: list[tuple[int, float, float]] = []
-        for i, task in enumerate(tasks):
+        for i in past:
+            task = tasks[i]
             s = float(sigma[i])
-            if not math.isfinite(s):
-                continue
-            th = task.thresholds
-            if th.safety_lower <= s <= th.safety_upper:
-                continue
             lo, hi = self.reference.set_rates(task, s, dt)
-            rate, side = (lo, -1.0) if s < th.safety_lower else (hi, 1.0)
-            jac[i] = task.compute_jacobian(mkin)[0]
+            rate, side = (lo, -1.0) if s < task.thresholds.safety_lower else (hi, 1.0)
+            jac[i] = ev.set_out[i, SET_JAC:]
             error[i] = -rate * dt
             pulled.append((i, rate, side))
         ret.error, ret.jacobian = error, jac
@@ -428,11 +467,14 @@ class MinkSolver(TimeLimited):
         self._prepare(hierarchy)
         self.configuration.update(kin.q)
         mkin = MinkKinematics(self.robot, self.configuration, self._bodies)
+        ev = self._evaluation
+        assert ev is not None
+        ev.evaluate(mkin)  # every task at once, on mink's kinematics
         for adapter in self._adapters:
-            self._update_task(adapter, adapter.task.compute_state(mkin), mkin, dt)
-        rows = self._rows.build(mkin, dt)
+            self._update_task(adapter, ev, dt)
+        rows = self._rows.rows(ev, dt)
         self._limit_rows.set_rows(rows.G, rows.h)
-        pulled = self._update_return(mkin, rows.sigma, dt) if self._return is not None else []
+        pulled = self._update_return(ev, rows.sigma, dt) if self._return is not None else []
         problem = mink.build_ik(self.configuration, self._tasks, dt, self.settings.damping, self._limits)
         t1 = time.perf_counter()
         try:
@@ -445,7 +487,7 @@ class MinkSolver(TimeLimited):
             res.build_time_s, res.solve_time_s = t1 - t0, time.perf_counter() - t1
             return res
         t2 = time.perf_counter()
-        result = self._finish(solution, problem, rows, pulled, mkin, dt)
+        result = self._finish(solution, problem, rows, pulled, dt)
         result.build_time_s, result.solve_time_s = t1 - t0, t2 - t1
         return result
 
@@ -455,37 +497,38 @@ class MinkSolver(TimeLimited):
         problem: qpsolvers.Problem,
         rows: SetRows,
         pulled: list[tuple[int, float, float]],
-        mkin: MinkKinematics,
         dt: float,
     ) -> StepResult:
         n = self.robot.nq
         x = solution.x
         iterations = backend_iterations(solution)
-        if not solution.found or x is None or x.shape != (n,) or not np.all(np.isfinite(x)):
+        if not solution.found or x is None or x.shape != (n,) or not np.isfinite(x).all():
             return failed(n, f"{self.name}: QP solver {self.settings.solver} found no solution", iterations=iterations)
         tol = self.tolerance
         if problem.G is not None and problem.h is not None:
-            excess = float(np.max(problem.G @ x - problem.h))
+            excess = float((problem.G @ x - problem.h).max())
             if excess > tol:
                 return failed(
                     n,
                     f"{self.name}: the step breaks its constraints by {excess:.3g} (tolerance {tol:g}, Δq units)",
                     iterations=iterations,
                 )
-        qdot = np.clip(x / dt, -self._v_max, self._v_max)  # mink.solve_ik returns Δq / dt [rad/s]
+        v_max = self._v_max
+        qdot = np.minimum(np.maximum(x / dt, -v_max), v_max)  # mink.solve_ik returns Δq / dt [rad/s]
         tasks = self._rows.tasks
         active: list[str] = []
         if rows.h.size:
             binding = (rows.G @ x) >= rows.h * dt - tol  # a row at its bound: the task is held
-            for owner, hit in zip(rows.owner.tolist(), binding.tolist(), strict=True):
-                if hit and tasks[owner].name not in active:
-                    active.append(tasks[owner].name)
+            for owner in dict.fromkeys(rows.owner[binding].tolist()):  # first binding row's order
+                active.append(tasks[owner].name)
         slow: list[str] = []
+        ret = self._return
         for index, rate, side in pulled:
             task = tasks[index]
             if task.name not in active:
                 active.append(task.name)
-            actual = float(task.compute_jacobian(mkin)[0] @ qdot)
+            assert ret is not None
+            actual = float(ret.jacobian[index] @ qdot)  # the row the return task pulled with
             if side * (actual - rate) > tol / dt:
                 slow.append(task.name)
         extras = {"iterations": iterations, "returning": [tasks[i].name for i, _, _ in pulled]}

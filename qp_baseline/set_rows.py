@@ -187,6 +187,19 @@ class SetRowBuilder:
         if ev is None:
             ev = self._evaluation = TaskEvaluation(self.tasks, kin.robot)
         ev.evaluate(kin)
+        return self.rows(ev, dt)
+
+    def rows(self, ev: TaskEvaluation, dt: float) -> SetRows:
+        """:class:`SetRows` of an evaluated ``ev`` whose set tasks are :attr:`tasks` (copies, kept by the caller).
+
+        For a caller that evaluates these tasks with others in one pass of its own (the mink
+        peer: its equality tasks too); :meth:`build` is this after its own evaluation.
+
+        Raises:
+            InvalidTaskState: A task's Jacobian is not finite (names the task).
+        """
+        if not self.tasks:
+            return self._empty
         count = self._stack(ev, dt)
         sigma = ev.set_out[:, SET_SIGMA].copy()
         if count == 0:

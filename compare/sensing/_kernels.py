@@ -413,3 +413,42 @@ def closest_on_capsules_kernel(
             closest[k, 0], closest[k, 1], closest[k, 2] = points[k, 0], points[k, 1], points[k, 2]
             dist[k] = 0.0
     return dist, closest
+
+
+@numba.njit(cache=True, nogil=True)
+def closest_on_geoms_kernel(
+    points: np.ndarray,
+    geom_xpos: np.ndarray,
+    geom_xmat: np.ndarray,
+    geom_ids: np.ndarray,
+    half_length: np.ndarray,
+    radius: np.ndarray,
+    a: np.ndarray,
+    b: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray]:
+    r""":func:`closest_on_capsules_kernel` on the capsules of MuJoCo geoms, their segments formed here.
+
+    Segment of geom g: :math:`A, B = c \mp h\,z` with its centre c (``geom_xpos``), the local z
+    axis z (column 2 of its row-major ``geom_xmat``) and its half length h (0 for a sphere): the
+    arithmetic of :meth:`compare.sensing.geometric_distance.GeometricDistance.segments`.
+
+    Args:
+        points: Query points [m], (K, 3).
+        geom_xpos: ``MjData.geom_xpos`` [m], (ngeom, 3).
+        geom_xmat: ``MjData.geom_xmat``, (ngeom, 9).
+        geom_ids: The obstacle geoms, int64 (G,).
+        half_length: Half length of each obstacle geom's segment [m], (G,).
+        radius: Radii [m], (G,).
+        a: Scratch for the segment starts, (G, 3).
+        b: Scratch for the segment ends, (G, 3).
+
+    Returns:
+        As :func:`closest_on_capsules_kernel`.
+    """
+    for g in range(geom_ids.shape[0]):
+        i = geom_ids[g]
+        for c in range(3):
+            offset = geom_xmat[i, 2 + 3 * c] * half_length[g]
+            a[g, c] = geom_xpos[i, c] - offset
+            b[g, c] = geom_xpos[i, c] + offset
+    return closest_on_capsules_kernel(points, a, b, radius)

@@ -19,7 +19,7 @@ from collections.abc import Mapping, Sequence
 import mujoco
 import numpy as np
 
-from compare.sensing._kernels import closest_on_capsules_kernel
+from compare.sensing._kernels import closest_on_geoms_kernel
 from compare.sensing.exceptions import SensingError
 from compare.sensing.renderer import PERSON_GROUP
 from compare.sensing.results import DistanceResult, ObstacleReading
@@ -62,6 +62,8 @@ class GeometricDistance:
         # lengths as a column: ``segments`` gathers with one ``take`` instead of fancy indexing.
         self._axis_index = ids[:, None] * 9 + np.array([2, 5, 8])
         self._half_col = self._half[:, None].copy()
+        self._ids = ids.astype(np.int64)
+        self._a, self._b = np.empty((ids.size, 3)), np.empty((ids.size, 3))  # segment scratch of the kernel
 
     def segments(self, data: mujoco.MjData) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Ends A, B (G, 3) and radii (G,) of the obstacle geoms in the base frame [m]."""
@@ -69,6 +71,12 @@ class GeometricDistance:
         axis = data.geom_xmat.take(self._axis_index)  # local z axis in the world, (G, 3)
         offset = axis * self._half_col
         return centre - offset, centre + offset, self._radius
+
+    def _closest(self, data: mujoco.MjData, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Distance (K,) and closest point (K, 3) of each point [m] (K, 3): :meth:`segments` and the kernel at once."""
+        return closest_on_geoms_kernel(
+            points, data.geom_xpos, data.geom_xmat, self._ids, self._half, self._radius, self._a, self._b
+        )
 
     def compute(
         self, data: mujoco.MjData, control_points: Mapping[str, np.ndarray], stamp_s: float | None = None
@@ -87,8 +95,7 @@ class GeometricDistance:
         readings: dict[str, ObstacleReading] = {}
         if names:
             P = np.array([np.asarray(control_points[n], dtype=float) for n in names])  # (K, 3)
-            A, B, r = self.segments(data)
-            dist, closest = closest_on_capsules_kernel(P, A, B, r)
+            dist, closest = self._closest(data, P)
             for i, name in enumerate(names):
                 if dist[i] <= self.rho_m:
                     readings[name] = ObstacleReading(float(dist[i]), closest[i], True)
@@ -111,7 +118,7 @@ class GeometricDistance:
 
     def distances_at(self, data: mujoco.MjData, names: Sequence[str], points: np.ndarray) -> dict[str, float]:
         """:meth:`distances` of the points ``points`` [m] (K, 3), float64, named ``names``."""
-        dist, _ = closest_on_capsules_kernel(points, *self.segments(data))
+        dist, _ = self._closest(data, points)
         return dict(zip(names, dist.tolist(), strict=True))
 
 

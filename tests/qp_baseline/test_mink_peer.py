@@ -193,7 +193,7 @@ def test_returned_step_is_checked_in_delta_q_units_at_the_backend_tolerance(jaco
         bumped = x + excess * problem.G[row] / float(problem.G[row] @ problem.G[row])
         solution = qpsolvers.Solution(problem)
         solution.x, solution.found = bumped, True
-        assert solver._finish(solution, problem, rows, [], None, DT).status.value == status
+        assert solver._finish(solution, problem, rows, [], DT).status.value == status
 
 
 def test_mink_kinematics_agree_with_pinocchio(jaco):
@@ -212,6 +212,21 @@ def test_mink_kinematics_agree_with_pinocchio(jaco):
                 mkin.partial_position_jacobian(frame), kin.partial_position_jacobian(frame), atol=1e-12
             )
         np.testing.assert_allclose(mkin.joint_origins(), kin.joint_origins(), atol=1e-12)
+
+
+def test_mink_kinematics_fill_frames_gives_the_per_frame_numbers_bit_for_bit(jaco):
+    """The one-pass frames of the shared evaluation are MuJoCo's xpos and mj_jacBody, as the per-frame methods."""
+    rng = np.random.default_rng(5)
+    configuration = mink.Configuration(jaco.mj_model)
+    names = ("end_effector", "link_4", "j2s7s300_link_6", "link_7")
+    for _ in range(10):
+        configuration.update(jaco.home + rng.uniform(-1.0, 1.0, size=jaco.nq))
+        out = np.full((len(names), 4, jaco.nq), np.nan)
+        MinkKinematics(jaco, configuration, {}).fill_frames(names, out)
+        mkin = MinkKinematics(jaco, configuration, {})
+        for f, frame in enumerate(names):
+            np.testing.assert_array_equal(out[f, 0, :3], mkin.frame_position(frame))
+            np.testing.assert_array_equal(out[f, 1:4], mkin.position_jacobian(frame))
 
 
 def test_orientation_pose_and_other_equality_tasks_are_handled(jaco):

@@ -459,6 +459,26 @@ def test_compiled_capsule_distance_matches_numpy_reference():
     np.testing.assert_allclose(c_nb, c_ref, atol=1e-12)
 
 
+def test_geom_distances_are_the_segments_and_the_capsule_kernel_bit_for_bit(model):
+    """The one-call path of GeometricDistance (segments formed in the kernel) gives the two-step numbers exactly."""
+    from compare.sensing._kernels import closest_on_capsules_kernel
+
+    geometric = GeometricDistance(model, rho_m=math.inf)
+    rng = np.random.default_rng(12)
+    data = make_data(model)
+    for _ in range(20):
+        random_person(model, rng).apply(0.0, data)
+        mujoco.mj_kinematics(model, data)
+        points = rng.uniform([-0.8, -0.2, 0.0], [0.8, 1.4, 1.6], (7, 3))
+        want_d, want_c = closest_on_capsules_kernel(points, *geometric.segments(data))
+        names = [str(i) for i in range(len(points))]
+        assert geometric.distances_at(data, names, points) == dict(zip(names, want_d.tolist(), strict=True))
+        result = geometric.compute(data, dict(zip(names, points, strict=True)))
+        for i, name in enumerate(names):
+            assert result.readings[name].distance_m == want_d[i]
+            np.testing.assert_array_equal(result.readings[name].closest_point, want_c[i])
+
+
 @pytest.mark.parametrize("backend", DepthDistance.BACKENDS)
 def test_a_lone_flying_pixel_is_not_a_measured_point(camera, backend):
     # A wall 2.5 m away and one pixel 40 cm nearer than all its neighbours (the rasteriser's or a
