@@ -549,10 +549,11 @@ def bench(
     throughput ceiling (compare/bench/plant.py). ``--only loop`` times the closed loop's parts on
     whole runs, one method at a time: where a campaign step goes (compare/bench/loop_parts.py).
     """
+    from compare.bench.__main__ import GROUPS
     from compare.bench.__main__ import main as bench_main
 
-    if only is not None and only not in ("solvers", "sensing", "plant", "loop", "correctness"):
-        _fail(f"--only must be solvers, sensing, plant, loop or correctness, got '{only}'")
+    if only is not None and only not in GROUPS:
+        _fail(f"--only must be {', '.join(GROUPS[:-1])} or {GROUPS[-1]}, got '{only}'")
     if not export_method.startswith("hqp-"):
         _fail(f"--export-method must be an hqp-<backend> method, got '{export_method}'")
     argv: list[str] = ["--repeats", str(repeats), "--rounds", str(rounds), "--tolerance", str(tolerance)]

@@ -229,8 +229,7 @@ class _Adapter:
     task: Task
     mink_task: mink.Task
     kind: str  # "position" | "orientation" | "pose" | "state"
-    body: str = ""
-    body_id: int = -1
+    body_id: int = -1  # MuJoCo body of a frame task
     rows: slice = field(default_factory=lambda: slice(0, 0))  # the task's rows of the evaluation's ``eq_out``
 
 
@@ -371,7 +370,7 @@ class MinkSolver(TimeLimited):
                 body = self.robot.mujoco_body(frame)
                 frame_task = mink.FrameTask(body, "body", position_cost=pos_cost, orientation_cost=rot_cost)
                 body_id = int(mujoco.mj_name2id(self.robot.mj_model, mujoco.mjtObj.mjOBJ_BODY, body))
-                return _Adapter(task, frame_task, kind, body, body_id)
+                return _Adapter(task, frame_task, kind, body_id)
         return _Adapter(task, _StateTask(np.full(task.dim, cost)), "state")
 
     def _update_task(self, adapter: _Adapter, ev: TaskEvaluation, dt: float) -> None:
@@ -415,16 +414,15 @@ class MinkSolver(TimeLimited):
         assert ret is not None
         tasks = self._rows.tasks
         bounds = zip(sigma.tolist(), self._safety_bounds, strict=True)
-        past = [i for i, (s, (lo, hi)) in enumerate(bounds) if not lo <= s <= hi and math.isfinite(s)]
+        past = [(i, s) for i, (s, (lo, hi)) in enumerate(bounds) if not lo <= s <= hi and math.isfinite(s)]
         if not past:  # the usual step: no row (read-only zeros, shared between steps)
             ret.error, ret.jacobian = self._no_return
             return []
         error = np.zeros(len(tasks))
         jac = np.zeros((len(tasks), self.robot.nq))
         pulled: list[tuple[int, float, float]] = []
-        for i in past:
+        for i, s in past:
             task = tasks[i]
-            s = float(sigma[i])
             lo, hi = self.reference.set_rates(task, s, dt)
             rate, side = (lo, -1.0) if s < task.thresholds.safety_lower else (hi, 1.0)
             jac[i] = ev.set_out[i, SET_JAC:]

@@ -30,6 +30,7 @@ import pytest  # noqa: E402
 import robots  # noqa: E402
 
 REALTIME_ALONE = "pytest -m realtime -n 0"
+_REALTIME_LEFT_OUT = pytest.StashKey[bool]()
 
 
 def _parallel(config: pytest.Config) -> bool:
@@ -46,9 +47,6 @@ def pytest_configure(config: pytest.Config) -> None:
     if _parallel(config) and not config.option.markexpr:
         config.option.markexpr = "not realtime"
         config.stash[_REALTIME_LEFT_OUT] = True
-
-
-_REALTIME_LEFT_OUT = pytest.StashKey[bool]()
 
 
 def pytest_terminal_summary(terminalreporter: pytest.TerminalReporter, exitstatus: int, config: pytest.Config) -> None:

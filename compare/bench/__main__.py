@@ -45,6 +45,9 @@ RANDOM_CONFIG = Path(__file__).resolve().parents[2] / "configs" / "random.toml"
 """The randomized family whose plant the ``plant`` group times by default."""
 
 
+GROUPS = ("solvers", "sensing", "plant", "loop", "correctness")
+"""The benchmark groups, in the order a full run makes them (``--only`` picks one)."""
+
 LOOP_METHODS = ("tpik", "hqp-daqp", "mink")
 """The reference campaign's methods: the ``loop`` group's default."""
 LOOP_SEEDS = (100001, 100002, 100003)
@@ -63,7 +66,7 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--json", type=Path, default=None, help="write the results as JSON to this file")
     p.add_argument(
         "--only",
-        choices=("solvers", "sensing", "plant", "loop", "correctness"),
+        choices=GROUPS,
         default=None,
         help="run one group only",
     )

@@ -67,6 +67,9 @@ RUN_PART = "per run: scenario, results files"
 GUARD_PART = "guarded solve (the method's own call taken out below)"
 """The label of the guarded solve, whose row keeps all but the method's own call (:data:`OWN_SOLVE`)."""
 
+STEP_PART = "the step's own code"
+"""The label whose calls are the control steps (their inclusive times give the step's median)."""
+
 PARTS: tuple[Part, ...] = (
     Part("plant (person, drive, MuJoCo sub-steps)", "compare.loop.sim_io", "SimRobotIO.wait"),
     Part(GUARD_PART, "compare.loop.closed_loop", "timed_solve"),
@@ -84,15 +87,12 @@ PARTS: tuple[Part, ...] = (
     Part("motion, flags, status, distances recorded", "compare.loop.recorder", "StepRecorder.flags"),
     Part("motion, flags, status, distances recorded", "compare.loop.recorder", "StepRecorder.status"),
     Part("motion, flags, status, distances recorded", "compare.loop.recorder", "StepRecorder.distances"),
-    Part("the step's own code", "compare.loop.closed_loop", "_Step.run"),
+    Part(STEP_PART, "compare.loop.closed_loop", "_Step.run"),
     Part("the loop around the steps", "compare.run", "run_loop"),
     Part("per run: method set-up, warm-up, summary", "compare.run", "run_method"),
     Part(RUN_PART, "compare.run", "run_scenario"),
 )
 """The parts, in table order; parts with the same label are added up."""
-
-STEP_PART = "the step's own code"
-"""The label whose calls are the control steps (their inclusive times give the step's median)."""
 
 OWN_SOLVE = "the method's own solve (solve_time_us)"
 """The row of the method's own call, taken out of the guarded solve's."""
