@@ -468,13 +468,18 @@ def _paired_section(paired: dict[str, Any]) -> list[str]:
 
 
 def _throughput(campaign: dict[str, Any]) -> str:
-    """``", 2.7 CPU-h, 15.9 simulated s per CPU s"`` of a local sweep (docs/benchmarks.md "Campaign throughput")."""
+    """``", 2.7 CPU-h (4% of it in the kernel), 15.9 simulated s per CPU s"`` of a local sweep.
+
+    (docs/benchmarks.md "Campaign throughput")
+    """
     cpu, rate = campaign.get("cpu_time_s"), campaign.get("sim_s_per_cpu_s")
     if not cpu or not rate:
         return ""
+    system = campaign.get("cpu_system_s")
+    kernel = f" ({system / cpu:.0%} of it in the kernel)" if system is not None else ""
     steal = campaign.get("steal_time_s")
     stolen = f", hypervisor steal {steal:.1f} s" if steal is not None else ""
-    return f", {cpu / 3600.0:.2f} CPU-h, {rate:.1f} simulated s per CPU s{stolen}"
+    return f", {cpu / 3600.0:.2f} CPU-h{kernel}, {rate:.1f} simulated s per CPU s{stolen}"
 
 
 def _figures(directory: Path, pattern: str, title: str) -> list[str]:

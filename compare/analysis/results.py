@@ -785,6 +785,7 @@ TIMING_KEYS = frozenset(
         "deadline_steal_excused",
         "solve_worst_us",
         "cpu_time_s",
+        "cpu_system_s",
         "sim_s_per_cpu_s",
         "steal_time_s",
     }

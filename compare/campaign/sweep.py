@@ -227,7 +227,7 @@ def _execute(
 
         runner.run(jobs, done)
     wall = time.perf_counter() - start
-    cpu = _cpu_since(cpu0) if runner.name == "local" else None
+    cpu, cpu_system = _cpu_since(cpu0) if runner.name == "local" else (None, None)
     steal1 = machine_steal_s()
     sim_s = sum(j.config.scenario.sim_time_s * len(j.config.methods.names) for j in jobs)
     if skipped:
@@ -245,6 +245,9 @@ def _execute(
         # (run, method) pairs per CPU second of this process and its workers (local executor only).
         "cpu_time_s": cpu,
         "sim_s_per_cpu_s": sim_s / cpu if cpu else None,
+        # The kernel-mode part of cpu_time_s [s]: file writes and their fsync, the steal counter
+        # reads of the solver time limit (/proc/stat, [solver_limit] exclude_steal).
+        "cpu_system_s": cpu_system,
         # CPU time the hypervisor gave to others while the sweep ran (all vCPUs; None off Linux):
         # the solver time limit's CPU clock counts it on a VM (docs/benchmarks.md, "Deadline misses").
         "steal_time_s": steal1 - steal0 if steal0 is not None and steal1 is not None else None,
@@ -291,19 +294,12 @@ def machine_steal_s(stat: Path = Path("/proc/stat")) -> float | None:
     return None if ticks is None else ticks / os.sysconf("SC_CLK_TCK")
 
 
-def _cpu_since(start: os.times_result) -> float:
-    """CPU time [s] (user + system) of this process and its finished child processes since ``start``."""
+def _cpu_since(start: os.times_result) -> tuple[float, float]:
+    """CPU time [s] of this process and its finished child processes since ``start``: (user + system, system)."""
     now = os.times()
-    return (
-        now.user
-        - start.user
-        + now.system
-        - start.system
-        + now.children_user
-        - start.children_user
-        + now.children_system
-        - start.children_system
-    )
+    system = now.system - start.system + now.children_system - start.children_system
+    user = now.user - start.user + now.children_user - start.children_user
+    return user + system, system
 
 
 def _plant(config: Config) -> dict[str, object]:

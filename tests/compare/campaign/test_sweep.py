@@ -69,6 +69,7 @@ def test_sweep_runs_four_seeds_then_skips_them(tmp_path):
     campaign = summary["campaign"]
     assert campaign["cpu_time_s"] > 0.0
     assert campaign["sim_s_per_cpu_s"] == pytest.approx(4 * 2 * 3.0 / campaign["cpu_time_s"])
+    assert 0.0 <= campaign["cpu_system_s"] < campaign["cpu_time_s"]  # the kernel's part of it
     assert campaign["steal_time_s"] is None or 0.0 <= campaign["steal_time_s"] <= 2 * campaign["wall_time_s"]
     for name, m in summary["methods"].items():  # the worst step after warm-up, on the limit's (CPU) clock
         worst = max(json.loads((r / "summary.json").read_text())["methods"][name]["solve_worst_us"]["us"] for r in runs)
@@ -76,6 +77,8 @@ def test_sweep_runs_four_seeds_then_skips_them(tmp_path):
         assert worst <= m["solve_time_us"]["max"] * (1.0 + 1e-6) + 5.0  # CPU time <= the elapsed time around it
     report = (out / "sweep_report.md").read_text()
     assert "simulated s per CPU s" in report and "worst step after warm-up" in report
+    kernel = f"({campaign['cpu_system_s'] / campaign['cpu_time_s']:.0%} of it in the kernel)"
+    assert kernel in report
     assert "- plant: dynamic simulation, decoupled joint drive (λ = 100 rad/s), geometric sensing" in report
     stamps = [(r / "summary.json").stat().st_mtime_ns for r in runs]
 
