@@ -376,20 +376,19 @@ class MinkSolver(TimeLimited):
     def _update_task(self, adapter: _Adapter, ev: TaskEvaluation, dt: float) -> None:
         r"""Load one equality task's mink task from the evaluated rows (σ̃, σ̇_d of ``ev.eq_out``).
 
-        :math:`r = \dot\sigma_d + K\tilde\sigma` (paper eq. 2, :meth:`ControlReference.equality`'s
-        arithmetic); a frame task gets the target :math:`p + r\,dt/\alpha` (module docstring).
+        :math:`r = \dot\sigma_d + K\tilde\sigma` (paper eq. 2, :meth:`ControlReference.equality_rate`);
+        a frame task gets the target :math:`p + r\,dt/\alpha` (module docstring).
         """
         task = adapter.task
         rows = ev.eq_out[adapter.rows]
-        K = self.reference.gain(task, dt)
-        r = rows[:, EQ_FEEDFORWARD] + K * rows[:, EQ_ERROR]  # the one control reference (paper eq. 2)
+        r = self.reference.equality_rate(task, rows[:, EQ_ERROR], rows[:, EQ_FEEDFORWARD], dt)  # paper eq. 2
         if adapter.kind == "state":
             stask = adapter.mink_task
             assert isinstance(stask, _StateTask)
             stask.error = -r * dt
             stask.jacobian = ev.eq_out[adapter.rows, EQ_JAC:].copy()
             return
-        alpha = min(1.0, K * dt)
+        alpha = min(1.0, self.reference.gain(task, dt) * dt)
         data = self.configuration.data
         p, R = data.xpos[adapter.body_id], data.xmat[adapter.body_id].reshape(3, 3)
         scale = dt / alpha

@@ -73,7 +73,11 @@ class ControlReference:
 
     def equality(self, task: Task, state: TaskState, dt: float) -> np.ndarray:
         r""":math:`r = \dot\sigma_d + K\tilde\sigma` of an equality task (paper eq. 2). Shape (m,)."""
-        return state.feedforward + effective_gain(task.gain, dt, self.gain_cap) * state.error
+        return self.equality_rate(task, state.error, state.feedforward, dt)
+
+    def equality_rate(self, task: Task, error: np.ndarray, feedforward: np.ndarray, dt: float) -> np.ndarray:
+        r""":meth:`equality` from the task's error :math:`\tilde\sigma` and feedforward :math:`\dot\sigma_d` (m,)."""
+        return feedforward + self.gain(task, dt) * error
 
     def set_rates(self, task: SetTask, sigma: float, dt: float) -> tuple[float, float]:
         r"""Reference rates :math:`(\dot\sigma_l, \dot\sigma_u)` of a set-based task at σ (see :func:`rate_bounds`)."""

@@ -468,9 +468,9 @@ def _paired_section(paired: dict[str, Any]) -> list[str]:
 
 
 def _throughput(campaign: dict[str, Any]) -> str:
-    """``", 2.7 CPU-h (4% of it in the kernel), 15.9 simulated s per CPU s"`` of a local sweep.
+    """The throughput of a local sweep (docs/benchmarks.md, "Campaign throughput").
 
-    (docs/benchmarks.md "Campaign throughput")
+    E.g. ``", 2.7 CPU-h (4% of it in the kernel), 15.9 simulated s per CPU s"``.
     """
     cpu, rate = campaign.get("cpu_time_s"), campaign.get("sim_s_per_cpu_s")
     if not cpu or not rate:

@@ -56,6 +56,7 @@ def test_a_part_is_charged_its_time_without_the_timed_parts_it_calls(monkeypatch
     assert (kid.exclusive_ns, parent.exclusive_ns) == (8_000_000, 2_500_000)
     # Nothing counted twice: the exclusive times add up to the outermost call's whole time.
     assert parent.inclusive_ns == [10_500_000]
+    assert parent.exclusive_ns + kid.exclusive_ns == parent.inclusive_ns[0]
     assert kid.inclusive_ns == []  # kept only for the labels asked
 
 
