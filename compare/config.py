@@ -224,6 +224,10 @@ class SensorConfig(_Strict):
         fusion_step_m: Sampling step along hidden half-lines when fusing several cameras [m].
         fusion_tolerance_m: A point counts as seen free by a camera only if it is this much in
             front of the measured surface (plus the noise allowance) [m].
+        min_support: Each control point's distance is the ``min_support``-th smallest pixel
+            distance in its cube: 1 = the minimum (the paper's/Flacco's estimate); 2–5 ignore
+            that many − 1 isolated stray ("flying") pixels at depth edges, at the price of
+            reporting the second-nearest point of a real obstacle. One camera only.
     """
 
     noise_std_m: float = Field(0.0, ge=0.0, le=0.5)
@@ -235,6 +239,7 @@ class SensorConfig(_Strict):
     cameras: list[CameraConfig] = Field(default_factory=list)
     fusion_step_m: float = Field(0.01, gt=0.0, le=0.1)
     fusion_tolerance_m: float = Field(0.002, ge=0.0, le=0.1)
+    min_support: int = Field(1, ge=1, le=5)
 
     @field_validator("cameras")
     @classmethod
@@ -243,6 +248,15 @@ class SensorConfig(_Strict):
         if len(set(names)) != len(names):
             raise ValueError(f"camera names must be unique, got {names}")
         return cameras
+
+    @model_validator(mode="after")
+    def _support_with_one_camera(self) -> SensorConfig:
+        if self.min_support > 1 and len(self.cameras) > 1:
+            raise ValueError(
+                f"min_support = {self.min_support} needs one camera (got {len(self.cameras)}); "
+                "with several cameras the fusion rejects lone pixels itself (docs/sensing.md)"
+            )
+        return self
 
 
 class RandomConfig(_Strict):

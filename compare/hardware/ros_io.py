@@ -98,6 +98,30 @@ def init_node(ros: RosApi, name: str) -> None:
     root.setLevel(level)
 
 
+STAMP_WINDOW_S = (0.5, 0.005)
+"""A header stamp this far before / after a message's arrival [s] is taken to be on this machine's
+clock (:func:`stamp_on_this_clock`); outside it (clocks out of sync, a replayed recording) the arrival is used."""
+
+
+def stamp_on_this_clock(msg: Any, arrival: float) -> float | None:
+    """Monotonic time of a message's header stamp; None when it is not on this machine's clock.
+
+    A ROS stamp is on the wall clock (``rospy.Time.now()`` of the publisher: a camera stamps its
+    exposure, the Kinova driver its joint state when it publishes it); on this machine it is
+    ``stamp − (time.time() − time.monotonic())``. It is taken only when it lies within
+    :data:`STAMP_WINDOW_S` of the ``arrival`` (monotonic; publisher on this machine, or clocks in
+    sync), and never after the arrival.
+    """
+    stamp = getattr(getattr(msg, "header", None), "stamp", None)
+    if stamp is None or stamp.to_sec() <= 0.0:
+        return None
+    on_our_clock = float(stamp.to_sec()) - (time.time() - time.monotonic())
+    before, after = STAMP_WINDOW_S
+    if arrival - before <= on_our_clock <= arrival + after:
+        return min(on_our_clock, arrival)
+    return None
+
+
 MAX_FRAME_LEAD_S = 0.1
 """Longest extrapolation of the arm past its newest joint state for the self-filter [s]
 (:meth:`RosRobotIO.frame_q_ahead`): beyond it the joint state is stale and the watchdog acts."""
@@ -106,25 +130,34 @@ PERIOD_SAMPLES = 20
 
 
 class _RateCounter:
-    """Arrival times of one topic (bounded), for measured rates."""
+    """Arrival times of one topic (bounded), for measured rates, and each message's delivery lag.
+
+    The lag is arrival − header stamp, for the messages whose stamp is on this clock
+    (:func:`stamp_on_this_clock`): how late the publisher's messages reached the callback.
+    """
 
     def __init__(self, maxlen: int = 200_000) -> None:
         self.times: deque[float] = deque(maxlen=maxlen)
+        self.lags: deque[tuple[float, float]] = deque(maxlen=maxlen)
 
-    def add(self, t: float) -> None:
+    def add(self, t: float, stamp: float | None = None) -> None:
         self.times.append(t)
+        if stamp is not None:
+            self.lags.append((t, t - stamp))
 
     def stats(self, since: float = -math.inf) -> dict[str, float | int | None]:
         t = np.array([x for x in self.times if x >= since])
-        if t.size < 2:
-            return {"count": int(t.size), "rate_hz": None, "interval_p99_ms": None, "interval_max_ms": None}
-        dt = np.diff(t)
-        return {
-            "count": int(t.size),
-            "rate_hz": float((t.size - 1) / (t[-1] - t[0])) if t[-1] > t[0] else None,
-            "interval_p99_ms": float(np.percentile(dt, 99) * 1e3),
-            "interval_max_ms": float(dt.max() * 1e3),
-        }
+        lag = np.array([x for a, x in self.lags if a >= since])
+        out: dict[str, float | int | None] = {"count": int(t.size), "rate_hz": None}
+        out["interval_p99_ms"] = out["interval_max_ms"] = None
+        if t.size >= 2:
+            dt = np.diff(t)
+            out["rate_hz"] = float((t.size - 1) / (t[-1] - t[0])) if t[-1] > t[0] else None
+            out["interval_p99_ms"] = float(np.percentile(dt, 99) * 1e3)
+            out["interval_max_ms"] = float(dt.max() * 1e3)
+        out["delivery_lag_p99_ms"] = float(np.percentile(lag, 99) * 1e3) if lag.size else None
+        out["delivery_lag_max_ms"] = float(lag.max() * 1e3) if lag.size else None
+        return out
 
 
 class RosRobotIO(RobotIO):
@@ -185,7 +218,7 @@ class RosRobotIO(RobotIO):
         self._indices: np.ndarray | None = None
         self._index_names: tuple[str, ...] = ()
         self._joint: tuple[np.ndarray, np.ndarray, float] | None = None
-        self._history: deque[tuple[float, np.ndarray]] = deque(maxlen=300)
+        self._history: deque[tuple[float, np.ndarray]] = deque(maxlen=300)  # (header stamp, else arrival; q)
         self._camera: CameraModel | None = None
         self._frame: tuple[np.ndarray, float, CameraModel] | None = None
         self._capture_of: dict[float, float] = {}  # arrival → capture time of the last frames (monotonic)
@@ -456,10 +489,12 @@ class RosRobotIO(RobotIO):
         return JointReading(q.copy(), qdot.copy(), stamp - self._epoch)
 
     def q_at(self, stamp_s: float) -> np.ndarray | None:
-        """Measured joint positions [rad] at time ``stamp_s`` (this clock): the last state received by then.
+        """Measured joint positions [rad] at time ``stamp_s`` (this clock): the last state stamped by then.
 
-        Used to self-filter a depth frame with the arm where it was when the frame arrived.
-        None when no state that old is kept (the last 3 s are).
+        A state's time is its header stamp when that lies on this clock, else its arrival
+        (:func:`stamp_on_this_clock`): a state delivered late does not count as the arm's pose at its
+        arrival. Used to self-filter a depth frame with the arm where it was when the frame was
+        taken. None when no state that old is kept (the last 3 s are).
         """
         t = stamp_s + self._epoch
         with self._lock:
@@ -475,8 +510,8 @@ class RosRobotIO(RobotIO):
     def frame_q(self, stamp_s: float) -> np.ndarray | None:
         """Joint positions [rad] when the depth frame that *arrived* at ``stamp_s`` was *taken*.
 
-        The capture time is the image's header stamp when it lies on this machine's clock (at most
-        0.5 s before the arrival: camera driver on the same machine, or clocks in sync), else the
+        The capture time is the image's header stamp when it lies on this machine's clock
+        (:func:`stamp_on_this_clock`: camera driver on the same machine, or clocks in sync), else the
         arrival time; the self-filter then places the arm where it was in the image.
         """
         return self.q_at(self._capture_time(stamp_s) - self._epoch)
@@ -490,8 +525,10 @@ class RosRobotIO(RobotIO):
     def frame_q_ahead(self, stamp_s: float) -> np.ndarray | None:
         """Where the arm may already have been, beyond the newest joint state, when a frame was taken.
 
-        The newest joint state (received at t_s) was measured up to one state period T before it
-        arrived (the driver samples, then publishes; over USB T ≈ 22 ms, kinova-ros #281), so when
+        The newest joint state, stamped t_s (its header stamp on this clock, else its arrival:
+        :func:`stamp_on_this_clock`; a state that rospy delivers late in a burst keeps its own time), was
+        measured up to one state period T before that (the driver samples, then publishes and
+        stamps; over USB T ≈ 22 ms, kinova-ros #281; T is the median interval of the stamps), so when
         the frame that arrived at ``stamp_s`` was captured at t_c, the arm was up to
         lead = t_c − (t_s − T) past that state, moving at the velocity last sent q̇_s (the driver
         follows it; its reported velocity lags). The pose returned is q_s + q̇_s · lead, with lead
@@ -507,8 +544,8 @@ class RosRobotIO(RobotIO):
             sent = self._sent.copy()
         if len(history) < 2:
             return None
-        arrivals = np.array([a for a, _ in history])
-        period = float(np.median(np.diff(arrivals)))
+        stamps = np.array([t for t, _ in history])
+        period = float(np.median(np.diff(stamps)))
         newest_t, newest_q = history[-1]
         lead = min(max(capture - (newest_t - period), 0.0), MAX_FRAME_LEAD_S)
         return newest_q + sent * lead
@@ -672,13 +709,19 @@ class RosRobotIO(RobotIO):
             # time before this state's arrival, so a trip never overlooks a state it could see.
             now = time.monotonic()
             self._joint = (q, qdot, now)
-            self._history.append((now, q))
+            # The self-filter's history is kept on the driver's stamps (when on this clock): a state
+            # delivered late, in a burst after a starved spell, is placed when it was published.
+            stamp = stamp_on_this_clock(msg, now)
+            measured = now if stamp is None else stamp
+            if self._history:
+                measured = max(measured, self._history[-1][0])  # in order, for q_at's scan
+            self._history.append((measured, q))
             # Every verdict since the previous state judged that state (or none): this is the next one.
             events = self.watchdog.events
             for e in events[self._events_given_next :]:
                 e.next_state_t_s = now - self._epoch
             self._events_given_next = len(events)
-        self.rates["joint_state"].add(now)
+        self.rates["joint_state"].add(now, stamp)
 
     def _on_camera_info(self, msg: Any) -> None:
         now = time.monotonic()
@@ -706,18 +749,14 @@ class RosRobotIO(RobotIO):
         except HardwareError as exc:
             self._bad("depth", str(exc))
             return
-        capture = now
-        stamp = getattr(getattr(msg, "header", None), "stamp", None)
-        if stamp is not None and stamp.to_sec() > 0.0:
-            on_our_clock = stamp.to_sec() - (time.time() - time.monotonic())
-            if now - 0.5 <= on_our_clock <= now + 0.005:
-                capture = min(on_our_clock, now)
+        stamp = stamp_on_this_clock(msg, now)
+        capture = now if stamp is None else stamp
         with self._lock:
             self._frame = (depth, now, cam)
             self._capture_of[round(now, 6)] = capture
             while len(self._capture_of) > 16:
                 self._capture_of.pop(next(iter(self._capture_of)))
-        self.rates["depth"].add(now)
+        self.rates["depth"].add(now, stamp)
 
     # -- report --------------------------------------------------------------------------------
 

@@ -65,13 +65,14 @@ class DepthSensingSettings:
 
     @classmethod
     def from_sensor_config(cls, sensor: Any, seed: int = 0, **overrides: Any) -> DepthSensingSettings:
-        """From a ``compare.config.SensorConfig`` (its noise, dropout, ρ, self-filter margin, blind fraction)."""
+        """From a ``compare.config.SensorConfig`` (noise, dropout, ρ, self-filter margin, blind fraction, support)."""
         values = {
             "rho_m": sensor.rho_m,
             "self_filter_margin_m": sensor.self_filter_margin_m,
             "noise_std_m": sensor.noise_std_m,
             "dropout": sensor.dropout,
             "blind_fraction": sensor.blind_fraction,
+            "min_support": sensor.min_support,
             "seed": seed,
             "occluded_margin_m": sensor.fusion_step_m,
         }

@@ -191,6 +191,71 @@ def test_self_filter_poses_continue_past_the_newest_state_within_the_pose_budget
     assert len(long) <= SWEEP_MAX_POSES and np.allclose(long[-1], q0 + 3.01)
 
 
+def _stamped(t_wall: float):
+    from types import SimpleNamespace
+
+    return SimpleNamespace(stamp=SimpleNamespace(to_sec=lambda: t_wall))
+
+
+def test_a_header_stamp_is_taken_only_when_it_lies_on_this_clock(monkeypatch):
+    from types import SimpleNamespace
+
+    from compare.hardware import ros_io
+
+    monkeypatch.setattr(ros_io.time, "monotonic", lambda: 50.0)
+    monkeypatch.setattr(ros_io.time, "time", lambda: 1050.0)  # wall = monotonic + 1000 s
+    arrival = 50.0
+    on_clock = ros_io.stamp_on_this_clock
+    assert on_clock(SimpleNamespace(header=_stamped(1049.85)), arrival) == pytest.approx(49.85)
+    assert on_clock(SimpleNamespace(header=_stamped(1050.004)), arrival) == arrival  # never after arrival
+    assert on_clock(SimpleNamespace(header=_stamped(1050.1)), arrival) is None  # ahead: another clock
+    assert on_clock(SimpleNamespace(header=_stamped(1049.4)), arrival) is None  # replayed / unsynced
+    assert on_clock(SimpleNamespace(header=_stamped(0.0)), arrival) is None  # unset stamp
+    assert on_clock(SimpleNamespace(), arrival) is None  # no header
+
+
+def test_joint_states_delivered_late_keep_their_stamps_for_the_self_filter(monkeypatch):
+    """A starved rospy thread delivers joint states late: the self-filter must place the arm by
+    the states' own stamps. By arrival, a frame taken during the starved spell would be matched
+    with a state 150 ms old and extrapolated by only the 5 ms since the late state came, leaving
+    the arm's newer position in the image (a phantom obstacle on the arm itself)."""
+    from types import SimpleNamespace
+
+    from compare.config import HardwareConfig
+    from compare.hardware import ros_io
+
+    clock = [100.0]
+    monkeypatch.setattr(ros_io.time, "monotonic", lambda: clock[0])
+    monkeypatch.setattr(ros_io.time, "time", lambda: clock[0] + 1000.0)
+    hw = HardwareConfig()
+    io = ros_io.RosRobotIO(hw, np.full(7, 0.6), 0.01, use_depth=False, dry_run=True)
+    io.start_clock()
+    io._sent = np.full(7, 0.5)  # the arm moves at 0.5 rad/s per joint
+
+    def state(stamp_t: float, arrival_t: float) -> None:
+        clock[0] = 100.0 + arrival_t
+        msg = SimpleNamespace(
+            name=list(hw.joint_names), position=[0.5 * stamp_t] * 7, velocity=[], header=_stamped(1100.0 + stamp_t)
+        )
+        io._on_joint_state(msg)
+
+    for k in range(11):  # on time: 0.00 … 0.10 s
+        state(0.01 * k, 0.01 * k + 0.001)
+    for k in range(11, 26):  # published 0.11 … 0.25 s, all delivered at once at 0.26 s
+        state(0.01 * k, 0.26)
+    np.testing.assert_allclose(io.q_at(0.255), 0.5 * 0.25)  # by arrival: 0.5 · 0.10, the arm 150 ms back
+    lag = io.rates["joint_state"].stats()  # the report shows how late they came
+    assert lag["delivery_lag_max_ms"] == pytest.approx(150.0) and lag["count"] == 26
+    # The newest state came late (stamped 0.10 s, delivered at 0.25 s; rospy's queue of 1 dropped the rest):
+    io._history.clear()
+    for k in range(11):
+        state(0.01 * k, 0.01 * k + 0.001)
+    state(0.10, 0.25)
+    io._capture_of = {round(100.255, 6): 100.255}  # a frame taken at 0.255 s
+    lead = min(0.255 - (0.10 - 0.01), ros_io.MAX_FRAME_LEAD_S)  # by arrival: 0.255 − (0.25 − 0.01) = 0.015 s
+    np.testing.assert_allclose(io.frame_q_ahead(0.255), 0.5 * 0.10 + 0.5 * lead, atol=1e-9)
+
+
 def test_frame_q_ahead_extrapolates_the_newest_state_with_the_velocity_sent():
     """lead = t_capture − (t_state − T), clipped to [0, MAX_FRAME_LEAD_S]; q_s + q̇_sent · lead."""
     from compare.hardware.ros_io import MAX_FRAME_LEAD_S, RosRobotIO

@@ -19,6 +19,7 @@ import subprocess
 import sys
 import time
 import tomllib
+from itertools import pairwise
 from pathlib import Path
 from typing import Any
 
@@ -67,6 +68,11 @@ def case1_config(ros_env: dict[str, str], tmp_path_factory: pytest.TempPathFacto
         person={"keyframes": _keyframes_earlier(STEP_IN_SHIFT_S)},
         waypoints={"positions": [HOLD_AT], "cycle": False},
         methods={"names": ["tpik"]},
+        # One stray pixel of the stand-in's render, 6 cm off the arm, once read as an obstacle
+        # 4 cm from link_6 and made the arm escape (docs/hardware.md, "A phantom obstacle from one
+        # pixel"); a real camera's flying pixels do the same. The second-nearest pixel per cube,
+        # as a real setup would configure it; the simulation reference reads the same config.
+        sensor={"min_support": 2},
         hardware={
             "startup_timeout_s": 60.0,
             "background_file": str(background),
@@ -237,6 +243,12 @@ def test_case1_through_the_driver_model_is_as_safe_as_in_simulation(
     assert 0.5 * _rate(rec["joint_state_t"], t0, t1) <= rates["joint_state"]["rate_hz"]
     assert rates["joint_state"]["rate_hz"] <= 1.05 * _rate(rec["joint_state_t"], t0, t1)
     assert received == pytest.approx(sent, rel=0.1)  # loopback loses nothing
+    # The stand-in stamps on this machine's clock: the bridge places states and frames by their
+    # stamps (the self-filter) and reports how late they came (stamp → callback, within the window).
+    for topic in ("joint_state", "depth"):
+        lag = rates[topic]
+        print(f"{topic} delivery lag p99 {lag['delivery_lag_p99_ms']:.1f} ms, max {lag['delivery_lag_max_ms']:.1f} ms")
+        assert 0.0 <= lag["delivery_lag_p99_ms"] <= lag["delivery_lag_max_ms"] <= 500.0
     assert report["start_check"]["connection_type"] == connection
 
     # Same safety results as the pure simulation of the same scenario (acceptance: 0.02 m / 0.02 rad).
@@ -283,8 +295,20 @@ def test_case1_through_the_driver_model_is_as_safe_as_in_simulation(
     from compare.config import HardwareConfig
 
     timeout = report["state_timeout_s"]
-    model_gaps = np.diff(model_t)
     real_timeout = HardwareConfig(connection_type=connection).state_timeout_s  # the real default
+    # The model's own jitter: its gaps, except those an in/start call made (startAPI's 50 ms sleep
+    # on the driver's only thread, as the real driver does; the bridge's restart grace covers it).
+    # A start after a watchdog trip (this machine's load) then pauses the states beyond the
+    # Ethernet default of 50 ms by design.
+    starts = [(c["requested_t"], c["done_t"]) for c in rec["services"] if c["name"] == "start"]
+    model_gaps: list[float] | np.ndarray = []
+    for a, b in pairwise(model_t):
+        during = [t_b - t_a for t_a, t_b in starts if a < t_b and t_a < b]
+        if during:  # no longer than the call itself plus the model's own jitter
+            assert b - a < max(during) + real_timeout, (a, b, starts)
+        else:
+            model_gaps.append(b - a)
+    model_gaps = np.array(model_gaps)
     # A stand-in starved of CPU publishes late now and then (its thread waits for a core): then
     # the model's jitter is judged on its 99th percentile, not on the one gap the load made.
     starved = report["executed_motion_ratio"] < EXECUTED_FULLY and connection != "usb"

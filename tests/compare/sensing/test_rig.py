@@ -114,6 +114,16 @@ def test_bad_camera_entries_name_the_key(cameras, key):
         load_config(CONFIGS / "case1.toml", {"sensor.cameras": cameras})
 
 
+def test_min_support_above_one_is_refused_with_several_cameras():
+    two = [{"name": "depth_camera"}, {"name": "cam_b", "position_m": [0.3, 2.0, 1.7], "look_at_m": [0.0, 0.1, 0.4]}]
+    with pytest.raises(ConfigError, match=r"^sensor: .*min_support = 2 needs one camera \(got 2\)"):
+        load_config(CONFIGS / "case1.toml", {"sensor.cameras": two, "sensor.min_support": 2})
+    config, _ = load_config(CONFIGS / "case1.toml", {"sensor.cameras": two[:1], "sensor.min_support": 2})
+    assert config.sensor.min_support == 2
+    with pytest.raises(ConfigError, match=r"^sensor\.min_support"):
+        load_config(CONFIGS / "case1.toml", {"sensor.min_support": 0})
+
+
 def test_a_fault_on_a_camera_that_does_not_exist_is_refused():
     with pytest.raises(ConfigError, match=r"^faults\.inject\[0\]\.camera"):
         load_config(CONFIGS / "case1.toml", {"faults.inject": [{"kind": "depth_nan", "camera": 1}]})

@@ -494,3 +494,28 @@ def test_a_lone_flying_pixel_is_not_a_measured_point(camera, backend):
     assert ev.distance_m[0] < 0.25  # the lone pixel's hidden half-line passes near P
     depth[201, 250] = 2.12  # a neighbour within 5 cm: now a measured surface
     assert distance.evaluate(frame, p[None, :], measured=True).measured_m[0] == pytest.approx(0.2, abs=0.01)
+
+
+@pytest.mark.parametrize("backend", DepthDistance.BACKENDS)
+def test_min_support_from_the_config_ignores_one_stray_pixel_near_a_control_point(camera, backend):
+    # The wall 2.5 m away, P 0.6 m in front of it and one stray pixel at 2.1 m, 0.2 m behind P (as
+    # the stand-in's render once gave beside link_6): the minimum takes it, the second-nearest not.
+    from compare.config import SensorConfig
+    from compare.sensing.pipeline import DepthSensingSettings
+
+    depth = np.zeros((camera.height, camera.width), np.float32)
+    depth[150:250, 200:300] = 2.5
+    frame = DepthFrame(depth, 0.0, camera)
+    p = camera.transform_base_to_camera[:3, :3] @ np.array([0.0, 0.0, 1.9]) + camera.transform_base_to_camera[:3, 3]
+    readings = {}
+    for support in (1, 2):
+        s = DepthSensingSettings.from_sensor_config(SensorConfig(min_support=support, rho_m=1.0))
+        assert s.min_support == support
+        distance = DepthDistance(camera, s.rho_m, s.blind_fraction, s.min_support, backend=backend)
+        clean = distance.compute(frame, {"p": p}).readings["p"].distance_m
+        assert clean == pytest.approx(0.6, abs=0.01)
+        stray = depth.copy()
+        stray[int(round(camera.cy)), int(round(camera.cx))] = 2.1
+        readings[support] = distance.compute(DepthFrame(stray, 0.0, camera), {"p": p}).readings["p"].distance_m
+    assert readings[1] == pytest.approx(0.2, abs=0.01)  # the paper's minimum: the stray pixel
+    assert readings[2] == pytest.approx(0.6, abs=0.01)  # the second-nearest: the wall
