@@ -113,9 +113,12 @@ def stamp_on_this_clock(msg: Any, arrival: float) -> float | None:
     sync), and never after the arrival.
     """
     stamp = getattr(getattr(msg, "header", None), "stamp", None)
-    if stamp is None or stamp.to_sec() <= 0.0:
+    if stamp is None:
         return None
-    on_our_clock = float(stamp.to_sec()) - (time.time() - time.monotonic())
+    t = float(stamp.to_sec())
+    if t <= 0.0:
+        return None
+    on_our_clock = t - (time.time() - time.monotonic())
     before, after = STAMP_WINDOW_S
     if arrival - before <= on_our_clock <= arrival + after:
         return min(on_our_clock, arrival)

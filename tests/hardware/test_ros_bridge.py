@@ -301,14 +301,14 @@ def test_case1_through_the_driver_model_is_as_safe_as_in_simulation(
     # A start after a watchdog trip (this machine's load) then pauses the states beyond the
     # Ethernet default of 50 ms by design.
     starts = [(c["requested_t"], c["done_t"]) for c in rec["services"] if c["name"] == "start"]
-    model_gaps: list[float] | np.ndarray = []
+    jitter: list[float] = []
     for a, b in pairwise(model_t):
         during = [t_b - t_a for t_a, t_b in starts if a < t_b and t_a < b]
         if during:  # no longer than the call itself plus the model's own jitter
             assert b - a < max(during) + real_timeout, (a, b, starts)
         else:
-            model_gaps.append(b - a)
-    model_gaps = np.array(model_gaps)
+            jitter.append(b - a)
+    model_gaps = np.array(jitter)
     # A stand-in starved of CPU publishes late now and then (its thread waits for a core): then
     # the model's jitter is judged on its 99th percentile, not on the one gap the load made.
     starved = report["executed_motion_ratio"] < EXECUTED_FULLY and connection != "usb"

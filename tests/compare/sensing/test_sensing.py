@@ -507,6 +507,8 @@ def test_min_support_from_the_config_ignores_one_stray_pixel_near_a_control_poin
     depth[150:250, 200:300] = 2.5
     frame = DepthFrame(depth, 0.0, camera)
     p = camera.transform_base_to_camera[:3, :3] @ np.array([0.0, 0.0, 1.9]) + camera.transform_base_to_camera[:3, 3]
+    stray = depth.copy()
+    stray[int(round(camera.cy)), int(round(camera.cx))] = 2.1
     readings = {}
     for support in (1, 2):
         s = DepthSensingSettings.from_sensor_config(SensorConfig(min_support=support, rho_m=1.0))
@@ -514,8 +516,6 @@ def test_min_support_from_the_config_ignores_one_stray_pixel_near_a_control_poin
         distance = DepthDistance(camera, s.rho_m, s.blind_fraction, s.min_support, backend=backend)
         clean = distance.compute(frame, {"p": p}).readings["p"].distance_m
         assert clean == pytest.approx(0.6, abs=0.01)
-        stray = depth.copy()
-        stray[int(round(camera.cy)), int(round(camera.cx))] = 2.1
         readings[support] = distance.compute(DepthFrame(stray, 0.0, camera), {"p": p}).readings["p"].distance_m
     assert readings[1] == pytest.approx(0.2, abs=0.01)  # the paper's minimum: the stray pixel
     assert readings[2] == pytest.approx(0.6, abs=0.01)  # the second-nearest: the wall
