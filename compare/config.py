@@ -11,8 +11,10 @@ import hashlib
 import importlib
 import importlib.util
 import math
+import re
 import sys
 import tomllib
+from dataclasses import dataclass
 from pathlib import Path
 from types import ModuleType
 from typing import Any, Literal
@@ -483,34 +485,101 @@ class SolverLimitConfig(_Strict):
         return float(self.time_limit_s) if self.time_limit_s is not None else self.period_fraction * float(dt)
 
 
-class OracleConfig(_Strict):
-    r"""The clairvoyant reference controller (``[oracle]``, :mod:`compare.campaign.oracle`).
+_NAME = re.compile(r"^(oracle|preview)-(\d+(?:\.\d+)?)s$")
 
-    A receding-horizon optimiser over joint velocities that knows the person's whole future
-    motion; it runs once per scenario (the person does not react to the arm) and splits every
-    method's obstacle violations into avoidable and unavoidable (DESIGN §5, §7).
+
+@dataclass(frozen=True)
+class WitnessSpec:
+    """A witness by name: ``oracle-<T>s`` or ``preview-<τ>s``.
 
     Attributes:
-        enabled: Compute the oracle for each run (``summary.json`` gets ``oracle`` and every
+        policy: ``oracle`` or ``preview``.
+        look_ahead_s: The oracle's horizon T or the preview τ [s].
+    """
+
+    policy: str
+    look_ahead_s: float
+
+    @classmethod
+    def parse(cls, name: str) -> WitnessSpec:
+        """The spec of ``name``.
+
+        Raises:
+            ValueError: ``name`` is not ``oracle-<T>s`` (T ≥ 0.5) or ``preview-<τ>s`` (τ ≤ 5).
+        """
+        match = _NAME.match(name)
+        if match is None:
+            raise ValueError(
+                f"witness '{name}' is not 'oracle-<T>s' or 'preview-<tau>s' (e.g. oracle-1.5s, preview-0.6s)"
+            )
+        spec = cls(match.group(1), float(match.group(2)))
+        if spec.policy == "oracle" and not 0.5 <= spec.look_ahead_s <= 5.0:
+            raise ValueError(f"witness '{name}': the oracle's horizon must be in [0.5, 5] s")
+        if spec.policy == "preview" and spec.look_ahead_s > 5.0:
+            raise ValueError(f"witness '{name}': the preview must be at most 5 s")
+        return spec
+
+    @property
+    def name(self) -> str:
+        """The witness's name (``oracle-1.5s``)."""
+        return f"{self.policy}-{self.look_ahead_s:g}s"
+
+
+DEFAULT_WITNESSES = (
+    "preview-1s",
+    "oracle-1.5s",
+    "oracle-2s",
+    "preview-0.6s",
+    "oracle-1s",
+    "oracle-3s",
+    "preview-0.3s",
+    "preview-0s",
+)
+"""The verdict's witnesses, in the order tried: the most often successful first (docs/separating.md)."""
+
+
+class OracleConfig(_Strict):
+    r"""The run's verdict (``[oracle]``, :mod:`compare.campaign.verdict`): avoidable, unavoidable or undecided.
+
+    Witnesses that know the scripted person's future drive the same plant under the same limits:
+    one that keeps every safety threshold labels the run ``avoidable``; when none does, a
+    reachability certificate may prove it ``unavoidable``; otherwise it is ``undecided``
+    (DESIGN §5, §7). Every method's obstacle violations are counted under the run's label.
+
+    Attributes:
+        enabled: Compute the verdict for each run (``summary.json`` gets ``oracle`` and every
             method ``obstacle_violations``).
-        horizon_s: Look-ahead T [s] (≥ 0.5 s).
-        knot_s: Plan resolution h [s]: piecewise-constant joint velocities over N = ⌈T/h⌉ knots.
-        replan_period_s: Time between two optimisations [s] (the plan is followed in between).
+        witnesses: The witnesses, in the order they are tried: ``oracle-<T>s`` (the clairvoyant
+            receding-horizon optimiser with horizon T ≥ 0.5 s, :mod:`compare.campaign.oracle`) and
+            ``preview-<τ>s`` (the greedy preview policy looking τ ahead, :mod:`compare.campaign.preview`).
+        witness_rule: ``first``: stop at the first witness that holds; ``all``: run every witness
+            (the best is kept either way).
+        certificate_voxel_m: Cube side δ of the reachability certificate [m] (finer: stronger
+            and slower).
+        knot_s: The oracle's plan resolution h [s]: piecewise-constant joint velocities over
+            N = ⌈T/h⌉ knots.
+        replan_period_s: Time between two optimisations of the oracle [s] (the plan is followed in
+            between).
         sqp_iterations: Linearise-and-solve iterations per optimisation (sequential QP).
         trust_region_rad_s: Largest change of a knot velocity per iteration [rad/s].
-        margin_cap_m: The oracle stops pushing once every control point is this far beyond its
-            safety threshold at every knot of the horizon [m]; it then holds still.
-        secondary_weight: μ: weight of the mean per-knot minimum margin next to the overall
-            minimum (the primary objective).
-        solver: qpsolvers backend of the QPs (one of the project's HQP backends).
-        avoidable_only: Random family only: redraw a scenario until the oracle holds the
-            safety threshold in it (the avoidable family; ``configs/random_avoidable.toml``).
+        margin_cap_m: Every witness stops pushing once every control point is this far beyond its
+            safety threshold over its look-ahead [m]; it then holds still.
+        secondary_weight: μ: weight of the oracle's mean per-knot minimum margin next to the
+            overall minimum (the primary objective).
+        solver: qpsolvers backend of the witnesses' QPs (one of the project's HQP backends).
+        avoidable_only: Random family only: redraw a scenario until it is labelled ``avoidable``
+            (the avoidable family; ``configs/random_avoidable.toml``).
         max_draws: Draws tried per run before giving up (the last draw is then kept, marked).
-        keep_steps: Also cache the oracle's per-step table (large; for investigating a seed).
+        keep_steps: Also cache the witnesses' per-step tables (large; for investigating a seed).
     """
 
     enabled: bool = False
-    horizon_s: float = Field(1.0, ge=0.5, le=5.0)
+    witnesses: list[str] = Field(
+        default_factory=lambda: list(DEFAULT_WITNESSES),
+        min_length=1,
+    )
+    witness_rule: Literal["first", "all"] = "first"
+    certificate_voxel_m: float = Field(0.04, ge=0.01, le=0.2)
     knot_s: float = Field(0.1, gt=0.0, le=0.5)
     replan_period_s: float = Field(0.05, gt=0.0, le=0.5)
     sqp_iterations: int = Field(2, ge=1, le=20)
@@ -524,10 +593,14 @@ class OracleConfig(_Strict):
 
     @model_validator(mode="after")
     def _consistent(self) -> OracleConfig:
-        if self.knot_s > self.horizon_s:
-            raise ValueError(f"knot_s ({self.knot_s:g}) must be <= horizon_s ({self.horizon_s:g})")
+        if len(set(self.witnesses)) != len(self.witnesses):
+            raise ValueError(f"witnesses are listed twice: {self.witnesses}")
+        for name in self.witnesses:
+            spec = WitnessSpec.parse(name)
+            if spec.policy == "oracle" and self.knot_s > spec.look_ahead_s:
+                raise ValueError(f"knot_s ({self.knot_s:g}) must be <= the horizon of witness '{name}'")
         if self.avoidable_only and not self.enabled:
-            raise ValueError("avoidable_only needs enabled = true (the draws are filtered by the oracle)")
+            raise ValueError("avoidable_only needs enabled = true (the draws are filtered by the verdict)")
         from qp_baseline.hqp import available_qp_solvers
 
         if self.solver not in available_qp_solvers():

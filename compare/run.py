@@ -322,24 +322,22 @@ def run_scenario(
 
 
 ORACLE_CACHE_DIR = "oracle"
-"""Sub-directory of a run directory caching its oracle runs (``<key>.json``)."""
+"""Sub-directory of a run directory caching its witness runs (``<key>.json``)."""
 
 
 def _realize_with_oracle(config: Config, robot: robots.Robot, out_dir: Path) -> tuple[Config, dict[str, Any] | None]:
-    """The concrete scenario and, with ``[oracle] enabled``, its oracle entry (cached in ``out_dir``)."""
+    """The concrete scenario and, with ``[oracle] enabled``, its verdict (witness runs cached in ``out_dir``)."""
     if not config.oracle.enabled:
         return realize(config, robot), None
-    from compare.campaign.oracle import cached_oracle
+    from compare.campaign.verdict import run_verdict
 
     cache = out_dir / ORACLE_CACHE_DIR
     if config.oracle.avoidable_only and config.scenario.kind == "random":
         from compare.campaign.avoidable import realize_avoidable
 
-        config, run = realize_avoidable(config, robot, cache)
-    else:
-        config = realize(config, robot)
-        run = cached_oracle(config, robot, cache)
-    return config, run.entry
+        return realize_avoidable(config, robot, cache)
+    config = realize(config, robot)
+    return config, run_verdict(config, robot, cache)
 
 
 def view_scenario(config: Config, method: str) -> None:

@@ -31,7 +31,7 @@ from compare.analysis.results import RUNS_DIR, SUMMARY_FILE, load_steps
 
 def closing_speed(track: Any, point: np.ndarray, t: float, half_window_s: float = 0.05) -> float:
     """Speed at which the person's surface comes toward a fixed ``point`` at time ``t`` [m/s]."""
-    from compare.campaign.oracle import capsule_margins
+    from compare.sensing.person_track import capsule_margins
 
     def dist(tt: float) -> float:
         return float(capsule_margins(point[None, :], *track.at(tt))[0].min())
@@ -48,10 +48,10 @@ def _episodes(margin: np.ndarray) -> list[tuple[int, int]]:
 
 def explain_run(run_dir: Path) -> list[dict[str, Any]]:
     """One row per obstacle violation episode of every method of a run (module docstring)."""
-    from compare.campaign.oracle import PersonTrack
     from compare.campaign.random_scenario import realize
     from compare.config import load_config
     from compare.sensing.person import Person
+    from compare.sensing.person_track import PersonTrack
     from compare.sensing.scene import load_workcell
     from tpik.tasks import ObstacleDistanceTask
 

@@ -20,15 +20,18 @@ The ranges are in ``[random]`` (:class:`compare.config.RandomConfig`); the defau
   family's box reaches 1 cm past the walls);
 * **person**: ``person_visits`` visits, one starting in each equal time slot (or as soon as the
   person has walked around the arm, at the away radius, from the previous visit's side; a visit
-  may run past the end of the run). Each visit comes from a uniformly
-  drawn side, walks from 1.6 m to ``near_radius_m`` of the base axis at a walking speed drawn
-  from ``person_speed_mps`` (ISO 13855 / ISO/TS 15066: 1.6 m/s), raises the hand to 0.25 m
-  short of its target, moves it through the target and ``push_depth_m`` beyond (away from the
-  person) at a hand speed drawn from ``hand_speed_mps`` (up to 2.0 m/s), holds, withdraws at the
-  same speed and walks away. The target is drawn from ``reach_targets``: near a waypoint, a
-  control point at the start pose (``control_points`` stands for every control point of the
-  obstacle tasks, in order: for the Jaco² ``link_4``, ``link_6``, ``link_7``), or the EE
-  (``push_ee``: pushing it toward the far wall).
+  may run past the end of the run). Each visit comes from a uniformly drawn side and is one
+  motion at a time: the person walks from 1.6 m to ``near_radius_m`` of the base axis with the
+  arms hanging, at a walking speed drawn from ``person_speed_mps`` (ISO 13855 / ISO/TS 15066:
+  1.6 m/s), raises the hand to 0.25 m short of its target, moves it through the target and
+  ``push_depth_m`` beyond (away from the person) at a hand speed drawn from ``hand_speed_mps``
+  (up to 2.0 m/s), holds, withdraws and lowers the hand at the same speed, and walks away. The
+  target is drawn from ``reach_targets``: near a waypoint, a control point at the start pose
+  (``control_points`` stands for every control point of the obstacle tasks, in order: for the
+  Jaco² ``link_4``, ``link_6``, ``link_7``), or the EE (``push_ee``: pushing it toward the far
+  wall). :func:`retime` then stretches each motion so that no point of the person's capsules
+  (elbows and hands of a turning torso included) moves faster than that motion's drawn speed:
+  the realized person never exceeds the family's stated speeds.
 """
 
 from __future__ import annotations
@@ -36,11 +39,13 @@ from __future__ import annotations
 import math
 from typing import Any
 
+import mujoco
 import numpy as np
 
 import robots
 from compare.config import Config, PersonKeyframe, RandomConfig
 from compare.loop.closed_loop import control_points
+from compare.sensing.person import Person
 from tpik.tasks import JointLimitTask, ObstacleDistanceTask, SetTask, VirtualWallTask
 
 # Where the person stands when not visiting: this far from the base [m].
@@ -49,6 +54,15 @@ _AWAY_RADIUS_M = 1.6
 _APPROACH_M = 0.25
 # Hand targets are kept within these heights [m] (table top to above the head of the arm).
 _HAND_Z_M = (0.15, 1.3)
+# The hand's approach point is at least this far in front of the person's shoulders [m].
+_FRONT_M = 0.3
+# Nominal path of the hand from hanging to the approach point [m] (retimed by its true length).
+_RAISE_M = 0.6
+# Retiming: at least this many chords per keyframe segment, each at most this long [s], and
+# this relative margin below the speed limit.
+_RETIME_SAMPLES = 64
+_RETIME_STEP_S = 0.005
+_RETIME_MARGIN = 0.01
 
 
 def realize(config: Config, robot: robots.Robot | None = None, draw: int = 0) -> Config:
@@ -77,7 +91,7 @@ def realize(config: Config, robot: robots.Robot | None = None, draw: int = 0) ->
     targets = {kind: kin.frame_position(kind) for kind in reach if kind not in ("waypoint", "push_ee")}
     targets["push_ee"] = kin.frame_position(robot.ee_frame)
     duration = config.scenario.duration_s
-    keyframes = _person_path(rng, duration, rc, waypoints, targets, reach)
+    keyframes = retime(*_person_path(rng, duration, rc, waypoints, targets, reach), robot.workcell_model())
 
     sensor = config.sensor.model_copy(
         update={"noise_std_m": float(rng.uniform(*rc.noise_std_m)), "dropout": float(rng.uniform(*rc.dropout))}
@@ -180,12 +194,18 @@ def _person_path(
     waypoints: list[tuple[float, float, float]],
     targets: dict[str, np.ndarray],
     reach: list[str],
-) -> list[PersonKeyframe]:
-    """Keyframes of ``rc.person_visits`` visits (module docstring)."""
+) -> tuple[list[PersonKeyframe], list[float]]:
+    """Keyframes of ``rc.person_visits`` visits (module docstring), at their nominal times.
+
+    Returns:
+        The keyframes, and the speed limit [m/s] of the motion that ends at each keyframe (the
+        visit's walking speed or hand speed; the first entry is unused).
+    """
     first_side = rng.uniform(-math.pi, math.pi)
     frames = [_standing(0.0, first_side)]
+    limits = [math.inf]
     if rc.person_visits == 0:
-        return frames
+        return frames, limits
     slot = duration_s / rc.person_visits
     free_at = 0.0  # end of the previous visit [s]
     last_side = first_side
@@ -214,30 +234,78 @@ def _person_path(
             for j in range(1, pieces + 1):
                 a = last_side + turn * j / pieces
                 frames.append(_standing(t_arc0 + arc_s * j / pieces, a))
+                limits.append(walk_speed)
         target = _reach_target(kind, waypoints, targets, rng) + noise
         direction = np.array([math.cos(side), math.sin(side)])
-        away_xy = _AWAY_RADIUS_M * direction
-        near_xy = near * direction
         yaw = side + math.pi  # facing the arm
         # The hand moves through the target away from the person (toward the far wall).
         inward = np.array([-direction[0], -direction[1], 0.0])
         approach = _clip_hand(target - _APPROACH_M * inward)
-        end = _clip_hand(target + push * inward)
+        end = _vec(_clip_hand(target + push * inward))
+        # The hand stays in front of the shoulders: a person reaching for a point at their own
+        # shoulder steps back instead (the two-link arm would fold through itself there).
+        ahead = float((approach[:2] - near * direction) @ inward[:2])
+        near = min(near + max(0.0, _FRONT_M - ahead), _AWAY_RADIUS_M - 0.1)
+        away_xy = _xy(_AWAY_RADIUS_M * direction)
+        near_xy = _xy(near * direction)
+        approach = _vec(approach)
         walk_s = (_AWAY_RADIUS_M - near) / walk_speed
-        reach_s = max(float(np.linalg.norm(end - approach)) / hand_speed, 0.05)
-        t_in = start + walk_s
-        t_reach = t_in + reach_s
-        t_hold = t_reach + hold
-        t_back = t_hold + reach_s
-        t_out = t_back + walk_s
-        frames.append(PersonKeyframe(t=start, position=_xy(away_xy), yaw=yaw))
-        frames.append(PersonKeyframe(t=t_in, position=_xy(near_xy), yaw=yaw, right_hand=_vec(approach)))
-        frames.append(PersonKeyframe(t=t_reach, position=_xy(near_xy), yaw=yaw, right_hand=_vec(end)))
-        frames.append(PersonKeyframe(t=t_hold, position=_xy(near_xy), yaw=yaw, right_hand=_vec(end)))
-        frames.append(PersonKeyframe(t=t_back, position=_xy(near_xy), yaw=yaw, right_hand=_vec(approach)))
-        frames.append(PersonKeyframe(t=t_out, position=_xy(away_xy), yaw=yaw))
-        free_at, last_side = t_out, side
-    return _strictly_increasing(frames)
+        reach_s = max(math.dist(end, approach) / hand_speed, 0.05)
+        raise_s = _RAISE_M / hand_speed
+        # Walk in with the arms hanging, raise the hand, reach through the target, hold, withdraw,
+        # lower the hand, walk away: one motion at a time, each at its own speed.
+        phases = [
+            (start, away_xy, None, walk_speed),
+            (start + walk_s, near_xy, None, walk_speed),
+            (start + walk_s + raise_s, near_xy, approach, hand_speed),
+            (start + walk_s + raise_s + reach_s, near_xy, end, hand_speed),
+            (start + walk_s + raise_s + reach_s + hold, near_xy, end, hand_speed),
+            (start + walk_s + raise_s + 2 * reach_s + hold, near_xy, approach, hand_speed),
+            (start + walk_s + 2 * (raise_s + reach_s) + hold, near_xy, None, hand_speed),
+            (start + 2 * (walk_s + raise_s + reach_s) + hold, away_xy, None, walk_speed),
+        ]
+        for t, xy, hand, limit in phases:
+            frames.append(PersonKeyframe(t=t, position=xy, yaw=yaw, right_hand=hand))
+            limits.append(limit)
+        free_at, last_side = phases[-1][0], side
+    return _strictly_increasing(frames, limits)
+
+
+def retime(frames: list[PersonKeyframe], limits: list[float], model: mujoco.MjModel) -> list[PersonKeyframe]:
+    r"""Stretch the keyframe segments so that no capsule end of the person moves faster than its limit.
+
+    The pose along a segment depends only on the interpolation weight α ∈ [0, 1], so the
+    speed of every capsule end is :math:`|\partial p/\partial\alpha| / T` for a segment of
+    duration T. :math:`\max|\partial p/\partial\alpha|` (the arm's own swing included: the
+    elbow of the two-link arm, the hands of a turning torso) is measured on chords of at most
+    :data:`_RETIME_STEP_S` of the nominal duration, and T becomes
+    :math:`\max(T, (1 + \epsilon)\max|\partial p/\partial\alpha| / v)` with the segment's limit v
+    and :data:`_RETIME_MARGIN` ε. Later keyframes shift by the added time.
+
+    Args:
+        frames: Keyframes at their nominal times.
+        limits: Speed limit [m/s] of the segment ending at each keyframe (the first is unused).
+        model: A scene with the person (its segment lengths and radii).
+    """
+    if len(frames) < 2:
+        return list(frames)
+    person = Person(model, frames)
+    times = np.array([f.t for f in frames])
+    durations = np.diff(times)
+    keys = person.keys_at(times)
+    moving = np.flatnonzero(np.any(keys[1:] != keys[:-1], axis=1))  # the pose changes along these segments
+    counts = np.maximum(_RETIME_SAMPLES, np.ceil(durations[moving] / _RETIME_STEP_S)).astype(int)
+    samples = [times[k] + np.linspace(0.0, 1.0, n + 1) * durations[k] for k, n in zip(moving, counts, strict=True)]
+    caps = person.capsule_ends(np.concatenate(samples) if samples else np.zeros(0))
+    ends = np.concatenate([caps.a, caps.b], axis=1)  # (S, 2G, 3)
+    first = np.concatenate([[0], np.cumsum(counts + 1)])
+    stretched = durations.copy()
+    for j, (k, n) in enumerate(zip(moving, counts, strict=True)):
+        seg = ends[first[j] : first[j + 1]]
+        chord = float(np.linalg.norm(np.diff(seg, axis=0), axis=2).max()) * n  # m per unit α
+        stretched[k] = max(durations[k], (1.0 + _RETIME_MARGIN) * chord / limits[k + 1])
+    new_times = times[0] + np.concatenate([[0.0], np.cumsum(stretched)])
+    return [f.model_copy(update={"t": float(t)}) for f, t in zip(frames, new_times, strict=True)]
 
 
 def _reach_target(
@@ -267,12 +335,14 @@ def _standing(t: float, side: float) -> PersonKeyframe:
     return PersonKeyframe(t=t, position=(float(xy[0]), float(xy[1])), yaw=side + math.pi)
 
 
-def _strictly_increasing(frames: list[PersonKeyframe]) -> list[PersonKeyframe]:
-    out = [frames[0]]
-    for f in frames[1:]:
+def _strictly_increasing(frames: list[PersonKeyframe], limits: list[float]) -> tuple[list[PersonKeyframe], list[float]]:
+    """The keyframes (and their limits) without those less than 1 µs after the previous one."""
+    out, out_limits = [frames[0]], [limits[0]]
+    for f, limit in zip(frames[1:], limits[1:], strict=True):
         if f.t > out[-1].t + 1e-6:
             out.append(f)
-    return out
+            out_limits.append(limit)
+    return out, out_limits
 
 
 def describe(config: Config) -> dict[str, Any]:

@@ -257,10 +257,11 @@ def _execute(
     if failures:
         summary["failed_runs"] = failures
     split = oracle_sweep_summary(out_dir)
-    if split is not None:  # avoidable / unavoidable obstacle violations (compare.analysis.avoidability)
+    if split is not None:  # obstacle violations by the run's verdict (compare.analysis.avoidability)
         summary["oracle"] = split["oracle"]
         for name, extra in split["methods"].items():
             summary["methods"].setdefault(name, {}).update(extra)
+        summary["paired_avoidable"] = split["paired_avoidable"]
     write_json_atomic(out_dir / SWEEP_SUMMARY_FILE, summary)
     if report:
         try:

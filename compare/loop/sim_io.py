@@ -131,9 +131,6 @@ class SimRobotIO(RobotIO):
         """Advance one control period."""
         m, d = self.model, self.data
         if self.mode == "dynamic":
-            if self._scene_update is not None:
-                # Scripted bodies move at most ~2 cm per control period: updated once per period.
-                self._scene_update(d.time, d)
             if self._drive is not None:
                 self._drive.step(m, d, self._command, self._substeps)
             else:
@@ -142,6 +139,9 @@ class SimRobotIO(RobotIO):
             d.qpos[: self.nq] += self._command * self.dt
             d.qvel[: self.nq] = self._command
             d.time += self.dt
-            if self._scene_update is not None:
-                self._scene_update(d.time, d)
-            mujoco.mj_kinematics(m, d)
+        # The scene at the period's end: the arm's new state and the scripted bodies at the same
+        # instant, so that what is read, rendered and judged next pairs the two at one time
+        # (scripted bodies move at most ~2 cm per period: held over the period's physics steps).
+        if self._scene_update is not None:
+            self._scene_update(d.time, d)
+        mujoco.mj_kinematics(m, d)

@@ -69,7 +69,7 @@ def build_simulation(config: Config, robot: robots.Robot, q0: np.ndarray) -> Sim
     cps = control_points(config.build_hierarchy(robot), robot)
     cameras = config.sensor.cameras if sc.sensing == "depth" else []
     model: mujoco.MjModel = load_rig_workcell(robot.name, cameras) if cameras else load_workcell(robot.name)
-    person = Person(model, config.person.keyframes, time_scale=sc.time_scale)
+    person = Person(model, config.person.keyframes, time_scale=sc.time_scale, sample_period_s=sc.dt)
     pipeline: DepthPipeline | DepthRig | None = None
     depth_camera = None
     depth_cameras = None

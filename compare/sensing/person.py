@@ -12,7 +12,9 @@ from its origin). A :class:`Person` turns keyframes into mocap poses:
 * each arm reaches its hand target (the centre of the hand capsule) with a planar two-link
   inverse kinematics from the shoulder site: upper arm :math:`L_1`, forearm plus half hand
   :math:`L_2`, elbow bent towards a pole direction (down, out and back). With
-  :math:`D = \|T - S\|` clamped to :math:`[|L_1 - L_2|, L_1 + L_2]`,
+  :math:`D = \|T - S\|` clamped to :math:`[|L_1 - L_2|,\ \kappa (L_1 + L_2)]` (:data:`REACH_FRACTION`
+  :math:`\kappa`: the elbow never straightens, where the elbow's speed would grow without bound
+  as :math:`h = \sqrt{L_1^2 - a^2}` has an infinite slope at full stretch),
 
   .. math::
       a = \frac{L_1^2 - L_2^2 + D^2}{2D},\quad h = \sqrt{L_1^2 - a^2},\quad
@@ -24,15 +26,18 @@ from its origin). A :class:`Person` turns keyframes into mocap poses:
 
 Segment lengths, radii and shoulder positions are read from the model (the MJCF is the single
 source of truth). A person with no keyframes is parked far outside the camera's range.
+
+Every pose is computed for many instants at once (:meth:`Person.capsule_ends`, arrays over
+time); :meth:`Person.apply` reads the mocap poses of a control step from blocks computed on the
+control period's grid, so the per-step cost is one array copy.
 """
 
 from __future__ import annotations
 
-import bisect
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import NamedTuple, Protocol
+from typing import Protocol
 
 import mujoco
 import numpy as np
@@ -49,12 +54,19 @@ SEGMENTS = ("upperarm", "forearm", "hand")
 PARKED_POSITION = (0.0, 50.0)
 """Where a person without keyframes stands (x, y) [m]: beyond the camera range and far plane."""
 
+REACH_FRACTION = 0.9
+"""κ: the largest shoulder–hand-centre distance as a share of :math:`L_1 + L_2` (elbow bent ≥ ~50°)."""
+
 # Hanging arm, in the torso frame relative to the shoulder (x forward, y left, z up), before the
 # side's mirroring in y: slightly forward and out, 3 cm short of full stretch.
 _HANG_OFFSET = (0.05, -0.03)
 _HANG_SHORTFALL_M = 0.03
 # Elbow pole direction in the torso frame for the right arm (back, out, down); mirrored for the left.
 _POLE_RIGHT = (-0.25, -0.5, -1.0)
+# Key columns: torso x, y, yaw, right hand target (3), left hand target (3).
+_X, _Y, _YAW, _RIGHT, _LEFT = 0, 1, 2, slice(3, 6), slice(6, 9)
+# Samples per block of mocap poses computed ahead by :meth:`Person.apply`.
+_BLOCK = 256
 
 
 class KeyframeLike(Protocol):
@@ -116,6 +128,23 @@ class PersonPose:
 
 
 @dataclass(frozen=True)
+class CapsuleEnds:
+    """Every capsule of the person at several instants.
+
+    Attributes:
+        names: Geom names, in the order of the capsule axis (torso geoms, then each arm's segments).
+        a: Segment starts [m]. Shape (T, G, 3).
+        b: Segment ends [m] (= ``a`` for a sphere). Shape (T, G, 3).
+        radius: Radii [m]. Shape (G,).
+    """
+
+    names: tuple[str, ...]
+    a: np.ndarray
+    b: np.ndarray
+    radius: np.ndarray
+
+
+@dataclass(frozen=True)
 class _Body:
     geom_id: int
     mocap_id: int
@@ -131,6 +160,8 @@ class Person:
         keyframes: Poses with strictly increasing times; empty = nobody (parked far away).
         time_scale: Multiplies every keyframe time (``scenario.time_scale``).
         prefix: Prefix of the person's body, geom and site names.
+        sample_period_s: The period at which :meth:`apply` is called (the control period) [s]:
+            poses on that grid are computed in blocks ahead; other instants one at a time.
     """
 
     def __init__(
@@ -139,22 +170,24 @@ class Person:
         keyframes: Sequence[KeyframeLike] = (),
         time_scale: float = 1.0,
         prefix: str = "person_",
+        sample_period_s: float | None = None,
     ) -> None:
         if not time_scale > 0:
             raise SensingError(f"time_scale must be > 0, got {time_scale}")
+        if sample_period_s is not None and not sample_period_s > 0:
+            raise SensingError(f"sample_period_s must be > 0, got {sample_period_s}")
         self.model = model
         self.prefix = prefix
         self._torso = self._body(model, "torso")
         self._segments = {side: [self._body(model, f"{side}_{seg}") for seg in SEGMENTS] for side in SIDES}
         torso_body = model.body(prefix + "torso").id
-        self._torso_geoms = [int(g) for g in np.flatnonzero(model.geom_bodyid == torso_body)]
-        self._shoulders: dict[str, _Vec] = {}
+        self._torso_geoms = [_torso_geom(model, int(g)) for g in np.flatnonzero(model.geom_bodyid == torso_body)]
+        self._shoulders: dict[str, np.ndarray] = {}
         for side in SIDES:
             site = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_SITE, f"{prefix}{side}_shoulder")
             if site < 0 or model.site_bodyid[site] != torso_body:
                 raise UnknownSceneElement("site", f"{prefix}{side}_shoulder", [])
-            sx, sy, sz = (float(v) for v in model.site_pos[site])
-            self._shoulders[side] = (sx, sy, sz)
+            self._shoulders[side] = np.array(model.site_pos[site], dtype=float)
         floor = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_GEOM, "floor")
         self.floor_z = float(model.geom_pos[floor][2]) if floor >= 0 else 0.0
         frames = list(keyframes)
@@ -172,10 +205,22 @@ class Person:
         ids = [self._torso.mocap_id] + [b.mocap_id for side in SIDES for b in self._segments[side]]
         contiguous = ids == list(range(ids[0], ids[0] + len(ids)))
         self._mocap_index: slice | list[int] = slice(ids[0], ids[0] + len(ids)) if contiguous else ids
-        self._times = times
-        self._keys = [self._resolve(f) for f in frames]
-        self._stationary = [a == b for a, b in zip(self._keys, self._keys[1:], strict=False)]
-        self._cache_key: tuple[int, int, tuple[float, ...]] | None = None
+        self.names: tuple[str, ...] = tuple(g[0] for g in self._torso_geoms) + tuple(
+            model.geom(b.geom_id).name for side in SIDES for b in self._segments[side]
+        )
+        self._radius = np.array(
+            [g[3] for g in self._torso_geoms] + [b.radius_m for s in SIDES for b in self._segments[s]]
+        )
+        self._times = np.array(times, dtype=float)
+        parked = [self._resolve(PersonKeyframe(0.0, PARKED_POSITION))]
+        self._keys = np.array([self._resolve(f) for f in frames] if frames else parked)
+        # Yaw change of each keyframe segment along the shorter arc.
+        self._dyaw = np.array(
+            [math.remainder(b - a, math.tau) for a, b in zip(self._keys[:-1, _YAW], self._keys[1:, _YAW], strict=True)]
+        )
+        self._present = bool(frames)
+        self._period = sample_period_s
+        self._blocks: dict[int, tuple[np.ndarray, np.ndarray]] = {}
 
     def _body(self, model: mujoco.MjModel, name: str) -> _Body:
         full = self.prefix + name
@@ -193,218 +238,215 @@ class Person:
         return _Body(int(geom), mocap, 2.0 * half, radius)
 
     # -- keyframes --------------------------------------------------------------------------
-    def _resolve(self, f: KeyframeLike) -> _Key:
+    def _resolve(self, f: KeyframeLike) -> list[float]:
+        """A keyframe as one key row (torso x, y, yaw, right hand, left hand), hand targets filled."""
         x, y, yaw = float(f.position[0]), float(f.position[1]), float(f.yaw)
-        hands = []
+        row = [x, y, yaw]
         for side, target in (("r", f.right_hand), ("l", f.left_hand)):
             if target is None:
-                hands.append(self._hanging(x, y, yaw, side))
-            else:
-                vals = tuple(float(v) for v in target)
-                if len(vals) != 3 or not all(math.isfinite(v) for v in vals):
-                    raise SensingError(f"person keyframe at t={f.t}: hand target must be 3 finite numbers")
-                hands.append(vals)
-        return _Key(x, y, yaw, hands[0], hands[1])
+                row.extend(self._hanging(x, y, yaw, side))
+                continue
+            vals = [float(v) for v in target]
+            if len(vals) != 3 or not all(math.isfinite(v) for v in vals):
+                raise SensingError(f"person keyframe at t={f.t}: hand target must be 3 finite numbers")
+            row.extend(vals)
+        return row
 
     @property
     def present(self) -> bool:
         """Whether the person has keyframes (otherwise it is parked out of sight)."""
-        return bool(self._keys)
+        return self._present
 
     @property
     def times(self) -> list[float]:
         """Keyframe times after ``time_scale`` [s]."""
-        return list(self._times)
+        return [float(t) for t in self._times]
 
     def hanging_hand(self, position: tuple[float, float], yaw: float, side: str) -> np.ndarray:
         """Hand centre of a relaxed arm for a torso at ``position`` with heading ``yaw`` [m]."""
         return np.array(self._hanging(float(position[0]), float(position[1]), float(yaw), side))
 
-    def _hanging(self, x: float, y: float, yaw: float, side: str) -> _Vec:
+    def _hanging(self, x: float, y: float, yaw: float, side: str) -> list[float]:
         mirror = 1.0 if side == "r" else -1.0
         reach = self._lengths[side][0] + self._lengths[side][1] - _HANG_SHORTFALL_M
         sx, sy, sz = self._shoulders[side]
-        return self._to_world(x, y, yaw, (sx + _HANG_OFFSET[0], sy + mirror * _HANG_OFFSET[1], sz - reach))
+        local = np.array([sx + _HANG_OFFSET[0], sy + mirror * _HANG_OFFSET[1], sz - reach])
+        return [float(v) for v in self._to_world(np.array([x]), np.array([y]), np.array([yaw]), local)[0]]
 
-    def _to_world(self, x: float, y: float, yaw: float, local: _Vec) -> _Vec:
-        c, s = math.cos(yaw), math.sin(yaw)
-        return (x + c * local[0] - s * local[1], y + s * local[0] + c * local[1], self.floor_z + local[2])
+    def _to_world(self, x: np.ndarray, y: np.ndarray, yaw: np.ndarray, local: np.ndarray) -> np.ndarray:
+        """Torso-frame points ``local`` ((3,) or (T, 3)) in the base frame at each pose [m]. Shape (T, 3)."""
+        c, s = np.cos(yaw), np.sin(yaw)
+        lx, ly, lz = local[..., 0], local[..., 1], local[..., 2]
+        return np.stack([x + c * lx - s * ly, y + s * lx + c * ly, self.floor_z + lz + 0.0 * x], axis=-1)
 
-    def _segment(self, t: float) -> tuple[int, float]:
-        """Keyframe index k and weight α of ``t``: pose = (1-α) pose_k + α pose_{k+1}."""
-        k = bisect.bisect_right(self._times, t) - 1
-        if k < 0:
-            return 0, 0.0
-        if k >= len(self._times) - 1:
-            return len(self._times) - 1, 0.0
-        t0, t1 = self._times[k], self._times[k + 1]
-        return k, (t - t0) / (t1 - t0)
-
-    def _key_at(self, t: float) -> _Key:
-        if not self._keys:
-            x, y = PARKED_POSITION
-            return _Key(x, y, 0.0, self._hanging(x, y, 0.0, "r"), self._hanging(x, y, 0.0, "l"))
-        k, alpha = self._segment(t)
-        a = self._keys[k]
-        if alpha == 0.0:
-            return a
-        b = self._keys[k + 1]
-        dyaw = math.remainder(b.yaw - a.yaw, math.tau)
-        return _Key(
-            a.x + alpha * (b.x - a.x),
-            a.y + alpha * (b.y - a.y),
-            a.yaw + alpha * dyaw,
-            _lerp(a.right, b.right, alpha),
-            _lerp(a.left, b.left, alpha),
-        )
+    def keys_at(self, times: np.ndarray | Sequence[float]) -> np.ndarray:
+        """Interpolated key rows (torso x, y, yaw, right hand (3), left hand (3)) at ``times`` [s]. Shape (T, 9)."""
+        t = np.asarray(times, dtype=float).reshape(-1)
+        keys = self._keys
+        n = len(keys)
+        if n == 1:
+            return np.repeat(keys, len(t), axis=0)
+        k = np.searchsorted(self._times, t, side="right") - 1
+        after = k >= n - 1
+        seg = np.clip(k, 0, n - 2)
+        t0, t1 = self._times[seg], self._times[seg + 1]
+        alpha = np.where((k < 0) | after, 0.0, (t - t0) / (t1 - t0))
+        delta = keys[seg + 1] - keys[seg]
+        delta[:, _YAW] = self._dyaw[seg]
+        base = np.where(after[:, None], keys[-1], keys[seg])
+        return base + alpha[:, None] * delta
 
     def pose_at(self, t: float) -> PersonPose:
         """Interpolated pose at time ``t`` [s] (parked pose when there are no keyframes)."""
-        key = self._key_at(t)
-        return PersonPose((key.x, key.y), key.yaw, {"r": np.array(key.right), "l": np.array(key.left)})
+        key = self.keys_at([t])[0]
+        return PersonPose(
+            (float(key[_X]), float(key[_Y])), float(key[_YAW]), {"r": key[_RIGHT].copy(), "l": key[_LEFT].copy()}
+        )
 
     # -- geometry ---------------------------------------------------------------------------
+    def _arms(self, keys: np.ndarray) -> dict[str, tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]]:
+        """Shoulder, elbow, wrist and fingertip of each arm for every key row (module docstring). Shapes (T, 3)."""
+        x, y, yaw = keys[:, _X], keys[:, _Y], keys[:, _YAW]
+        c, s = np.cos(yaw), np.sin(yaw)
+        out = {}
+        for side, cols in (("r", _RIGHT), ("l", _LEFT)):
+            l1, l2, lf, lh = self._lengths[side]
+            mirror = 1.0 if side == "r" else -1.0
+            sh = self._to_world(x, y, yaw, self._shoulders[side])
+            to = keys[:, cols] - sh
+            dist = np.linalg.norm(to, axis=1)
+            qx, qy, qz = _POLE_RIGHT[0], mirror * _POLE_RIGHT[1], _POLE_RIGHT[2]
+            pole = np.stack([c * qx - s * qy, s * qx + c * qy, np.full_like(c, qz)], axis=1)
+            along = np.where(
+                (dist < 1e-9)[:, None],
+                -pole / np.linalg.norm(pole, axis=1, keepdims=True),
+                to / np.maximum(dist, 1e-300)[:, None],
+            )
+            d = np.clip(dist, abs(l1 - l2) + 1e-6, REACH_FRACTION * (l1 + l2))
+            a = (l1 * l1 - l2 * l2 + d * d) / (2.0 * d)
+            h = np.sqrt(np.maximum(l1 * l1 - a * a, 0.0))
+            normal = pole - np.sum(pole * along, axis=1, keepdims=True) * along
+            flat = np.linalg.norm(normal, axis=1) < 1e-9
+            if np.any(flat):  # pole along the arm: bend sideways
+                side_pole = np.stack([-s * mirror, c * mirror, np.zeros_like(c)], axis=1)
+                sideways = side_pole - np.sum(side_pole * along, axis=1, keepdims=True) * along
+                normal = np.where(flat[:, None], sideways, normal)
+            normal /= np.linalg.norm(normal, axis=1, keepdims=True)
+            elbow = sh + a[:, None] * along + h[:, None] * normal
+            fore = sh + d[:, None] * along - elbow  # elbow -> hand centre
+            fore /= np.linalg.norm(fore, axis=1, keepdims=True)
+            wrist = elbow + lf * fore
+            out[side] = (sh, elbow, wrist, wrist + lh * fore)
+        return out
+
     def arm_points(self, t: float, side: str) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """Shoulder, elbow, wrist and hand end of arm ``side`` (``"r"``/``"l"``) at time ``t`` [m]."""
-        key = self._key_at(t)
-        pts = self._arm(key, side)
-        return np.array(pts[0]), np.array(pts[1]), np.array(pts[2]), np.array(pts[3])
+        points = self._arms(self.keys_at([t]))[side]
+        return points[0][0], points[1][0], points[2][0], points[3][0]
 
-    def _arm(self, key: _Key, side: str) -> tuple[_Vec, _Vec, _Vec, _Vec]:
-        """Two-link IK of one arm (module docstring), in plain floats: this runs every physics step."""
-        l1, l2, lf, lh = self._lengths[side]
-        yaw = key.yaw
-        sh = self._to_world(key.x, key.y, yaw, self._shoulders[side])
-        target = key.right if side == "r" else key.left
-        tx, ty, tz = target[0] - sh[0], target[1] - sh[1], target[2] - sh[2]
-        dist = math.sqrt(tx * tx + ty * ty + tz * tz)
-        c, s = math.cos(yaw), math.sin(yaw)
-        mirror = 1.0 if side == "r" else -1.0
-        qx, qy, qz = _POLE_RIGHT[0], mirror * _POLE_RIGHT[1], _POLE_RIGHT[2]
-        px, py, pz = c * qx - s * qy, s * qx + c * qy, qz
-        if dist < 1e-9:
-            pn = math.sqrt(px * px + py * py + pz * pz)
-            ex, ey, ez = -px / pn, -py / pn, -pz / pn
-        else:
-            ex, ey, ez = tx / dist, ty / dist, tz / dist
-        d = min(max(dist, abs(l1 - l2) + 1e-6), l1 + l2)
-        a = (l1 * l1 - l2 * l2 + d * d) / (2.0 * d)
-        h = math.sqrt(max(l1 * l1 - a * a, 0.0))
-        dot = px * ex + py * ey + pz * ez
-        nx, ny, nz = px - dot * ex, py - dot * ey, pz - dot * ez
-        nn = math.sqrt(nx * nx + ny * ny + nz * nz)
-        if nn < 1e-9:  # pole along the arm: bend sideways
-            px, py, pz = -s * mirror, c * mirror, 0.0
-            dot = px * ex + py * ey
-            nx, ny, nz = px - dot * ex, py - dot * ey, -dot * ez
-            nn = math.sqrt(nx * nx + ny * ny + nz * nz)
-        nx, ny, nz = nx / nn, ny / nn, nz / nn
-        elbow = (sh[0] + a * ex + h * nx, sh[1] + a * ey + h * ny, sh[2] + a * ez + h * nz)
-        # Forearm direction: elbow -> hand centre (shoulder + d e).
-        fx, fy, fz = sh[0] + d * ex - elbow[0], sh[1] + d * ey - elbow[1], sh[2] + d * ez - elbow[2]
-        fn = math.sqrt(fx * fx + fy * fy + fz * fz)
-        fx, fy, fz = fx / fn, fy / fn, fz / fn
-        wrist = (elbow[0] + lf * fx, elbow[1] + lf * fy, elbow[2] + lf * fz)
-        tip = (wrist[0] + lh * fx, wrist[1] + lh * fy, wrist[2] + lh * fz)
-        return sh, elbow, wrist, tip
+    def capsule_ends(self, times: np.ndarray | Sequence[float]) -> CapsuleEnds:
+        """Every capsule at each of ``times`` [s], from the keyframes alone (no MuJoCo data)."""
+        keys = self.keys_at(times)
+        return self._capsules(keys, self._arms(keys))
+
+    def _capsules(self, keys: np.ndarray, arms: dict[str, tuple[np.ndarray, ...]]) -> CapsuleEnds:
+        x, y, yaw = keys[:, _X], keys[:, _Y], keys[:, _YAW]
+        starts = [self._to_world(x, y, yaw, g[1]) for g in self._torso_geoms]
+        ends = [self._to_world(x, y, yaw, g[2]) for g in self._torso_geoms]
+        for side in SIDES:
+            sh, elbow, wrist, tip = arms[side]
+            starts += [sh, elbow, wrist]
+            ends += [elbow, wrist, tip]
+        return CapsuleEnds(self.names, np.stack(starts, axis=1), np.stack(ends, axis=1), self._radius.copy())
 
     def capsules_at(self, t: float) -> dict[str, tuple[np.ndarray, np.ndarray, float]]:
         """Every capsule of the person at time ``t``: geom name → (end A, end B, radius) [m].
 
         Computed from the keyframes alone, without MuJoCo data (a sphere has A = B).
         """
-        key = self._key_at(t)
-        out: dict[str, tuple[np.ndarray, np.ndarray, float]] = {}
-        model = self.model
-        for geom in self._torso_geoms:
-            rot = np.empty(9)
-            mujoco.mju_quat2Mat(rot, model.geom_quat[geom])
-            is_capsule = model.geom_type[geom] == mujoco.mjtGeom.mjGEOM_CAPSULE
-            half = float(model.geom_size[geom][1]) if is_capsule else 0.0
-            axis = rot.reshape(3, 3)[:, 2] * half
-            pos = model.geom_pos[geom]
-            out[model.geom(geom).name] = (
-                np.array(self._to_world(key.x, key.y, key.yaw, tuple(pos - axis))),
-                np.array(self._to_world(key.x, key.y, key.yaw, tuple(pos + axis))),
-                float(model.geom_size[geom][0]),
-            )
-        for side in SIDES:
-            shoulder, elbow, wrist, tip = self._arm(key, side)
-            ends = ((shoulder, elbow), (elbow, wrist), (wrist, tip))
-            for body, (a, b) in zip(self._segments[side], ends, strict=True):
-                out[model.geom(body.geom_id).name] = (np.array(a), np.array(b), body.radius_m)
-        return out
+        caps = self.capsule_ends([t])
+        return {n: (caps.a[0, g], caps.b[0, g], float(caps.radius[g])) for g, n in enumerate(caps.names)}
 
     # -- MuJoCo -----------------------------------------------------------------------------
+    def mocap_poses(self, times: np.ndarray | Sequence[float]) -> tuple[np.ndarray, np.ndarray]:
+        """Mocap positions (T, B, 3) [m] and quaternions (T, B, 4) of the person's bodies at ``times`` [s].
+
+        Bodies in the order torso, then per arm upper arm, forearm, hand.
+        """
+        keys = self.keys_at(times)
+        arms = self._arms(keys)
+        yaw = keys[:, _YAW]
+        pos = [np.stack([keys[:, _X], keys[:, _Y], np.full(len(keys), self.floor_z)], axis=1)]
+        quat = [np.stack([np.cos(yaw / 2.0), 0.0 * yaw, 0.0 * yaw, np.sin(yaw / 2.0)], axis=1)]
+        for side in SIDES:
+            sh, elbow, wrist, tip = arms[side]
+            fore = _quat_z_to(tip - elbow)
+            pos += [sh, elbow, wrist]
+            quat += [_quat_z_to(elbow - sh), fore, fore]
+        return np.stack(pos, axis=1), np.stack(quat, axis=1)
+
+    def _mocap_at(self, t: float) -> tuple[np.ndarray, np.ndarray]:
+        period = self._period
+        if period is not None:
+            k = round(t / period)
+            if k >= 0 and abs(k * period - t) <= 1e-9 * max(1.0, abs(t)):
+                block = k // _BLOCK
+                if block not in self._blocks:
+                    if len(self._blocks) > 8:
+                        self._blocks.clear()
+                    self._blocks[block] = self.mocap_poses((block * _BLOCK + np.arange(_BLOCK)) * period)
+                pos, quat = self._blocks[block]
+                return pos[k - block * _BLOCK], quat[k - block * _BLOCK]
+        pos, quat = self.mocap_poses([t])
+        return pos[0], quat[0]
+
     def apply(self, t: float, data: mujoco.MjData) -> None:
         """Write the mocap poses of time ``t`` [s] into ``data``.
 
-        Call before ``mj_step`` (or follow with ``mj_kinematics``/``mj_forward``). Cheap: a
-        pose already written while the person stands still is not rewritten, and a moving
-        pose costs ~20 µs. Usable as the ``scene_update(t, data)`` callback of
-        :class:`compare.loop.sim_io.SimRobotIO`.
+        Call before ``mj_step`` (or follow with ``mj_kinematics``/``mj_forward``). Usable as the
+        ``scene_update(t, data)`` callback of :class:`compare.loop.sim_io.SimRobotIO`.
         """
-        if self._keys:
-            k, alpha = self._segment(t)
-            still = alpha == 0.0 or self._stationary[k]
-        else:
-            k, still = -1, True
-        torso = self._torso.mocap_id
-        if still and self._cache_key == (k, id(data), tuple(data.mocap_pos[torso])):
-            return
-        key = self._key_at(t)
-        pos = [(key.x, key.y, self.floor_z)]
-        quat = [(math.cos(key.yaw / 2.0), 0.0, 0.0, math.sin(key.yaw / 2.0))]
-        for side in SIDES:
-            shoulder, elbow, wrist, tip = self._arm(key, side)
-            upper = _quat_z_to(elbow[0] - shoulder[0], elbow[1] - shoulder[1], elbow[2] - shoulder[2])
-            fore = _quat_z_to(tip[0] - elbow[0], tip[1] - elbow[1], tip[2] - elbow[2])
-            pos += [shoulder, elbow, wrist]
-            quat += [upper, fore, fore]
-        data.mocap_pos[self._mocap_index] = np.array(pos)
-        data.mocap_quat[self._mocap_index] = np.array(quat)
-        self._cache_key = (k, id(data), tuple(data.mocap_pos[torso])) if still else None
+        pos, quat = self._mocap_at(t)
+        data.mocap_pos[self._mocap_index] = pos
+        data.mocap_quat[self._mocap_index] = quat
 
     __call__ = apply
 
     def hide(self, data: mujoco.MjData) -> None:
         """Park the person out of sight in ``data`` (whatever its keyframes)."""
-        saved = self._keys
-        self._keys = []
-        self._cache_key = None
+        key = np.array([self._resolve(PersonKeyframe(0.0, PARKED_POSITION))])
+        saved, saved_times = self._keys, self._times
+        self._keys, self._times = key, np.zeros(1)
         try:
-            self.apply(0.0, data)
+            pos, quat = self.mocap_poses([0.0])
         finally:
-            self._keys = saved
-            self._cache_key = None
+            self._keys, self._times = saved, saved_times
+        data.mocap_pos[self._mocap_index] = pos[0]
+        data.mocap_quat[self._mocap_index] = quat[0]
 
     def __repr__(self) -> str:
-        span = f"{self._times[0]:.1f}-{self._times[-1]:.1f} s" if self._times else "parked"
+        span = f"{self._times[0]:.1f}-{self._times[-1]:.1f} s" if self._present else "parked"
         return f"Person(keyframes={len(self._times)}, {span})"
 
 
-class _Key(NamedTuple):
-    """A keyframe resolved to floats (hand targets always set)."""
-
-    x: float
-    y: float
-    yaw: float
-    right: _Vec
-    left: _Vec
-
-
-def _lerp(a: _Vec, b: _Vec, alpha: float) -> _Vec:
-    return (a[0] + alpha * (b[0] - a[0]), a[1] + alpha * (b[1] - a[1]), a[2] + alpha * (b[2] - a[2]))
+def _torso_geom(model: mujoco.MjModel, geom: int) -> tuple[str, np.ndarray, np.ndarray, float]:
+    """Name, segment ends in the torso frame [m] and radius of a geom of the torso body (a sphere: A = B)."""
+    rot = np.empty(9)
+    mujoco.mju_quat2Mat(rot, model.geom_quat[geom])
+    is_capsule = model.geom_type[geom] == mujoco.mjtGeom.mjGEOM_CAPSULE
+    half = float(model.geom_size[geom][1]) if is_capsule else 0.0
+    axis = rot.reshape(3, 3)[:, 2] * half
+    pos = np.array(model.geom_pos[geom], dtype=float)
+    return model.geom(geom).name, pos - axis, pos + axis, float(model.geom_size[geom][0])
 
 
-def _quat_z_to(dx: float, dy: float, dz: float) -> tuple[float, float, float, float]:
-    """Unit quaternion (w, x, y, z) of the shortest rotation taking +z to the direction (dx, dy, dz)."""
-    n = math.sqrt(dx * dx + dy * dy + dz * dz)
-    if n < 1e-12:
-        return (1.0, 0.0, 0.0, 0.0)
-    ux, uy, uz = dx / n, dy / n, dz / n
-    w = 1.0 + uz
-    if w < 1e-9:  # pointing straight down: half turn about x
-        return (0.0, 1.0, 0.0, 0.0)
-    qn = math.sqrt(w * w + uy * uy + ux * ux)
-    return (w / qn, -uy / qn, ux / qn, 0.0)
+def _quat_z_to(v: np.ndarray) -> np.ndarray:
+    """Unit quaternions (w, x, y, z), shape (T, 4), of the shortest rotations taking +z to each row of ``v`` (T, 3)."""
+    n = np.linalg.norm(v, axis=1)
+    u = v / np.maximum(n, 1e-300)[:, None]
+    w = 1.0 + u[:, 2]
+    q = np.stack([w, -u[:, 1], u[:, 0], np.zeros_like(w)], axis=1)
+    q /= np.maximum(np.linalg.norm(q, axis=1), 1e-300)[:, None]
+    q[w < 1e-9] = (0.0, 1.0, 0.0, 0.0)  # pointing straight down: half turn about x
+    q[n < 1e-12] = (1.0, 0.0, 0.0, 0.0)
+    return q

@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 
 from compare.analysis.violations import _episodes, closing_speed
-from compare.campaign.oracle import PersonTrack
 from compare.sensing.person import Person, PersonKeyframe
+from compare.sensing.person_track import PersonTrack
 from compare.sensing.scene import load_workcell
 
 

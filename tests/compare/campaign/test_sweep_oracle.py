@@ -1,4 +1,4 @@
-"""A sweep with the oracle on: per-run oracle entries, the split, and the report's section."""
+"""A sweep with the verdict on: per-run labels, violations by label, and the report's section."""
 
 from __future__ import annotations
 
@@ -30,22 +30,19 @@ def test_sweep_with_oracle_splits_obstacle_violations(tmp_path):
     for run in sorted((out / "runs").iterdir()):
         summary = json.loads((run / "summary.json").read_text())
         oracle = summary["oracle"]
-        assert isinstance(oracle["held_safety"], bool) and oracle["min_distance_m"] > 0
+        assert oracle["label"] in ("avoidable", "unavoidable", "undecided")
+        assert oracle["held_safety"] is (oracle["label"] == "avoidable") and oracle["min_distance_m"] > 0
+        assert oracle["witnesses"] and (oracle["witness"] in oracle["witnesses"] or oracle["witness"] is None)
         assert list((run / "oracle").glob("*.json"))  # cached
         tpik = summary["methods"]["tpik"]
         episodes = tpik["obstacles"]["violations"]
-        expected = (
-            {"avoidable": episodes, "unavoidable": 0}
-            if oracle["held_safety"]
-            else {
-                "avoidable": 0,
-                "unavoidable": episodes,
-            }
-        )
+        expected = {
+            label: episodes if label == oracle["label"] else 0 for label in ("avoidable", "unavoidable", "undecided")
+        }
         assert tpik["obstacle_violations"] == expected
     sweep = json.loads((out / "sweep_summary.json").read_text())
     assert sweep["oracle"]["runs"] == 2
     split = sweep["methods"]["tpik"]["obstacle_violations"]
     assert set(split["avoidable"]) == {"count", "runs", "rate", "ci95"} and split["avoidable"]["runs"] == 2
     report = (out / "sweep_report.md").read_text()
-    assert "## Obstacle violations against the clairvoyant oracle" in report
+    assert "## Obstacle violations by the run's verdict" in report

@@ -38,6 +38,8 @@ class WorstSeed:
         duration_s: Where the run is cut [s] (inside the former violation).
         group: The set-task group that was violated.
         drive: Joint drive of the dynamic simulation.
+        kept_from_earlier_generator: Why the file keeps a scenario the generator no longer draws
+            (None: the generator's draw today is frozen, and the drift test checks it).
     """
 
     seed: int
@@ -45,6 +47,7 @@ class WorstSeed:
     duration_s: float
     group: str
     drive: str
+    kept_from_earlier_generator: str | None = None
 
     @property
     def path(self) -> Path:
@@ -60,7 +63,15 @@ class WorstSeed:
 CASES: tuple[WorstSeed, ...] = (
     WorstSeed(379, "tpik", 13.0, "joint_limits", "servo"),
     WorstSeed(215, "hqp-daqp", 20.0, "walls", "servo"),
-    WorstSeed(145, "tpik", 18.2, "joint_limits", "servo"),
+    WorstSeed(
+        145,
+        "tpik",
+        18.2,
+        "joint_limits",
+        "servo",
+        "the person's path of this seed changed (speed-limited visits), and with it the arm's state at"
+        " 17.9 s: the largest-norm mode choice this case tests no longer happens there",
+    ),
     WorstSeed(610, "hqp-daqp", 14.5, "walls", "decoupled"),
     WorstSeed(132, "tpik", 7.3, "walls", "decoupled"),
 )
@@ -87,7 +98,7 @@ def freeze_text(case: WorstSeed, config: Config) -> str:
     """The TOML of a frozen case, headed by where it comes from."""
     header = (
         f"# Frozen by tests/compare/campaign/worst_seeds.py: configs/random.toml, seed {case.seed}, cut at\n"
-        f"# {case.duration_s:g} s, {case.drive} drive; {case.method} violated {case.group} here (issue 9).\n"
+        f"# {case.duration_s:g} s, {case.drive} drive; {case.method} violated {case.group} here.\n"
         f"# Re-freeze: {REFREEZE}\n\n"
     )
     return header + tomli_w.dumps(frozen_view(config))
@@ -97,6 +108,8 @@ def main() -> None:
     """Write every case's frozen scenario."""
     FROZEN_DIR.mkdir(exist_ok=True)
     for case in CASES:
+        if case.kept_from_earlier_generator:
+            continue
         case.path.write_text(freeze_text(case, realized(case)), encoding="utf-8")
         print(case.path.relative_to(ROOT))
 

@@ -288,8 +288,8 @@ def test_each_camera_has_its_own_self_filter_margin(jaco):
     model = load_rig_workcell("jaco2", cams)
     data = make_data(model)
     points = control_point_positions(jaco.kinematics(data.qpos[: jaco.nq]), jaco.control_points)
-    hand = points["link_4"] + np.array([0.0, 0.1, 0.06])
-    Person(model, [PersonKeyframe(0.0, (0.0, 0.72), -math.pi / 2, right_hand=tuple(hand))]).apply(0.0, data)
+    hand = points["link_4"] + np.array([0.0, 0.09, 0.06])
+    Person(model, [PersonKeyframe(0.0, (0.0, 0.70), -math.pi / 2, right_hand=tuple(hand))]).apply(0.0, data)
     mujoco.mj_forward(model, data)
     truth = GeometricDistance(model, rho_m=math.inf).distances(data, points)["link_4"]
     wide = DepthSensingSettings(self_filter_margin_m=0.03)

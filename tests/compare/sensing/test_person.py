@@ -10,6 +10,7 @@ import pytest
 
 from compare.config import PersonKeyframe as ConfigKeyframe
 from compare.sensing import Person, PersonKeyframe, SensingError, load_workcell, make_data
+from compare.sensing.person import REACH_FRACTION
 
 YAW = -math.pi / 2  # facing the arm from +y
 
@@ -83,14 +84,49 @@ def test_reachable_target_is_reached_and_segment_lengths_are_kept(model):
             assert np.linalg.norm(b - a) == pytest.approx(2 * model.geom_size[g][1])
 
 
-def test_unreachable_target_stretches_the_arm_towards_it(model):
+def test_unreachable_target_is_approached_on_its_line_with_the_elbow_still_bent(model):
     far = np.array([-1.0, -1.0, 0.6])
     person = Person(model, [PersonKeyframe(0.0, (0.0, 1.0), YAW, right_hand=tuple(far))])
     shoulder, elbow, wrist, tip = person.arm_points(0.0, "r")
     direction = (far - shoulder) / np.linalg.norm(far - shoulder)
-    for point in (elbow, wrist, tip):
-        off_line = (point - shoulder) - ((point - shoulder) @ direction) * direction
-        assert np.linalg.norm(off_line) < 1e-6
+    caps = person.capsules_at(0.0)
+    hand_a, hand_b, _ = caps["person_r_hand"]
+    centre = (hand_a + hand_b) / 2
+    l1 = np.linalg.norm(elbow - shoulder)
+    l2 = np.linalg.norm(centre - elbow)
+    np.testing.assert_allclose(centre - shoulder, REACH_FRACTION * (l1 + l2) * direction, atol=1e-9)
+    off_line = (elbow - shoulder) - ((elbow - shoulder) @ direction) * direction
+    assert np.linalg.norm(off_line) > 0.05  # bent: the elbow is off the shoulder-hand line
+
+
+def test_elbow_speed_stays_bounded_when_a_target_comes_into_reach(model):
+    """Near full stretch the two-link elbow moves ever faster per metre of the hand (h' → ∞): capped reach."""
+    shoulder = Person(model, [PersonKeyframe(0.0, (0.0, 1.0), YAW)]).arm_points(0.0, "r")[0]
+    out = np.array([0.0, -1.0, 0.0])  # straight ahead of the person (facing -y)
+    frames = [
+        PersonKeyframe(0.0, (0.0, 1.0), YAW, right_hand=tuple(shoulder + 0.8 * out)),
+        PersonKeyframe(1.0, (0.0, 1.0), YAW, right_hand=tuple(shoulder + 0.3 * out)),
+    ]
+    caps = Person(model, frames).capsule_ends(np.linspace(0.0, 1.0, 2001))
+    hand_speed = 0.5  # m/s of the target
+    speeds = np.linalg.norm(np.diff(caps.b, axis=0), axis=2) / (1.0 / 2000)
+    elbow = caps.names.index("person_r_upperarm")
+    assert speeds[:, elbow].max() < 1.5 * hand_speed
+
+
+def test_poses_on_the_sampling_grid_equal_poses_computed_one_at_a_time(model):
+    frames = [PersonKeyframe(0.0, (0.3, 1.2), 2.0), PersonKeyframe(4.0, (-0.2, 0.8), -2.5, right_hand=(0.1, 0.4, 0.6))]
+    gridded = Person(model, frames, sample_period_s=0.01)
+    direct = Person(model, frames)
+    a, b = make_data(model), make_data(model)
+    for k in (0, 1, 255, 256, 257, 399, 600):
+        gridded.apply(k * 0.01, a)
+        direct.apply(k * 0.01, b)
+        np.testing.assert_array_equal(a.mocap_pos, b.mocap_pos)
+        np.testing.assert_array_equal(a.mocap_quat, b.mocap_quat)
+    gridded.apply(1.234567, a)  # off the grid: computed alone
+    direct.apply(1.234567, b)
+    np.testing.assert_array_equal(a.mocap_pos, b.mocap_pos)
 
 
 def test_mocap_bodies_carry_the_capsules_of_the_keyframes(model):
