@@ -11,6 +11,8 @@ from __future__ import annotations
 import numba
 import numpy as np
 
+from compare.sensing._kernels import surveillance_boxes
+
 _BUCKETS = 64
 
 
@@ -60,6 +62,19 @@ def _seen_free(
         if _free_in(xm, ym, zm, intr, tau, m, others[m]):
             return True
     return False
+
+
+@numba.njit(cache=True, nogil=True)
+def seen_free(
+    point: np.ndarray,
+    rot: np.ndarray,
+    trans: np.ndarray,
+    intr: np.ndarray,
+    tau: np.ndarray,
+    others: tuple[np.ndarray, ...],
+) -> bool:
+    """Whether some other camera sees the owner-frame point free (arguments as for :func:`occluded_search`)."""
+    return _seen_free(point[0], point[1], point[2], rot, trans, intr, tau, others)
 
 
 @numba.njit(cache=True, nogil=True)
@@ -278,7 +293,6 @@ def _unclipped_rest(
 def not_free_bounds(
     p: np.ndarray,
     raw: np.ndarray,
-    boxes: np.ndarray,
     todo: np.ndarray,
     xn: np.ndarray,
     yn: np.ndarray,
@@ -294,7 +308,8 @@ def not_free_bounds(
     scene's alike), the whole in-range ray of a pixel without a return, and what is out of view
     or range. With :math:`\delta` the distance from :math:`P` to the half-lines
     :math:`\{s\,\mathbf r_q : s \ge n_q\}` (:math:`n_q` the return, or the minimum range for
-    none) of the pixels of :math:`P`'s surveillance box, that space within ``radius`` of
+    none) of the pixels of the image box of the cube of half side ``radius`` around :math:`P`
+    (every point within ``radius`` has its nearest pixel there), that space within ``radius`` of
     :math:`P` is at least :math:`\delta - 1.5\,\tau(z) - 0.8\,z / f_{min}` away (:math:`z` the
     farthest depth of interest), and at least as far as the view's border planes and range
     limits. When the camera does not see :math:`P` itself free (a control point inside its own
@@ -303,7 +318,6 @@ def not_free_bounds(
     Args:
         p: Control points in the camera's sensor frame [m], (K, 3).
         raw: The camera's raw depth image [m], (H, W), float32 (0/NaN/out of range: no return).
-        boxes: The camera's surveillance boxes ``(v0, v1, u0, u1)`` of the control points, (K, 4).
         todo: Indices of the control points to bound, int64 (T,).
         xn: ``(u - cx) / fx`` per column, (W,).
         yn: ``(v - cy) / fy`` per row, (H,).
@@ -315,7 +329,8 @@ def not_free_bounds(
     Returns:
         The bounds [m] of the ``todo`` control points, (T,) (0 for a point out of view).
     """
-    fx, fy, lo = intr[0, 0], intr[0, 1], intr[0, 6]
+    fx, fy, cx, cy, lo = intr[0, 0], intr[0, 1], intr[0, 2], intr[0, 3], intr[0, 6]
+    width, height = int(intr[0, 4]), int(intr[0, 5])
     out = np.zeros(todo.size)
     for i in range(todo.size):
         k = todo[i]
@@ -325,7 +340,8 @@ def not_free_bounds(
             continue
         z_far = max(z + radius[k], 0.0)
         slack = 1.5 * _allowance(tau, 0, z_far) + 0.8 * z_far / min(fx, fy)
-        delta = _unseen_distance(raw, boxes[k], xn, yn, inv_rr, lo, intr[0, 7], x, y, z, slack)
+        box = surveillance_boxes(p[k : k + 1], radius[k], fx, fy, cx, cy, width, height, lo)[0]
+        delta = _unseen_distance(raw, box, xn, yn, inv_rr, lo, intr[0, 7], x, y, z, slack)
         out[i] = max(min(bound, delta - slack), 0.0)
     return out
 

@@ -85,7 +85,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from compare.loop.robot_io import CameraModel, DepthFrame
-from compare.sensing._fusion_kernel import not_free_bounds, occluded_search
+from compare.sensing._fusion_kernel import not_free_bounds, occluded_search, seen_free
 from compare.sensing.camera import DepthNoise, base_to_sensor, sensor_to_base, valid_fraction
 from compare.sensing.depth_distance import CameraEvaluation, DepthDistance
 from compare.sensing.exceptions import SensingError
@@ -294,6 +294,12 @@ class DepthFusion:
         box = scan.raw[c][0]
         samples = 0
         for k, radius_lo in zip(todo, bounds, strict=True):
+            nearest = self._nearest_hidden(c, int(k), scan)
+            if nearest is not None and not seen_free(nearest, rot, trans, intr, tau, other_depths):
+                # The nearest hidden point of all is not seen free: the search's first sample, its answer.
+                samples += 1
+                best.take_hidden(int(k), c, float(scan.delta[c, k]), nearest)
+                continue
             found, x, y, z, n, _ = occluded_search(
                 depth,
                 box[k],
@@ -319,6 +325,12 @@ class DepthFusion:
                 best.take_hidden(int(k), c, found, np.array([x, y, z]))
         return samples
 
+    @staticmethod
+    def _nearest_hidden(c: int, k: int, scan: _Scan) -> np.ndarray | None:
+        """Camera ``c``'s closest hidden point to control point ``k`` (sensor frame [m]), None if on a surface."""
+        d2, a, b, s, hidden = scan.raw[c][1][:5]
+        return np.array([a[k] * s[k], b[k] * s[k], s[k]]) if hidden[k] else None
+
     def _seen_free_bounds(
         self, c: int, todo: np.ndarray, raws: Sequence[np.ndarray], scan: _Scan, radius: np.ndarray
     ) -> np.ndarray:
@@ -332,7 +344,7 @@ class DepthFusion:
         for j, m in enumerate(others):
             d = self.distances[m]
             bound = not_free_bounds(
-                scan.p_sensor[m], raws[m], scan.raw[m][0], todo, d._xn64, d._yn64, d._inv_rr, radius,
+                scan.p_sensor[m], raws[m], todo, d._xn64, d._yn64, d._inv_rr, radius,
                 intr[j : j + 1], tau[j : j + 1],
             )  # fmt: skip
             np.maximum(bounds, bound, out=bounds)

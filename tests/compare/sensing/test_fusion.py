@@ -61,7 +61,9 @@ def _render(camera: CameraModel, spheres: list[tuple[np.ndarray, float]], wall: 
     return DepthFrame(depth.astype(np.float32), 0.0, camera)
 
 
-def _filtered(camera: CameraModel, person: list, arm: list | tuple = (), wall: float = WALL) -> tuple[DepthFrame, DepthFrame]:
+def _filtered(
+    camera: CameraModel, person: list, arm: list | tuple = (), wall: float = WALL
+) -> tuple[DepthFrame, DepthFrame]:
     """(filtered, raw) frames: the raw one sees the person, the arm and a wall; the filtered one the person."""
     raw = _render(camera, [*person, *arm], wall)
     alone = _render(camera, person).depth_m
@@ -229,19 +231,20 @@ def test_not_free_bound_is_a_lower_bound(seed):
     ps = base_to_sensor(CAM_B, p[None, :])
     intr = np.array([[F, F, CAM_B.cx, CAM_B.cy, W, H, CAM_B.min_range_m, CAM_B.max_range_m]])
     tau = 0.002
-    bound = not_free_bounds(
-        ps, raw.depth_m, distance.surveillance_boxes(ps), np.array([0]), distance._xn64, distance._yn64,
-        distance._inv_rr, np.array([RHO]), intr, np.array([[tau, 0.0, 0.0]]),
-    )[0]  # fmt: skip
-    # Dense random points in the ball: every point the camera does not see free lies beyond the bound.
-    direction = rng.normal(size=(200_000, 3))
-    direction /= np.linalg.norm(direction, axis=1, keepdims=True)
-    points = p + direction * RHO * rng.random((200_000, 1)) ** (1 / 3)
-    not_free = ~_seen_free_reference(CAM_B, raw.depth_m, points, tau)
-    assert not_free.any()
-    assert np.min(np.linalg.norm(points[not_free] - p, axis=1)) >= bound - 1e-9
     seen_p = _seen_free_reference(CAM_B, raw.depth_m, p[None, :], tau)[0]
-    assert bound > 0.0 if seen_p else bound == 0.0  # a control point the camera does not see free: 0
+    for radius in (RHO, 0.2):
+        bound = not_free_bounds(
+            ps, raw.depth_m, np.array([0]), distance._xn64, distance._yn64, distance._inv_rr, np.array([radius]),
+            intr, np.array([[tau, 0.0, 0.0]]),
+        )[0]  # fmt: skip
+        # Dense random points in the ball: every point the camera does not see free lies beyond the bound.
+        direction = rng.normal(size=(200_000, 3))
+        direction /= np.linalg.norm(direction, axis=1, keepdims=True)
+        points = p + direction * radius * rng.random((200_000, 1)) ** (1 / 3)
+        not_free = ~_seen_free_reference(CAM_B, raw.depth_m, points, tau)
+        if not_free.any():
+            assert np.min(np.linalg.norm(points[not_free] - p, axis=1)) >= bound - 1e-9
+        assert bound > 0.0 if seen_p else bound == 0.0  # a control point the camera does not see free: 0
 
 
 def test_occluded_search_finds_the_closest_hidden_point_no_other_camera_sees_free():
