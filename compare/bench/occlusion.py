@@ -262,7 +262,7 @@ class GroundTruth:
             group = int(self.model.geom_group[int(geom[0])])
             if group == PERSON_GROUP:
                 # A person surface within the self-filter margin is removed with the arm: its shadow
-                # counts as the arm's (free), as with one camera.
+                # counts as the arm's (no hidden space of its own), as with one camera.
                 self._probe_at(data, origin + ray / length * hit)
                 gap, _ = self._distance(data, self.arm_geoms, 1.0)
                 self._probe_at(data, point)

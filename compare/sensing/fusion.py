@@ -59,8 +59,10 @@ free. A camera that sees it measures it (1.).
 gives, in one pass over each surveillance box, the closest measured point :math:`e_c` and the
 closest point :math:`\delta_c \le e_c` of its hidden half-lines. With :math:`e = \min_c e_c`
 (capped at ρ) nothing more is needed unless some :math:`\delta_c < e - h` (a hidden point
-replaces a measured one only when nearer by more than the search's resolution). Then that
-camera's hidden half-lines are searched
+replaces a measured one only when nearer by more than the search's resolution). Then the
+point at :math:`\delta_c` itself is tested first: when no other camera sees it free, it is the
+answer (the search's first sample would be it). Otherwise that camera's hidden half-lines are
+searched
 (:func:`compare.sensing._fusion_kernel.occluded_search`): nearest half-lines first, each
 sampled every :math:`h` in depth outward from its closest approach to :math:`P`; the first
 sample no other camera sees free (tested on that camera's raw frame) is its candidate. Points
