@@ -225,7 +225,8 @@ class SensorConfig(_Strict):
             fused by ``compare.sensing.fusion`` (docs/sensing.md).
         fusion_step_m: Sampling step along hidden half-lines when fusing several cameras [m].
         fusion_tolerance_m: A point counts as seen free by a camera only if it is this much in
-            front of the measured surface (plus the noise allowance) [m].
+            front of its pixel's return, the arm's and the table's included (plus the noise
+            allowance) [m].
         min_support: Each control point's distance is the ``min_support``-th smallest pixel
             distance in its cube: 1 = the minimum (the paper's/Flacco's estimate); 2–5 ignore
             that many − 1 isolated stray ("flying") pixels at depth edges, at the price of

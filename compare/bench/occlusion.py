@@ -262,7 +262,7 @@ class GroundTruth:
             group = int(self.model.geom_group[int(geom[0])])
             if group == PERSON_GROUP:
                 # A person surface within the self-filter margin is removed with the arm: its shadow
-                # counts as the arm's (free), as with one camera.
+                # counts as the arm's (no hidden space of its own), as with one camera.
                 self._probe_at(data, origin + ray / length * hit)
                 gap, _ = self._distance(data, self.arm_geoms, 1.0)
                 self._probe_at(data, point)
@@ -320,11 +320,11 @@ def run_scenes(
             fractions = [valid_fraction(f) for f in frames]
             if i == 0:  # load the compiled kernels before timing
                 one.distance.compute(filtered[0], points, fractions[0])
-                rig.fusion.compute(filtered, points, fractions)
+                rig.fusion.compute(filtered, points, fractions, raw_frames=frames)
             t0 = time.thread_time()
             r1 = one.distance.compute(filtered[0], points, fractions[0])
             t1 = time.thread_time()
-            r2 = rig.fusion.compute(filtered, points, fractions)
+            r2 = rig.fusion.compute(filtered, points, fractions, raw_frames=frames)
             t2 = time.thread_time()
             cpu_one.append((t1 - t0) * 1e3)
             cpu_two.append((t2 - t1) * 1e3)

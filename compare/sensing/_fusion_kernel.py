@@ -11,7 +11,36 @@ from __future__ import annotations
 import numba
 import numpy as np
 
+from compare.sensing._kernels import surveillance_boxes
+
 _BUCKETS = 64
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _free_in(x: float, y: float, z: float, intr: np.ndarray, tau: np.ndarray, m: int, depth: np.ndarray) -> bool:
+    r"""Whether camera ``m`` sees its sensor-frame point (x, y, z) free (module ``fusion`` rule).
+
+    Free iff in range, in view, and in front of its nearest pixel's raw return ``r`` by more than
+    the allowance: :math:`z < r - \tau(r)`. A pixel without a return in range says nothing.
+    """
+    lo = intr[m, 6]
+    hi = intr[m, 7]
+    if z < lo or z > hi:  # nearer than the minimum range or beyond the maximum: unknown
+        return False
+    iu = int(np.floor(intr[m, 2] + intr[m, 0] * x / z + 0.5))
+    iv = int(np.floor(intr[m, 3] + intr[m, 1] * y / z + 0.5))
+    if iu < 0 or iv < 0 or iu >= int(intr[m, 4]) or iv >= int(intr[m, 5]):  # out of view: unknown
+        return False
+    r = depth[iv, iu]
+    if not lo <= r <= hi:  # no return in range (dropout, NaN): unknown
+        return False
+    return z < r - _allowance(tau, m, r)
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _allowance(tau: np.ndarray, m: int, depth: float) -> float:
+    """Camera ``m``'s free-space allowance τ(d) = tolerance + k σ0 (d if proportional else 1) [m]."""
+    return tau[m, 0] + tau[m, 1] * (depth if tau[m, 2] > 0.0 else 1.0)
 
 
 @numba.njit(cache=True, nogil=True, inline="always")
@@ -25,27 +54,27 @@ def _seen_free(
     tau: np.ndarray,
     others: tuple[np.ndarray, ...],
 ) -> bool:
-    """Whether some other camera sees the owner-frame point (x, y, z) free (module ``fusion`` rule)."""
+    """Whether some other camera sees the owner-frame point (x, y, z) free (:func:`_free_in` on its raw frame)."""
     for m in range(len(others)):
         xm = rot[m, 0, 0] * x + rot[m, 0, 1] * y + rot[m, 0, 2] * z + trans[m, 0]
         ym = rot[m, 1, 0] * x + rot[m, 1, 1] * y + rot[m, 1, 2] * z + trans[m, 1]
         zm = rot[m, 2, 0] * x + rot[m, 2, 1] * y + rot[m, 2, 2] * z + trans[m, 2]
-        lo = intr[m, 6]
-        hi = intr[m, 7]
-        if zm < lo or zm > hi:  # nearer than the minimum range or beyond the maximum: unknown
-            continue
-        iu = int(np.floor(intr[m, 2] + intr[m, 0] * xm / zm + 0.5))
-        iv = int(np.floor(intr[m, 3] + intr[m, 1] * ym / zm + 0.5))
-        if iu < 0 or iv < 0 or iu >= int(intr[m, 4]) or iv >= int(intr[m, 5]):  # out of view: unknown
-            continue
-        f = others[m][iv, iu]
-        if lo <= f <= hi:  # an obstacle pixel: free only in front of its surface
-            allowance = tau[m, 0] + tau[m, 1] * (f if tau[m, 2] > 0.0 else 1.0)
-            if zm < f - allowance:
-                return True
-            continue
-        return True  # arm, static scene or no return: the ray counts as free (the one-camera premise)
+        if _free_in(xm, ym, zm, intr, tau, m, others[m]):
+            return True
     return False
+
+
+@numba.njit(cache=True, nogil=True)
+def seen_free(
+    point: np.ndarray,
+    rot: np.ndarray,
+    trans: np.ndarray,
+    intr: np.ndarray,
+    tau: np.ndarray,
+    others: tuple[np.ndarray, ...],
+) -> bool:
+    """Whether some other camera sees the owner-frame point free (arguments as for :func:`occluded_search`)."""
+    return _seen_free(point[0], point[1], point[2], rot, trans, intr, tau, others)
 
 
 @numba.njit(cache=True, nogil=True)
@@ -81,7 +110,7 @@ def occluded_search(
         max_range: Owner's largest valid depth [m].
         p: Control point in the owner's sensor frame [m], (3,).
         radius_lo: Every point nearer than this to ``p`` is known to be seen free by another
-            camera [m] (the lower bound of :func:`compare.sensing.fusion.not_free_bound`).
+            camera [m] (the largest of the other cameras' :func:`not_free_bounds`).
         radius_hi: Only points nearer than this are of interest [m] (the best distance so far).
         step: Sampling step along a half-line, in depth [m].
         budget: Largest number of samples; beyond it the search ends conservatively.
@@ -89,9 +118,10 @@ def occluded_search(
         trans: ... translations (M, 3).
         intr: Other cameras' ``fx, fy, cx, cy, width, height, min_range, max_range``, (M, 8).
         tau: Other cameras' free-space allowance ``tolerance, k σ0, proportional`` (M, 3): a point
-            is seen free in front of a surface at depth f only if nearer than
-            ``f − tolerance − k σ0 (f if proportional else 1)``.
-        others: The other cameras' filtered depth images (float32, each its own shape).
+            is seen free in front of a return at depth r only if nearer than
+            ``r − tolerance − k σ0 (r if proportional else 1)``.
+        others: The other cameras' raw depth images, before the filters (float32, each its own
+            shape; 0/NaN/out of range: no return, which sees nothing free).
         work: Scratch, float64 (6, H·W) of the owner.
 
     Returns:
@@ -262,44 +292,112 @@ def _unclipped_rest(
 @numba.njit(cache=True, nogil=True)
 def not_free_bounds(
     p: np.ndarray,
-    distance: np.ndarray,
+    raw: np.ndarray,
+    todo: np.ndarray,
+    xn: np.ndarray,
+    yn: np.ndarray,
+    inv_rr: np.ndarray,
     radius: np.ndarray,
     intr: np.ndarray,
     tau: np.ndarray,
 ) -> np.ndarray:
     r"""Per control point, a lower bound of its distance to the space one camera does not see free [m].
 
-    That space is what lies behind the camera's obstacle pixels (from :math:`f - \tau(f)`, at
-    nearest-pixel resolution) and what is out of its view or range. Within ``radius`` of a
-    control point it is at least :math:`\delta - 1.5\,\tau(z) - 0.8\,z / f_{min}` away
-    (:math:`\delta` the depth-space kernel's half-line distance, :math:`z` the farthest depth of
-    interest), and at least as far as the view's border planes and range limits.
+    That space (:func:`_free_in`) is what lies behind every pixel's raw return :math:`r` (from
+    :math:`r - \tau(r)`, at nearest-pixel resolution: the person's, the arm's and the static
+    scene's alike), the whole in-range ray of a pixel without a return, and what is out of view
+    or range. With :math:`\delta` the distance from :math:`P` to the half-lines
+    :math:`\{s\,\mathbf r_q : s \ge n_q\}` (:math:`n_q` the return, or the minimum range for
+    none) of the pixels of the image box of the cube of half side ``radius`` around :math:`P`
+    (every point within ``radius`` has its nearest pixel there), that space within ``radius`` of
+    :math:`P` is at least :math:`\delta - 1.5\,\tau(z) - 0.8\,z / f_{min}` away (:math:`z` the
+    farthest depth of interest), and at least as far as the view's border planes and range
+    limits. When the camera does not see :math:`P` itself free (a control point inside its own
+    link, behind the arm's surface) the bound is 0 without a scan.
 
     Args:
         p: Control points in the camera's sensor frame [m], (K, 3).
-        distance: The camera's half-line distances δ [m] (``inf``: no obstacle pixel), (K,).
-        radius: Distance of interest per control point [m], (K,).
-        intr: ``fx, fy, cx, cy, width, height, min_range, max_range``, (8,).
-        tau: ``tolerance, k σ0, proportional``, (3,).
+        raw: The camera's raw depth image [m], (H, W), float32 (0/NaN/out of range: no return).
+        todo: Indices of the control points to bound, int64 (T,).
+        xn: ``(u - cx) / fx`` per column, (W,).
+        yn: ``(v - cy) / fy`` per row, (H,).
+        inv_rr: ``1 / (1 + xn² + yn²)`` per pixel, (H, W).
+        radius: Distance of interest per control point [m], at most ρ, (K,).
+        intr: ``fx, fy, cx, cy, width, height, min_range, max_range`` of the camera, (1, 8).
+        tau: ``tolerance, k σ0, proportional`` of the camera, (1, 3).
 
     Returns:
-        The bounds [m], (K,) (0 for a point out of view).
+        The bounds [m] of the ``todo`` control points, (T,) (0 for a point out of view).
     """
-    fx, fy, cx, cy, width, height, lo, hi = intr[0], intr[1], intr[2], intr[3], intr[4], intr[5], intr[6], intr[7]
-    out = np.empty(p.shape[0])
-    for k in range(p.shape[0]):
+    fx, fy, cx, cy, lo = intr[0, 0], intr[0, 1], intr[0, 2], intr[0, 3], intr[0, 6]
+    width, height = int(intr[0, 4]), int(intr[0, 5])
+    out = np.zeros(todo.size)
+    for i in range(todo.size):
+        k = todo[i]
         x, y, z = p[k, 0], p[k, 1], p[k, 2]
-        bound = min(z - lo, hi - z)
-        for lim, coord, f, c, sign in (
-            (-0.5, x, fx, cx, 1.0),
-            (width - 0.5, x, fx, cx, -1.0),
-            (-0.5, y, fy, cy, 1.0),
-            (height - 0.5, y, fy, cy, -1.0),
-        ):
-            alpha = (lim - c) / f  # the border plane: coord = alpha z
-            bound = min(bound, sign * (coord - alpha * z) / np.sqrt(1.0 + alpha * alpha))
+        bound = _view_bound(x, y, z, intr)
+        if bound <= 0.0 or not _free_in(x, y, z, intr, tau, 0, raw):
+            continue
         z_far = max(z + radius[k], 0.0)
-        allowance = tau[0] + tau[1] * (z_far if tau[2] > 0.0 else 1.0)
-        bound = min(bound, distance[k] - 1.5 * allowance - 0.8 * z_far / min(fx, fy))
-        out[k] = max(bound, 0.0)
+        slack = 1.5 * _allowance(tau, 0, z_far) + 0.8 * z_far / min(fx, fy)
+        box = surveillance_boxes(p[k : k + 1], radius[k], fx, fy, cx, cy, width, height, lo)[0]
+        delta = _unseen_distance(raw, box, xn, yn, inv_rr, lo, intr[0, 7], x, y, z, slack)
+        out[i] = max(min(bound, delta - slack), 0.0)
     return out
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _view_bound(x: float, y: float, z: float, intr: np.ndarray) -> float:
+    """Distance from the sensor-frame point (x, y, z) to the camera's range limits and view border planes [m]."""
+    fx, fy, cx, cy, width, height, lo, hi = (
+        intr[0, 0], intr[0, 1], intr[0, 2], intr[0, 3], intr[0, 4], intr[0, 5], intr[0, 6], intr[0, 7],
+    )  # fmt: skip
+    bound = min(z - lo, hi - z)
+    for lim, coord, f, c, sign in (
+        (-0.5, x, fx, cx, 1.0),
+        (width - 0.5, x, fx, cx, -1.0),
+        (-0.5, y, fy, cy, 1.0),
+        (height - 0.5, y, fy, cy, -1.0),
+    ):
+        alpha = (lim - c) / f  # the border plane: coord = alpha z
+        bound = min(bound, sign * (coord - alpha * z) / np.sqrt(1.0 + alpha * alpha))
+    return bound
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _unseen_distance(
+    raw: np.ndarray,
+    box: np.ndarray,
+    xn: np.ndarray,
+    yn: np.ndarray,
+    inv_rr: np.ndarray,
+    lo: float,
+    hi: float,
+    px: float,
+    py: float,
+    pz: float,
+    stop: float,
+) -> float:
+    """Distance from P to the box's unseen half-lines ``{s r_q : s ≥ n_q}`` [m]; returns early once ≤ ``stop``.
+
+    ``n_q`` is the pixel's raw return, or ``lo`` without a return in [lo, hi] (its whole ray is unknown).
+    """
+    best2 = np.inf
+    stop2 = stop * stop if stop > 0.0 else 0.0
+    for v in range(box[0], box[1]):
+        b = yn[v]
+        for u in range(box[2], box[3]):
+            n = np.float64(raw[v, u])
+            if not lo <= n <= hi:
+                n = lo
+            a = xn[u]
+            s = max((a * px + b * py + pz) * inv_rr[v, u], n)
+            dx = a * s - px
+            dy = b * s - py
+            dz = s - pz
+            l2 = dx * dx + dy * dy + dz * dz
+            if l2 < best2:
+                best2 = l2
+                if best2 <= stop2:
+                    return np.sqrt(best2)
+    return np.sqrt(best2)

@@ -1,66 +1,81 @@
 r"""Fusion of several depth cameras into one obstacle reading per control point (DESIGN §4).
 
 Each camera :math:`c` sorts every point :math:`X` of space (its depth along the optical axis
-:math:`z_c(X)`, its nearest pixel :math:`q`, the filtered depth :math:`f_c(q)`):
+:math:`z_c(X)`, its nearest pixel :math:`q`, the filtered depth :math:`f_c(q)` and the raw
+return :math:`r_c(q)` before the filters):
 
 * **measured**: :math:`X` is the surface point of an obstacle pixel (the person, after the
   arm and the static scene are removed) that has a neighbouring pixel within 5 cm in depth (a
   lone flying pixel is not a surface; its half-line stays hidden space);
 * **hidden**: :math:`z_c(X) > f_c(q)` behind an obstacle pixel: unknown, may be obstacle
   (Flacco et al.'s conservative rule, the paper's sec. III);
-* **seen free**: in view and range, and either in front of an obstacle surface,
-  :math:`z_c(X) < f_c(q) - \tau_c(f_c(q))`, or on the ray of a pixel without obstacle (the
-  arm and the static scene removed by the filters, or no return): the premise of the
-  one-camera method, where the space behind the arm and the table is free (Flacco et al.;
-  :mod:`compare.sensing.self_filter`);
-* **unknown**: out of view, nearer than the minimum range or beyond the maximum.
+* **seen free**: in view and range, and in front of the pixel's raw return,
+  :math:`z_c(X) < r_c(q) - \tau_c(r_c(q))`, whatever the return is (the person, the arm or the
+  static scene: the filters decide what is an obstacle, not what was seen);
+* **unknown**: everything else: behind the arm or the static scene, on the ray of a pixel
+  without a return in range (dropout; nothing is seen free there), out of view, nearer than
+  the minimum range or beyond the maximum.
 
-with the allowance :math:`\tau_c(f) = \tau_0 + k\,\sigma_c(f)` (``fusion_tolerance_m`` plus
+with the allowance :math:`\tau_c(r) = \tau_0 + k\,\sigma_c(r)` (``fusion_tolerance_m`` plus
 the self-filter's noise allowance). The fused obstacle set is
 
 .. math::
     \mathcal O = \bigcup_c M_c \;\cup\; \Big(\bigcup_c H_c \cap \bigcap_{c'} \overline{F_{c'}}\Big)
 
 (:math:`M_c` measured, :math:`H_c` hidden, :math:`F_c` seen free by camera :math:`c`): a
-measured point always counts; a hidden point counts unless some camera sees it free. The
-reading of a control point :math:`P` is the point of :math:`\mathcal O` closest to
-:math:`P`, ``occluded`` when it comes from the second part, with the camera that measured it
-(or behind whose surface it is hidden).
+measured point always counts; a hidden point counts unless some camera sees it free. Space
+behind the arm or the static scene creates no hidden half-line of its own (each camera keeps
+the premise of the one-camera method, Flacco et al.; :mod:`compare.sensing.self_filter`), but
+it clears nothing either. The reading of a control point :math:`P` is the point of
+:math:`\mathcal O` closest to :math:`P`, ``occluded`` when it comes from the second part, with
+the camera that measured it (or behind whose surface it is hidden).
 
-**Why it keeps the properties of the issue.**
+**What is guaranteed** (:math:`X^*` the person point closest to :math:`P`, :math:`h` =
+``fusion_step_m``, a pixel footprint :math:`z / f`):
 
-1. *No false far where some camera sees the person.* A person point visible to camera
-   :math:`c` (outside the self-filter margin) is in :math:`M_c` up to one pixel footprint, and
-   measured points are never removed: the fused distance is at most the truth plus that
+1. *No false far where some camera sees the person.* If camera :math:`c` sees :math:`X^*`
+   (outside its self-filter margin), :math:`X^*` is in :math:`M_c` up to one pixel footprint,
+   and measured points are never removed: the fused distance is at most the truth plus that
    footprint, as with that camera alone.
-2. *Shadows seen free elsewhere are dropped.* A point hidden from one camera but seen free by
-   another is not in :math:`\mathcal O`: the person standing between camera 1 and the arm no
-   longer makes the space around the arm "occupied" when camera 2 sees that space.
-3. *Space hidden from every camera stays conservative.* A true person point is never seen free
-   by any camera (a ray through it stops at it or before), so a person point hidden behind the
-   person (or out of view) in every camera stays in :math:`\mathcal O`: the fused distance
-   never exceeds the truth there (to the search's resolution), as with one camera. Each camera's own premise is kept as
-   well: space behind the *arm* counts as free for the camera it is hidden from (otherwise
-   every control point would read the shadow of its own link), so a person point hidden
-   behind the arm from one camera and behind the person from all others is missed, as that
-   one camera alone would miss it; a second camera that sees the point measures it (1.).
+2. *No false far where no camera sees the person, if one camera has it behind the person.* A
+   person point is seen free by no camera: a ray through it returns at it or before it, or
+   returns nothing (unknown), or it is out of view. So if :math:`X^*` lies behind the person
+   for some camera (:math:`X^* \in H_c`), whatever hides it from the others (the person, the
+   arm, the static scene, dropout, the view's edge), it stays in :math:`\mathcal O`; the
+   search finds a sample within :math:`h` of it along that camera's ray: the fused distance is
+   at most the truth plus about :math:`h` (plus a pixel footprint), and the reading is
+   ``occluded`` unless a measured point is as near.
+3. *Shadows seen free elsewhere are dropped.* A point hidden from one camera that another sees
+   in front of a return is not in :math:`\mathcal O`. Shadows near the arm are mostly kept:
+   the arm's own volume and what lies behind it are unknown to the cameras that see the arm,
+   and so is every ray without a return.
+
+**What is not.** A person point hidden behind the arm or the static scene from *every* camera
+(or within every camera's self-filter margin of the arm, which removes it with the arm) is in
+no :math:`H_c` and is missed, as with one camera: Flacco's premise that the arm's shadow is
+free. A camera that sees it measures it (1.).
 
 **Computation.** Per camera the depth-space kernel (:mod:`compare.sensing.depth_distance`)
 gives, in one pass over each surveillance box, the closest measured point :math:`e_c` and the
 closest point :math:`\delta_c \le e_c` of its hidden half-lines. With :math:`e = \min_c e_c`
-(capped at ρ) nothing more is needed unless some :math:`\delta_c < e - h` (:math:`h` =
-``fusion_step_m``: a hidden point replaces a measured one only when nearer by more than the
-search's resolution). Then that camera's hidden half-lines are searched
+(capped at ρ) nothing more is needed unless some :math:`\delta_c < e - h` (a hidden point
+replaces a measured one only when nearer by more than the search's resolution). Then the
+point at :math:`\delta_c` itself is tested first: when no other camera sees it free, it is the
+answer (the search's first sample would be it). Otherwise that camera's hidden half-lines are
+searched
 (:func:`compare.sensing._fusion_kernel.occluded_search`): nearest half-lines first, each
 sampled every :math:`h` in depth outward from its closest approach to :math:`P`; the first
-sample no other camera sees free is its candidate. Points nearer to :math:`P` than
-:func:`~compare.sensing._fusion_kernel.not_free_bounds` of another camera are skipped (that
-camera sees them free), which in most frames ends the search before it starts. A hidden
-reading is thus exact to about one step (1 cm); a sample budget bounds the work, after which
-the remaining half-lines count unclipped (conservative, as with one camera).
+sample no other camera sees free (tested on that camera's raw frame) is its candidate. Points
+nearer to :math:`P` than :func:`~compare.sensing._fusion_kernel.not_free_bounds` of another
+camera are skipped: a lower bound of the distance to everything that camera does not see free,
+its arm's and static scene's shadows and its rays without return included. A control point
+inside its own link, behind the arm's surface for a camera, gets 0 from that camera without a
+scan. A hidden reading is thus exact to about one step (1 cm); a sample budget bounds the work,
+after which the remaining half-lines count unclipped (conservative, as with one camera).
 
-The self-filter runs per camera with that camera's margin and noise
-(:class:`compare.sensing.pipeline.DepthRig`).
+Without the raw frames (:meth:`DepthFusion.compute`'s ``raw_frames``) the filtered ones stand
+in: a removed pixel then sees nothing free (sound, more conservative). The self-filter runs per
+camera with that camera's margin and noise (:class:`compare.sensing.pipeline.DepthRig`).
 """
 
 from __future__ import annotations
@@ -72,7 +87,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from compare.loop.robot_io import CameraModel, DepthFrame
-from compare.sensing._fusion_kernel import not_free_bounds, occluded_search
+from compare.sensing._fusion_kernel import not_free_bounds, occluded_search, seen_free
 from compare.sensing.camera import DepthNoise, base_to_sensor, sensor_to_base, valid_fraction
 from compare.sensing.depth_distance import CameraEvaluation, DepthDistance
 from compare.sensing.exceptions import SensingError
@@ -179,6 +194,7 @@ class DepthFusion:
         control_points: Mapping[str, np.ndarray],
         valid_fractions: Sequence[float] | None = None,
         per_camera: bool = False,
+        raw_frames: Sequence[DepthFrame] | None = None,
     ) -> DistanceResult:
         """The fused reading of every control point.
 
@@ -187,6 +203,9 @@ class DepthFusion:
             control_points: Control point positions [m] in the base frame, by frame name.
             valid_fractions: Each camera's raw-frame valid fraction (default: of ``frames``).
             per_camera: Also return each camera's own result (``DistanceResult.cameras``).
+            raw_frames: Each camera's frame before the filters, in order: what it sees free (in
+                front of every return, the arm's and the static scene's included). Default
+                ``frames``: a removed pixel then sees nothing free (sound, more conservative).
 
         Returns:
             The fused :class:`DistanceResult`: ``valid_fraction`` the smallest camera's,
@@ -194,11 +213,12 @@ class DepthFusion:
         """
         if len(frames) != len(self.distances):
             raise SensingError(f"expected {len(self.distances)} frames, got {len(frames)}")
+        raws = self._raw_depths(frames if raw_frames is None else raw_frames)
         scan = self._scan(frames, control_points, valid_fractions)
         best = _Best.measured(scan, self.rho_m, self.settings.step_m)
         samples = 0
         for c in np.flatnonzero(best.needs_search(scan).any(axis=1)):
-            samples += self._search_camera(int(c), frames, scan, best)
+            samples += self._search_camera(int(c), frames, raws, scan, best)
         self.last_samples = samples
         cameras: tuple[DistanceResult, ...] = ()
         if per_camera:
@@ -243,28 +263,45 @@ class DepthFusion:
             seen=np.array([box[:, 0] < box[:, 1] for box in boxes]),
         )
 
-    def _search_camera(self, c: int, frames: Sequence[DepthFrame], scan: _Scan, best: _Best) -> int:
+    def _raw_depths(self, raw_frames: Sequence[DepthFrame]) -> list[np.ndarray]:
+        """Each camera's raw depth image (float32, C order) for the seen-free test."""
+        if len(raw_frames) != len(self.distances):
+            raise SensingError(f"expected {len(self.distances)} raw frames, got {len(raw_frames)}")
+        raws = [_contiguous(f.depth_m) for f in raw_frames]
+        for d, raw in zip(self.distances, raws, strict=True):
+            if raw.shape != (d.camera.height, d.camera.width):
+                raise SensingError(f"raw frame shape {raw.shape} != camera ({d.camera.height}, {d.camera.width})")
+        return raws
+
+    def _search_camera(
+        self, c: int, frames: Sequence[DepthFrame], raws: Sequence[np.ndarray], scan: _Scan, best: _Best
+    ) -> int:
         """Search camera ``c``'s hidden half-lines for points no other camera sees free; returns the samples.
 
         Each control point whose hidden distance may beat the best so far by more than the
-        search's resolution, and is not within every other camera's seen-free bound, is searched
+        search's resolution, and is not within another camera's seen-free bound, is searched
         (:func:`~compare.sensing._fusion_kernel.occluded_search`); a hit replaces its best.
         """
         others, rot, trans, intr, tau = self._others[c]
-        delta = scan.delta
-        bounds = np.zeros(len(scan.names))
-        for j, m in enumerate(others):
-            np.maximum(bounds, not_free_bounds(scan.p_sensor[m], delta[m], best.radius, intr[j], tau[j]), out=bounds)
         limit = best.radius - best.margin
-        todo = np.flatnonzero(scan.seen[c] & (delta[c] < limit) & (bounds < limit))
+        todo = np.flatnonzero(scan.seen[c] & (scan.delta[c] < limit))
         if todo.size == 0:
             return 0
+        bounds = self._seen_free_bounds(c, todo, raws, scan, best.radius)
+        keep = bounds < limit[todo]
+        todo, bounds = todo[keep], bounds[keep]
         owner = self.distances[c]
         depth = _contiguous(frames[c].depth_m)
-        other_depths = tuple(_contiguous(frames[m].depth_m) for m in others)
+        other_depths = tuple(raws[m] for m in others)
         box = scan.raw[c][0]
         samples = 0
-        for k in todo:
+        for k, radius_lo in zip(todo, bounds, strict=True):
+            nearest = self._nearest_hidden(c, int(k), scan)
+            if nearest is not None and not seen_free(nearest, rot, trans, intr, tau, other_depths):
+                # The nearest hidden point of all is not seen free: the search's first sample, its answer.
+                samples += 1
+                best.take_hidden(int(k), c, float(scan.delta[c, k]), nearest)
+                continue
             found, x, y, z, n, _ = occluded_search(
                 depth,
                 box[k],
@@ -274,8 +311,8 @@ class DepthFusion:
                 owner.camera.min_range_m,
                 owner.camera.max_range_m,
                 scan.p_sensor[c][k],
-                float(bounds[k]),
-                float(best.radius[k] - best.margin[k]),
+                float(radius_lo),
+                float(limit[k]),
                 self.settings.step_m,
                 self.settings.max_samples,
                 rot,
@@ -286,9 +323,34 @@ class DepthFusion:
                 self._work[c],
             )
             samples += n
-            if found < best.radius[k] - best.margin[k]:
+            if found < limit[k]:
                 best.take_hidden(int(k), c, found, np.array([x, y, z]))
         return samples
+
+    @staticmethod
+    def _nearest_hidden(c: int, k: int, scan: _Scan) -> np.ndarray | None:
+        """Camera ``c``'s closest hidden point to control point ``k`` (sensor frame [m]), None if on a surface."""
+        d2, a, b, s, hidden = scan.raw[c][1][:5]
+        return np.array([a[k] * s[k], b[k] * s[k], s[k]]) if hidden[k] else None
+
+    def _seen_free_bounds(
+        self, c: int, todo: np.ndarray, raws: Sequence[np.ndarray], scan: _Scan, radius: np.ndarray
+    ) -> np.ndarray:
+        """Per control point of ``todo``: every point nearer than this [m] is seen free by some camera other than ``c``.
+
+        The largest of the other cameras' :func:`~compare.sensing._fusion_kernel.not_free_bounds`
+        (each computed on that camera's raw frame).
+        """
+        others, _, _, intr, tau = self._others[c]
+        bounds = np.zeros(todo.size)
+        for j, m in enumerate(others):
+            d = self.distances[m]
+            bound = not_free_bounds(
+                scan.p_sensor[m], raws[m], todo, d._xn64, d._yn64, d._inv_rr, radius,
+                intr[j : j + 1], tau[j : j + 1],
+            )  # fmt: skip
+            np.maximum(bounds, bound, out=bounds)
+        return bounds
 
     def _readings(self, scan: _Scan, best: _Best) -> dict[str, ObstacleReading]:
         """The reading of every control point from the best point found (measured or hidden)."""

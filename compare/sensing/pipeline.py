@@ -283,7 +283,7 @@ class DepthRig:
     ) -> DistanceResult:
         """Filter every camera's frame and fuse the distances of the control points (base frame [m])."""
         vfs = [valid_fraction(f) for f in frames]
-        return self.fusion.compute(self.filter(frames, q=q, data=data), control_points, vfs)
+        return self.fusion.compute(self.filter(frames, q=q, data=data), control_points, vfs, raw_frames=frames)
 
     def sense(self, data: mujoco.MjData, control_points: Mapping[str, np.ndarray]) -> DistanceResult:
         """Render every camera and process the frames (the arm's pose taken from ``data``)."""
@@ -335,7 +335,8 @@ class RigObstacleSource:
                 self._last[c] = last
             filtered.append(last[1])
             fractions.append(last[2])
-        return self.rig.fusion.compute(filtered, control_point_positions(kin, self.frames), fractions)
+        points = control_point_positions(kin, self.frames)
+        return self.rig.fusion.compute(filtered, points, fractions, raw_frames=raw)
 
 
 class GeometricObstacleSource:

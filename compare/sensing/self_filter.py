@@ -14,7 +14,9 @@ Only pixels whose measured point lies on or near the arm are removed, not the ar
 silhouette: a hand touching the arm, or anything in front of it, survives. Each geom is
 tested only inside the image box of its bounding sphere (vectorised numpy slicing), which
 keeps the filter at ~1 ms instead of the ~10–20 ms of a second (segmentation) render. The
-space hidden behind the arm is unknown and treated as free, as in Flacco et al.
+space hidden behind the arm is unknown and treated as free, as in Flacco et al. (one camera;
+several cameras: it creates no hidden space, but only what another camera sees in front of a
+return is free, :mod:`compare.sensing.fusion`).
 
 **Static background** (table, floor): a depth image of the static geoms (group 0) is rendered
 once; a pixel is removed when it is not nearer than that background by more than a margin,

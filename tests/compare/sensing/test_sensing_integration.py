@@ -82,4 +82,6 @@ def test_sensing_bench_reports_the_design_rows():
     assert {"depth-sensing-step", "depth-frame"} <= set(rows)
     for row in two.values():
         assert row.median_us > 0 and row.extra["ratio_vs_one_camera"] > 0
-    assert two["depth-distance"].extra["max_error_vs_geometry_m"] < 0.01
+    # Camera 2 sees the arm behind the person: the space there is unknown to both cameras, so the
+    # fused readings may be conservative (nearer), never farther than the truth.
+    assert two["depth-distance"].extra["max_over_estimate_vs_geometry_m"] < 0.01
