@@ -625,6 +625,9 @@ class HardwareConfig(_Strict):
             floor) from live frames, removed from every later frame; nobody may be in view [s].
             0 = no background removal.
         startup_timeout_s: Time to wait for the first joint state, camera info and depth [s].
+        allow_network_master: Run even when ``ROS_MASTER_URI`` names another host, or the master
+            or this node listens beyond loopback (``--allow-network-master``). ROS 1 cannot
+            authenticate: only on a dedicated network behind a firewall (docs/hardware.md, "Network").
     """
 
     node_name: str = "tpik_compare"
@@ -654,6 +657,7 @@ class HardwareConfig(_Strict):
     background_file: str | None = None
     background_capture_s: float = Field(1.0, ge=0.0, le=30.0)
     startup_timeout_s: float = Field(5.0, gt=0.0, le=120.0)
+    allow_network_master: bool = False
 
     @field_validator("joint_names")
     @classmethod
