@@ -4,15 +4,18 @@ ROS 1 lets any node that reaches the master publish on the driver's command topi
 executes whatever arrives. The bridge therefore asks the master (``getSystemState``) every
 ``period_s`` who publishes on
 
-* the **command topics** (``hardware.velocity_topic``): anyone but the bridge itself is a
-  *foreign command publisher*;
+* the **command topics** (``hardware.velocity_topic`` and the driver's other inputs that move the
+  arm, ``hardware.other_command_topics``): anyone but the bridge itself is a *foreign command
+  publisher*;
 * the **read topics** (joint states, depth, camera info): the publishers found at start are the
   only ones allowed; any other is a *second publisher*.
 
 The first poll is made at start (:meth:`PublisherWatch.snapshot`, refusing the start on a
 finding); later polls run on their own thread and report the first finding through
 ``on_halt(cause)``, once. A master that does not answer for ``silence_s`` is a finding too:
-nobody can then tell who publishes. What the master does not know (a node told to connect to a
+nobody can then tell who publishes; so is the bridge's own node shut down (the master shuts a
+node down when another registers under its name, which would then pass for the bridge). What
+the master does not know (a node told to connect to a
 publisher through its own XML-RPC API, ``publisherUpdate``) is not seen here; messages from such a
 publisher on a read topic are caught by their sender's caller id
 (:class:`~compare.hardware.validation.SenderCheck`).
@@ -60,6 +63,8 @@ class PublisherWatch:
         silence_s: A master unanswered for this long is a finding [s].
         on_halt: Called once, from the watch thread, with the cause of the first finding.
         clock: Monotonic time [s].
+        self_check: Called at every poll: a cause when the bridge itself cannot be trusted any
+            more (its node shut down), else None.
     """
 
     def __init__(
@@ -72,6 +77,7 @@ class PublisherWatch:
         silence_s: float,
         on_halt: Callable[[str], None],
         clock: Callable[[], float] = time.monotonic,
+        self_check: Callable[[], str | None] | None = None,
     ) -> None:
         if period_s <= 0.0 or silence_s < period_s:
             raise ValueError(f"need 0 < period_s <= silence_s, got {period_s}, {silence_s}")
@@ -83,6 +89,7 @@ class PublisherWatch:
         self.silence_s = float(silence_s)
         self._on_halt = on_halt
         self._clock = clock
+        self._self_check = self_check
         self.allowed: dict[str, frozenset[str]] = {}
         self.cause: str | None = None
         self.cause_t: float | None = None
@@ -147,8 +154,9 @@ class PublisherWatch:
     def poll_once(self) -> str | None:
         """One poll: the cause of a finding (reported through ``on_halt``), or None."""
         t = self._clock()
+        own = self._self_check() if self._self_check is not None else None
         try:
-            causes = self.findings(self._poll())
+            causes = [own] if own is not None else self.findings(self._poll())
         except MasterCallFailed as exc:
             self.failed_polls += 1
             since = self._last_answer_t if self._last_answer_t is not None else t

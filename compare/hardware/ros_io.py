@@ -172,8 +172,9 @@ class RosRobotIO(RobotIO):
         ros: Loaded ROS API (default: :func:`~compare.hardware.ros_env.load_ros`).
         replay: Play this recording into the callbacks instead of subscribing (no ROS master;
             implies ``dry_run``; :mod:`compare.hardware.replay`).
-        watch_command_topic: Halt on any other publisher of ``hw.velocity_topic``
-            (:mod:`compare.hardware.publisher_watch`); the read topics are always watched.
+        watch_command_topic: Halt on any other publisher of ``hw.velocity_topic`` and on any
+            publisher of ``hw.other_command_topics`` (:mod:`compare.hardware.publisher_watch`);
+            the read topics are always watched.
 
     Every message read is checked (:mod:`compare.hardware.validation`): a malformed one is
     dropped with its cause, a second publisher on a read topic halts the arm.
@@ -365,11 +366,12 @@ class RosRobotIO(RobotIO):
         self.watch = PublisherWatch(
             lambda: topic_publishers(uri, own, timeout_s=period),
             own,
-            [hw.velocity_topic] if self.watch_command_topic else [],
+            [hw.velocity_topic, *hw.other_command_topics] if self.watch_command_topic else [],
             read,
             period_s=period,
             silence_s=max(MASTER_SILENCE_MIN_S, hw.state_timeout_s),
             on_halt=self.halt,
+            self_check=self._node_alive,
         )
         self.publishers_at_start = self.watch.snapshot()
         for topic in read:
@@ -377,6 +379,17 @@ class RosRobotIO(RobotIO):
             if sender is not None and sender not in self.watch.allowed[topic]:
                 raise StartRefused(f"messages on {topic} came from {sender}, which the master does not list")
         self.watch.start()
+
+    def _node_alive(self) -> str | None:
+        """Why this node cannot command any more (rospy shut it down), or None.
+
+        The master shuts a node down when another registers under its name: the impostor
+        would then pass for the bridge on the command topic.
+        """
+        rospy = self._ros.rospy if self._ros is not None else None
+        if rospy is not None and rospy.core.is_shutdown() and not self._closed:
+            return f"this node ({rospy.get_name()}) was shut down (another node took its name?)"
+        return None
 
     def _connect_replay(self, recording: Recording) -> None:
         hw = self.hw

@@ -142,3 +142,20 @@ def test_a_joint_state_from_a_second_sender_is_dropped_and_halts_the_bridge():
     assert report["halt_cause"] == io.halt_cause and report["ignored_message_causes"]["joint_state"] == {
         "second publisher": 1
     }
+
+
+def test_the_driver_s_other_inputs_may_have_no_publisher_at_all():
+    other = "/j2s7s300_driver/in/cartesian_velocity"
+    watch = PublisherWatch(FakeMaster(CLEAN), ME, [CMD, other], [STATE], 0.01, 0.05, [].append)
+    watch.snapshot()
+    assert watch.findings({**CLEAN, other: ["/teleop"]}) == ["foreign command publisher /teleop"]
+
+
+def test_the_bridge_s_own_node_shut_down_halts_whatever_the_master_says():
+    halts: list[str] = []
+    alive = [None]
+    watch = PublisherWatch(FakeMaster(CLEAN), ME, [CMD], [STATE], 0.01, 0.05, halts.append, self_check=lambda: alive[0])
+    watch.snapshot()
+    assert watch.poll_once() is None
+    alive[0] = "this node (/tpik_compare_1) was shut down (another node took its name?)"
+    assert watch.poll_once() == alive[0] and halts == [alive[0]]
