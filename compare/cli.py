@@ -67,6 +67,17 @@ app = _App(
 )
 
 EXIT_USAGE = 2
+EXIT_HALTED = 3
+"""``tpik-compare hw``: the run was halted for a safety cause (a foreign publisher); its results are written."""
+
+AllowNetworkOpt = Annotated[
+    bool,
+    typer.Option(
+        "--allow-network-master",
+        help="Run even if ROS_MASTER_URI names another host or the master or this node listens beyond loopback "
+        "(ROS 1 cannot authenticate: a dedicated network behind a firewall only; docs/hardware.md).",
+    ),
+]
 
 
 def _fail(message: str) -> None:
@@ -637,8 +648,13 @@ def hw(
         ),
     ] = None,
     overwrite: OverwriteRunOpt = False,
+    allow_network_master: AllowNetworkOpt = False,
 ) -> None:
-    """Drive the real Jaco² and depth camera through the Kinova ROS 1 driver (docs/hardware.md)."""
+    """Drive the real Jaco² and depth camera through the Kinova ROS 1 driver (docs/hardware.md).
+
+    Exit codes: 0 done, 2 refused start (one line), 3 halted for a safety cause (a foreign
+    publisher; results written), 130 interrupted.
+    """
     from compare.analysis.exceptions import ResultsError
     from compare.config import ConfigError, load_config
     from compare.hardware.exceptions import HardwareError
@@ -659,6 +675,8 @@ def hw(
         except ConfigError as exc:
             _fail(str(exc))
             return
+    if allow_network_master:
+        cfg = _allow_network(cfg)
     logging.getLogger("compare.hardware").setLevel(logging.INFO)
     if capture_background is not None:
         from compare.hardware.run import capture_background_file
@@ -715,6 +733,14 @@ def hw(
         typer.echo(event["message"])
     if summary["methods"][method].get("interrupted"):
         raise typer.Exit(130)
+    if hw_report.get("halt_cause"):
+        typer.echo(f"halted: {hw_report['halt_cause']} (results in {out_dir})", err=True)
+        raise typer.Exit(EXIT_HALTED)
+
+
+def _allow_network(cfg: Config) -> Config:
+    """``cfg`` with ``hardware.allow_network_master`` set."""
+    return cfg.model_copy(update={"hardware": cfg.hardware.model_copy(update={"allow_network_master": True})})
 
 
 @app.command("hw-check")
@@ -724,6 +750,7 @@ def hw_check(
     replay: Annotated[
         Path | None, typer.Option("--replay", help="Check on a recorded bag (or directory of bags) instead.")
     ] = None,
+    allow_network_master: AllowNetworkOpt = False,
 ) -> None:
     """Check the camera calibration: render the arm model into the live depth from the configured pose."""
     from compare.config import ConfigError, load_config
@@ -735,6 +762,8 @@ def hw_check(
     except ConfigError as exc:
         _fail(str(exc))
         return
+    if allow_network_master:
+        cfg = _allow_network(cfg)
     logging.getLogger("compare.hardware").setLevel(logging.INFO)
     try:
         residual = check_camera(cfg, replay=replay, frames=frames)

@@ -699,6 +699,13 @@ class HardwareConfig(_Strict):
             floor) from live frames, removed from every later frame; nobody may be in view [s].
             0 = no background removal.
         startup_timeout_s: Time to wait for the first joint state, camera info and depth [s].
+        other_command_topics: The driver's other inputs that move the arm (Cartesian velocity,
+            torque and force, the goals of its joint, pose and finger actions): nobody may publish
+            on them while the bridge runs; with ``velocity_topic`` they are watched for foreign
+            publishers (docs/hardware.md, "Network").
+        allow_network_master: Run even when ``ROS_MASTER_URI`` names another host, or the master
+            or this node listens beyond loopback (``--allow-network-master``). ROS 1 cannot
+            authenticate: only on a dedicated network behind a firewall (docs/hardware.md, "Network").
     """
 
     node_name: str = "tpik_compare"
@@ -728,6 +735,17 @@ class HardwareConfig(_Strict):
     background_file: str | None = None
     background_capture_s: float = Field(1.0, ge=0.0, le=30.0)
     startup_timeout_s: float = Field(5.0, gt=0.0, le=120.0)
+    other_command_topics: tuple[str, ...] = (
+        "/j2s7s300_driver/in/cartesian_velocity",
+        "/j2s7s300_driver/in/cartesian_velocity_with_fingers",
+        "/j2s7s300_driver/in/cartesian_velocity_with_finger_velocity",
+        "/j2s7s300_driver/in/joint_torque",
+        "/j2s7s300_driver/in/cartesian_force",
+        "/j2s7s300_driver/joints_action/joint_angles/goal",
+        "/j2s7s300_driver/pose_action/tool_pose/goal",
+        "/j2s7s300_driver/fingers_action/finger_positions/goal",
+    )
+    allow_network_master: bool = False
 
     @field_validator("joint_names")
     @classmethod

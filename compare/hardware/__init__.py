@@ -3,6 +3,10 @@
 * :mod:`compare.hardware.ros_io` — :class:`~compare.hardware.ros_io.RosRobotIO`, the ROS backend of
   :class:`~compare.loop.robot_io.RobotIO` (kinova-ros driver topics, depth camera, command stream, watchdog);
 * :mod:`compare.hardware.safety` — velocity/acceleration clamps, watchdog, start-up checks (no ROS);
+* :mod:`compare.hardware.exposure` — refuses a master or node reachable beyond loopback (no ROS);
+* :mod:`compare.hardware.publisher_watch` — who else publishes on the driver's topics (master API);
+* :mod:`compare.hardware.validation` — checks of every message read (sizes, NaN, encodings, stamps, names);
+* :mod:`compare.hardware.master_api` — the master calls the bridge makes itself, with a timeout;
 * :mod:`compare.hardware.conversions` — units at the ROS boundary (deg/s, mm, quaternions; no ROS);
 * :mod:`compare.hardware.sensing` — depth-space obstacle distance on live frames;
 * :mod:`compare.hardware.run` — :func:`~compare.hardware.run.run_hardware`, behind ``tpik-compare hw``;

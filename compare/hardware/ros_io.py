@@ -32,10 +32,11 @@ from __future__ import annotations
 
 import logging
 import math
+import os
 import socket
+import sys
 import threading
 import time
-import xmlrpc.client
 from collections import deque
 from typing import Any
 
@@ -44,16 +45,26 @@ import numpy as np
 from compare.config import HardwareConfig
 from compare.hardware.conversions import (
     camera_model_from_info,
-    decode_depth,
-    joint_indices,
     rad_s_to_deg_s,
     transform_from_translation_quaternion,
 )
 from compare.hardware.driver_control import DriverControl, DriverServiceError
 from compare.hardware.exceptions import HardwareError, MasterUnreachable, StartRefused
+from compare.hardware.exposure import ExposureReport, NetworkExposed, check_exposure, exposed_own_sockets
+from compare.hardware.master_api import master_online, topic_publishers
+from compare.hardware.publisher_watch import PublisherWatch
 from compare.hardware.replay import Recording, ReplayFeeder
 from compare.hardware.ros_env import RosApi, load_ros
 from compare.hardware.safety import NO_COMMAND_YET, CommandLimiter, Watchdog, WatchdogEvent
+from compare.hardware.validation import (
+    CameraInfoCheck,
+    DepthCheck,
+    JointStateCheck,
+    MalformedMessage,
+    SenderCheck,
+    check_service_answer,
+    header_stamp_s,
+)
 from compare.loop.robot_io import CameraModel, DepthFrame, JointReading, RobotIO
 
 log = logging.getLogger(__name__)
@@ -62,25 +73,10 @@ _STOP_REPEAT_S = 0.1
 """How long zero velocity is streamed when stopping [s] (the driver stops when the stream ends)."""
 
 
-class _TimeoutTransport(xmlrpc.client.Transport):
-    def __init__(self, timeout_s: float) -> None:
-        super().__init__()
-        self._timeout_s = timeout_s
+__all__ = ["RosRobotIO", "init_node", "master_online", "stamp_on_this_clock"]
 
-    def make_connection(self, host: Any) -> Any:
-        conn = super().make_connection(host)
-        conn.timeout = self._timeout_s
-        return conn
-
-
-def master_online(uri: str, timeout_s: float = 1.0) -> bool:
-    """Whether a ROS master answers ``getPid`` at ``uri`` within ``timeout_s`` (no ROS import)."""
-    try:
-        proxy = xmlrpc.client.ServerProxy(uri, transport=_TimeoutTransport(timeout_s))
-        code, _, _ = proxy.getPid("/tpik_compare_probe")
-        return int(code) == 1
-    except (TimeoutError, OSError, xmlrpc.client.Error, ValueError):
-        return False
+MASTER_SILENCE_MIN_S = 1.0
+"""The publisher watch halts when the master has not answered for max(this, the joint-state timeout) [s]."""
 
 
 def init_node(ros: RosApi, name: str) -> None:
@@ -176,6 +172,12 @@ class RosRobotIO(RobotIO):
         ros: Loaded ROS API (default: :func:`~compare.hardware.ros_env.load_ros`).
         replay: Play this recording into the callbacks instead of subscribing (no ROS master;
             implies ``dry_run``; :mod:`compare.hardware.replay`).
+        watch_command_topic: Halt on any other publisher of ``hw.velocity_topic`` and on any
+            publisher of ``hw.other_command_topics`` (:mod:`compare.hardware.publisher_watch`);
+            the read topics are always watched.
+
+    Every message read is checked (:mod:`compare.hardware.validation`): a malformed one is
+    dropped with its cause, a second publisher on a read topic halts the arm.
 
     Raises:
         StartRefused: ``use_depth`` without a calibrated camera transform.
@@ -190,8 +192,10 @@ class RosRobotIO(RobotIO):
         dry_run: bool = False,
         ros: RosApi | None = None,
         replay: Recording | None = None,
+        watch_command_topic: bool = True,
     ) -> None:
         self.hw = hw
+        self.watch_command_topic = watch_command_topic
         self.nq = len(hw.joint_names)
         self.dt = float(dt)
         self.use_depth = use_depth
@@ -218,8 +222,11 @@ class RosRobotIO(RobotIO):
         self.watchdog.quiet = True  # until start_clock: zero is expected before the loop runs
         self._lock = threading.RLock()
         self._epoch = time.monotonic()
-        self._indices: np.ndarray | None = None
-        self._index_names: tuple[str, ...] = ()
+        self._joint_check = JointStateCheck(hw.joint_names)
+        self._info_check = CameraInfoCheck(self._camera_model)
+        self._depth_check = DepthCheck()
+        self._senders = {t: SenderCheck(t) for t in (hw.joint_state_topic, hw.camera_info_topic, hw.depth_topic)}
+        self._check_locks = {name: threading.Lock() for name in ("joint_state", "camera_info", "depth")}
         self._joint: tuple[np.ndarray, np.ndarray, float] | None = None
         self._history: deque[tuple[float, np.ndarray]] = deque(maxlen=300)  # (header stamp, else arrival; q)
         self._camera: CameraModel | None = None
@@ -230,6 +237,7 @@ class RosRobotIO(RobotIO):
         self._sent = np.zeros(self.nq)
         self._last_publish_t = -math.inf
         self._halt_reason: str | None = None
+        self._halt: tuple[str, float] | None = None  # (cause, monotonic time) of a halt before the end of the run
         self._closed = False
         self._pump: threading.Thread | None = None
         self._pump_stop = threading.Event()
@@ -244,29 +252,74 @@ class RosRobotIO(RobotIO):
         self.zero_commands = 0
         self.overruns = 0
         self.bad_messages: dict[str, int] = {}
+        self.bad_causes: dict[str, dict[str, int]] = {}
+        self.network: ExposureReport | None = None
+        self.watch: PublisherWatch | None = None
+        self.publishers_at_start: dict[str, list[str]] = {}
         self._clock_start = 0.0
         self.startup_events: list[WatchdogEvent] = []
         self._events_given_next = 0  # watchdog events before this index know their next joint state
         self.start_check: dict[str, Any] = {}
         self._services: dict[str, Any] = {}
+        self._master_uri = ""
         self.driver = DriverControl(self._call_service, self.now, enabled=not dry_run)
 
     # -- lifecycle ---------------------------------------------------------------------------
 
-    def connect(self, master_uri: str | None = None) -> None:
-        """Check the master, start the node, subscribe, advertise (unless dry run), start the pump.
+    def _camera_model(self, width: int, height: int, K: Any) -> CameraModel:
+        if self._camera_T is None:
+            raise HardwareError("no camera transform")
+        hw = self.hw
+        return camera_model_from_info(width, height, K, self._camera_T, hw.depth_min_range_m, hw.depth_max_range_m)
+
+    def check_network(self) -> ExposureReport | None:
+        """Refuse a master or node reachable beyond loopback, before any connection (nothing is sent).
+
+        Decided from ``ROS_MASTER_URI``, ``ROS_IP``/``ROS_HOSTNAME`` and this machine's listening
+        sockets (:func:`~compare.hardware.exposure.check_exposure`); with
+        ``hardware.allow_network_master`` the findings are logged and kept in the report instead.
+        None when replaying (no ROS graph).
 
         Raises:
+            NetworkExposed: something listens beyond loopback and the user did not opt in.
+        """
+        if self.replay is not None:
+            return None
+        if self.network is None:
+            self.network = check_exposure(os.environ, sys.argv, self.hw.allow_network_master)
+            for problem in self.network.problems:
+                log.warning("network exposure allowed (hardware.allow_network_master): %s", problem)
+        return self.network
+
+    def _check_own_sockets(self) -> None:
+        """After the node started: the sockets this process really listens on (rospy's servers)."""
+        report = self.check_network()
+        if report is None:
+            return
+        exposed = exposed_own_sockets()
+        report.node_sockets = [s.describe() for s in exposed]
+        if exposed and not self.hw.allow_network_master:
+            where = ", ".join(s.describe() for s in exposed)
+            raise NetworkExposed(f"this node listens on {where}: set ROS_IP=127.0.0.1 (or pass --allow-network-master)")
+
+    def connect(self, master_uri: str | None = None) -> None:
+        """Check the network exposure and the master, start the node, subscribe, advertise (unless dry run).
+
+        Raises:
+            NetworkExposed: the master or this node would be reachable beyond loopback (checked
+                before anything is sent; :meth:`check_network`).
             MasterUnreachable: no master at ``ROS_MASTER_URI``.
             ReplayError: (replay) a topic is not in the recording.
         """
         if self.replay is not None:
             self._connect_replay(self.replay)
             return
+        self.check_network()
         ros = self._ros = self._ros or load_ros()
         uri = master_uri or ros.rosgraph.get_master_uri()
         if not master_online(uri, timeout_s=2.0):
             raise MasterUnreachable(f"no ROS master answers at {uri} (start roscore/the driver, or set ROS_MASTER_URI)")
+        self._master_uri = uri
         rospy = ros.rospy
         if not rospy.core.is_initialized():
             init_node(ros, self.hw.node_name)
@@ -292,8 +345,51 @@ class RosRobotIO(RobotIO):
                 "stop": (self.hw.stop_service, ros.Stop),
                 "start": (self.hw.start_service, ros.Start),
             }
+        self._check_own_sockets()
         self._pump = threading.Thread(target=self._pump_loop, name="tpik-hw-pump", daemon=True)
         self._pump.start()
+
+    def _start_watch(self) -> None:
+        """Check who publishes on the driver's topics now, then keep watching (:mod:`.publisher_watch`).
+
+        Raises:
+            StartRefused: a foreign command publisher, several publishers on a read topic, a
+                message from another publisher than the master knows, or no answer from the master.
+        """
+        if self.replay is not None or self._ros is None or self.watch is not None:
+            return
+        hw = self.hw
+        uri = self._master_uri
+        own = str(self._ros.rospy.get_name())
+        period = 0.5 * hw.state_timeout_s
+        read = [hw.joint_state_topic] + ([hw.camera_info_topic, hw.depth_topic] if self.use_depth else [])
+        self.watch = PublisherWatch(
+            lambda: topic_publishers(uri, own, timeout_s=period),
+            own,
+            [hw.velocity_topic, *hw.other_command_topics] if self.watch_command_topic else [],
+            read,
+            period_s=period,
+            silence_s=max(MASTER_SILENCE_MIN_S, hw.state_timeout_s),
+            on_halt=self.halt,
+            self_check=self._node_alive,
+        )
+        self.publishers_at_start = self.watch.snapshot()
+        for topic in read:
+            sender = self._senders[topic].caller_id
+            if sender is not None and sender not in self.watch.allowed[topic]:
+                raise StartRefused(f"messages on {topic} came from {sender}, which the master does not list")
+        self.watch.start()
+
+    def _node_alive(self) -> str | None:
+        """Why this node cannot command any more (rospy shut it down), or None.
+
+        The master shuts a node down when another registers under its name: the impostor
+        would then pass for the bridge on the command topic.
+        """
+        rospy = self._ros.rospy if self._ros is not None else None
+        if rospy is not None and rospy.core.is_shutdown() and not self._closed:
+            return f"this node ({rospy.get_name()}) was shut down (another node took its name?)"
+        return None
 
     def _connect_replay(self, recording: Recording) -> None:
         hw = self.hw
@@ -312,11 +408,12 @@ class RosRobotIO(RobotIO):
         return None if self._feeder is None else self._feeder.remaining_s()
 
     def wait_ready(self, timeout_s: float | None = None) -> None:
-        """Wait for joint states (and camera info + depth), then check the joint state rate.
+        """Wait for joint states (and camera info + depth), check the joint state rate, start the publisher watch.
 
         Raises:
-            StartRefused: nothing within ``timeout_s`` (default ``hardware.startup_timeout_s``), or the
-                driver publishes joint states much slower than ``hardware.state_rate_hz``.
+            StartRefused: nothing within ``timeout_s`` (default ``hardware.startup_timeout_s``), the
+                driver publishes joint states much slower than ``hardware.state_rate_hz``, or
+                someone else publishes on the driver's topics.
         """
         timeout_s = self.hw.startup_timeout_s if timeout_s is None else timeout_s
         deadline = time.monotonic() + timeout_s
@@ -337,6 +434,7 @@ class RosRobotIO(RobotIO):
             age = time.monotonic() - self._frame[1]  # type: ignore[index]
             if age > self.hw.depth_timeout_s:
                 raise StartRefused(f"depth frames are stale ({1e3 * age:.0f} ms old) at start")
+        self._start_watch()
 
     def _check_state_stream(self) -> None:
         """Measure the joint-state stream over ~30 expected periods; refuse a slow or gappy one.
@@ -412,18 +510,36 @@ class RosRobotIO(RobotIO):
             time.sleep(0.002)
 
     def _call_service(self, name: str) -> None:
-        """Call ``in/stop`` or ``in/start`` (on the driver-control worker thread)."""
+        """Call ``in/stop`` or ``in/start`` (on the driver-control worker thread) and check its answer.
+
+        Raises:
+            DriverServiceError: the service is missing, the call fails or the answer is malformed.
+        """
         ros = self._ros
         if ros is None or name not in self._services:
             raise DriverServiceError(f"no {name} service (not connected)")
         service, cls = self._services[name]
+        rospy = ros.rospy
+        from genpy import MessageException
+
+        # What a failed call raises: a timeout waiting for the service (ROSException), the
+        # driver's error (ServiceException), a broken connection (transport errors, socket
+        # errors), an answer that does not (de)serialize (genpy).
+        failures = (
+            rospy.ROSException,
+            rospy.ServiceException,
+            rospy.exceptions.ROSInternalException,
+            MessageException,
+            OSError,
+        )
         try:
-            ros.rospy.wait_for_service(service, timeout=self.hw.service_timeout_s)
-            ros.rospy.ServiceProxy(service, cls)()
-        except ros.rospy.ROSException as exc:  # timeout waiting for the service
-            raise DriverServiceError(f"{service}: {exc}") from None
-        except ros.rospy.ServiceException as exc:
-            raise DriverServiceError(f"{service}: {exc}") from None
+            rospy.wait_for_service(service, timeout=self.hw.service_timeout_s)
+            answer = rospy.ServiceProxy(service, cls)()
+            check_service_answer(service, answer, cls._response_class, f"{name}_result")
+        except failures as exc:
+            raise DriverServiceError(f"{service}: {type(exc).__name__}: {exc}") from None
+        except HardwareError as exc:
+            raise DriverServiceError(str(exc)) from None
 
     def start_clock(self) -> None:
         """Make :meth:`now` read 0 here (call right before the control loop)."""
@@ -438,20 +554,33 @@ class RosRobotIO(RobotIO):
             self.zero_commands = self.clamp_count = self.overruns = self.pump_overruns = 0
 
     def halt(self, reason: str, level: int = logging.WARNING) -> None:
-        """Latch zero velocity from now on (Ctrl-C, errors) and call ``in/stop``; safe in a signal handler.
+        """Latch zero velocity from now on (Ctrl-C, errors, a foreign publisher) and call ``in/stop``.
 
-        Zero is published at once; ``in/stop`` runs on the driver-control thread meanwhile.
+        Safe in a signal handler and from any thread. Zero is published at once; ``in/stop`` runs
+        on the driver-control thread meanwhile. The first cause is kept (:attr:`halt_cause`).
         """
         if self._halt_reason is None:
             self._halt_reason = reason
+            if not self._closed:
+                self._halt = (reason, time.monotonic())
             log.log(level, "halt: %s: zero velocity", reason)
         self._publish(time.monotonic())
+
+    @property
+    def halt_cause(self) -> str | None:
+        """Why the arm was halted before the end of the run (None: it was not)."""
+        return self._halt[0] if self._halt is not None else None
 
     def close(self) -> None:
         """``in/stop``, stream zero velocity for 0.1 s, stop the pump and shut the node down (idempotent)."""
         if self._closed:
             return
-        self.halt(self._halt_reason or "end of run", level=logging.INFO)
+        if self.watch is not None:
+            self.watch.stop()
+        if self._halt_reason is None:
+            self._halt_reason = "end of run"
+            log.info("halt: end of run: zero velocity")
+        self.halt(self._halt_reason, level=logging.INFO)
         self.driver.finish(self._halt_reason or "end of run", timeout_s=self.hw.service_timeout_s + 0.5)
         end = time.monotonic() + _STOP_REPEAT_S
         pump_alive = self._pump is not None and self._pump.is_alive()
@@ -686,27 +815,36 @@ class RosRobotIO(RobotIO):
 
     # -- callbacks (rospy threads) -------------------------------------------------------------
 
-    def _bad(self, what: str, message: str) -> None:
-        self.bad_messages[what] = self.bad_messages.get(what, 0) + 1
-        if self.bad_messages[what] in (1, 100, 10_000):
-            log.warning("ignored %s message (%d so far): %s", what, self.bad_messages[what], message)
+    def _bad(self, what: str, exc: MalformedMessage) -> None:
+        """Count a dropped message by topic and cause; log the first of each cause, then every 100th / 10000th."""
+        with self._lock:
+            self.bad_messages[what] = self.bad_messages.get(what, 0) + 1
+            causes = self.bad_causes.setdefault(what, {})
+            causes[exc.kind] = causes.get(exc.kind, 0) + 1
+            first_of_kind = causes[exc.kind] == 1
+            count = self.bad_messages[what]
+        if first_of_kind or count in (100, 10_000):
+            log.warning("dropped %s message (%d so far): %s", what, count, exc)
+
+    def _sender_ok(self, what: str, topic: str, msg: Any) -> bool:
+        """False (and a halt) when ``msg`` comes from another publisher than the topic's first."""
+        cause = self._senders[topic].cause(msg)
+        if cause is None:
+            return True
+        self._bad(what, MalformedMessage("second publisher", cause))
+        self.halt(cause)
+        return False
 
     def _on_joint_state(self, msg: Any) -> None:
-        names = tuple(msg.name)
-        try:
-            if names != self._index_names:
-                self._indices = joint_indices(names, self.hw.joint_names)
-                self._index_names = names
-            idx = self._indices
-            q = np.asarray(msg.position, dtype=float)[idx]  # type: ignore[index]
-        except (HardwareError, IndexError) as exc:
-            self._bad("joint_state", str(exc))
-            return
-        if not np.all(np.isfinite(q)):
-            self._bad("joint_state", "non-finite position")
-            return
-        vel = np.asarray(msg.velocity, dtype=float)
-        qdot = vel[idx] if vel.size == len(names) else np.zeros(self.nq)
+        arrival = time.monotonic()
+        with self._check_locks["joint_state"]:  # rospy calls back from one thread per publisher
+            if not self._sender_ok("joint_state", self.hw.joint_state_topic, msg):
+                return
+            try:
+                q, qdot = self._joint_check.parse(msg.name, msg.position, msg.velocity, header_stamp_s(msg), arrival)
+            except MalformedMessage as exc:
+                self._bad("joint_state", exc)
+                return
         with self._lock:
             # Arrival read under the lock: a watchdog check that held the lock first judged a
             # time before this state's arrival, so a trip never overlooks a state it could see.
@@ -728,30 +866,32 @@ class RosRobotIO(RobotIO):
 
     def _on_camera_info(self, msg: Any) -> None:
         now = time.monotonic()
-        try:
-            cam = camera_model_from_info(
-                msg.width, msg.height, msg.K, self._camera_T, self.hw.depth_min_range_m, self.hw.depth_max_range_m
-            )
-        except HardwareError as exc:
-            self._bad("camera_info", str(exc))
-            return
+        with self._check_locks["camera_info"]:
+            if not self._sender_ok("camera_info", self.hw.camera_info_topic, msg):
+                return
+            try:
+                stamp_s = header_stamp_s(msg)
+                cam = self._info_check.parse(msg.width, msg.height, msg.K, msg.header.frame_id, stamp_s, now)
+            except MalformedMessage as exc:
+                self._bad("camera_info", exc)
+                return
         with self._lock:
             self._camera = cam
         self.rates["camera_info"].add(now)
 
     def _on_depth(self, msg: Any) -> None:
         now = time.monotonic()
-        cam = self._camera
-        if cam is None:  # normal for the first frames: camera_info comes on its own connection
-            return
-        if (msg.width, msg.height) != (cam.width, cam.height):
-            self._bad("depth", f"image {msg.width}x{msg.height} but camera_info {cam.width}x{cam.height}")
-            return
-        try:
-            depth = decode_depth(msg.encoding, msg.height, msg.width, msg.step, bool(msg.is_bigendian), msg.data)
-        except HardwareError as exc:
-            self._bad("depth", str(exc))
-            return
+        with self._check_locks["depth"]:
+            if not self._sender_ok("depth", self.hw.depth_topic, msg):
+                return
+            cam = self._camera
+            if cam is None:  # normal for the first frames: camera_info comes on its own connection
+                return
+            try:
+                depth = self._depth_check.parse(cam, self._info_check.frame_id, msg, header_stamp_s(msg), now)
+            except MalformedMessage as exc:
+                self._bad("depth", exc)
+                return
         stamp = stamp_on_this_clock(msg, now)
         capture = now if stamp is None else stamp
         with self._lock:
@@ -800,6 +940,12 @@ class RosRobotIO(RobotIO):
             "stream_overruns": self.pump_overruns,
             "command_sockets_nodelay": len(self._nodelay_done),
             "ignored_messages": dict(self.bad_messages),
+            "ignored_message_causes": {topic: dict(c) for topic, c in self.bad_causes.items()},
+            "halt_cause": self.halt_cause,
+            "halt_t_s": self._halt[1] - since if self._halt is not None else None,
+            "network": self.network.as_dict() if self.network is not None else None,
+            "publishers_at_start": dict(self.publishers_at_start),
+            "publisher_watch": self.watch.report(since) if self.watch is not None else None,
             "state_timeout_s": self.hw.state_timeout_s,
             "start_check": dict(self.start_check),
             "driver_services": [

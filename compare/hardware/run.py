@@ -3,12 +3,16 @@
 Sequence (docs/hardware.md, "Safety behaviour"):
 
 1. build the hierarchy and the solver; refuse early if obstacle tasks need a depth camera whose
-   calibrated transform is missing;
-2. connect to ROS, wait for joint states (and camera info + depth), check the joint state rate;
+   calibrated transform is missing, or if the master or this node would listen beyond loopback
+   (:mod:`compare.hardware.exposure`, decided before any connection);
+2. connect to ROS, wait for joint states (and camera info + depth), check the joint state rate,
+   check who publishes on the driver's topics and keep watching
+   (:mod:`compare.hardware.publisher_watch`);
 3. take the first joint state (and a first depth update): refuse if any set-based task is
    outside its safety thresholds;
 4. run :func:`compare.loop.closed_loop.run_loop` — the same loop as in simulation — on a
-   :class:`~compare.hardware.ros_io.RosRobotIO`;
+   :class:`~compare.hardware.ros_io.RosRobotIO`, until the end or a halt (a foreign or second
+   publisher, a signal);
 5. whatever happens (end, Ctrl-C, SIGTERM, an exception): stream zero velocity, shut down;
 6. write ``summary.json`` + per-step table (the same :class:`~compare.analysis.results.ResultsWriter` and
    :func:`~compare.analysis.metrics.compute_summary`), and the plots.
@@ -122,7 +126,7 @@ def capture_background_file(config: Config, path: Path, duration_s: float) -> fl
 
     robot = hardware_robot(config)
     hw = config.hardware.model_copy(update={"startup_timeout_s": max(config.hardware.startup_timeout_s, 5.0)})
-    io = RosRobotIO(hw, robot.v_max, config.scenario.dt, use_depth=True, dry_run=True)
+    io = RosRobotIO(hw, robot.v_max, config.scenario.dt, use_depth=True, dry_run=True, watch_command_topic=False)
     try:
         io.connect()
         io.wait_ready()
@@ -187,7 +191,15 @@ def check_camera(config: Config, replay: Path | None = None, frames: int = 5) ->
     """
     robot = config.load_robot()
     recording = open_recording(replay) if replay is not None else None
-    io = RosRobotIO(config.hardware, robot.v_max, config.scenario.dt, use_depth=True, dry_run=True, replay=recording)
+    io = RosRobotIO(
+        config.hardware,
+        robot.v_max,
+        config.scenario.dt,
+        use_depth=True,
+        dry_run=True,
+        replay=recording,
+        watch_command_topic=False,
+    )
     try:
         io.connect()
         io.wait_ready()
@@ -252,10 +264,13 @@ def run_hardware(
 
     Returns:
         The content of ``summary.json``; ``["methods"][method]["hardware"]`` holds the measured
-        rates, watchdog events and counters, ``["methods"][method]["interrupted"]`` the signal
-        that ended the run (None if it ran to the end).
+        rates, watchdog events and counters, and ``halt_cause``: why the arm was halted before
+        the end (a foreign publisher, a signal; None if it ran to the end);
+        ``["methods"][method]["interrupted"]`` the signal that ended the run.
 
     Raises:
+        NetworkExposed: the master or this node would listen beyond loopback (before anything
+            is connected or written; ``hardware.allow_network_master`` to run anyway).
         StartRefused: a start-up check failed (nothing was commanded but zero).
         MasterUnreachable: no ROS master.
         RosUnavailable: ROS 1 not installed.
@@ -286,6 +301,7 @@ def run_hardware(
 
     recording = open_recording(replay) if replay is not None else None
     io = RosRobotIO(hw, robot.v_max, sc.dt, use_depth=use_depth, dry_run=dry_run, replay=recording)  # needs camera pose
+    io.check_network()  # before the results directory is made and before any connection
     # The results directory is checked (and locked) before anything is sent to the arm.
     writer = open_results(config, Path(out_dir), config_text, robot, overwrite, make_plots, duration, [method])
     unguarded = solver
@@ -324,6 +340,8 @@ def run_hardware(
                 duration = min(duration, max(0.0, remaining - 0.2))
                 if duration < 10 * sc.dt:
                     raise StartRefused(f"the recording ends {remaining:.1f} s after the start checks: nothing to run")
+            if io.halt_cause is not None:  # a foreign publisher, a second publisher during the checks
+                raise StartRefused(io.halt_cause)
             io.start_driver()
             schedule, settings = loop_setup(config, kin.frame_position(robot.ee_frame), duration)
             mode = " (replay: nothing published)" if recording else " (dry run: nothing published)" if dry_run else ""
@@ -339,7 +357,7 @@ def run_hardware(
                 obstacles,
                 None,
                 progress,
-                on_step=lambda: state.signal_name is None,
+                on_step=lambda: state.signal_name is None and io.halt_cause is None,
             )
         except BaseException:
             writer.close()

@@ -27,6 +27,9 @@ driver's timing with :class:`~compare.hardware.driver_model.KinovaDriverModel`, 
   ``--record-bag FILE`` writes the published joint states, depth and camera info as a ROS bag
   (what ``rosbag record`` gives on the real setup), for ``tpik-compare hw --replay``;
 * ``--print-calibration`` prints the ``[hardware]`` camera pose of the simulated camera and exits.
+
+The messages are built by :func:`joint_state_message` and :func:`depth_messages`, which the
+tests also use to make valid and malformed messages for the bridge.
 """
 
 from __future__ import annotations
@@ -140,6 +143,43 @@ def write_background(path: Path) -> None:
         save_background(path, camera.render_static(make_data(model)))
     finally:
         camera.close()
+
+
+DEPTH_FRAME_ID = "kinect2_ir_optical_frame"
+"""Frame of the stand-in's depth image and camera info (the Kinect v2 bridge's)."""
+
+
+def joint_state_message(ros: RosApi, names: list[str], q: np.ndarray, stamp: Any) -> Any:
+    """The driver's ``sensor_msgs/JointState``: ``q`` [rad] for the first ``len(q)`` names, 0 for the fingers."""
+    msg = ros.JointState()
+    msg.header.stamp = stamp
+    msg.name = list(names)
+    extra = len(names) - len(q)
+    msg.position = [float(v) for v in q] + [0.0] * extra
+    msg.velocity = [0.0] * len(names)
+    msg.effort = [0.0] * len(names)
+    return msg
+
+
+def depth_messages(ros: RosApi, frame: DepthFrame, encoding: str, stamp: Any) -> tuple[Any, Any]:
+    """The Kinect v2 bridge's ``sensor_msgs/Image`` (depth in ``encoding``) and ``sensor_msgs/CameraInfo``."""
+    cam = frame.camera
+    img = ros.Image()
+    img.header.stamp = stamp
+    img.header.frame_id = DEPTH_FRAME_ID
+    img.height, img.width = cam.height, cam.width
+    img.encoding = encoding
+    img.is_bigendian = 0
+    img.step, img.data = encode_depth(frame.depth_m, encoding)
+    info = ros.CameraInfo()
+    info.header = img.header
+    info.height, info.width = cam.height, cam.width
+    info.distortion_model = "plumb_bob"
+    info.D = [0.0] * 5
+    info.K = [cam.fx, 0.0, cam.cx, 0.0, cam.fy, cam.cy, 0.0, 0.0, 1.0]
+    info.R = [1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0]
+    info.P = [cam.fx, 0.0, cam.cx, 0.0, 0.0, cam.fy, cam.cy, 0.0, 0.0, 0.0, 1.0, 0.0]
+    return img, info
 
 
 class StandIn:
@@ -363,33 +403,12 @@ class StandIn:
                 self._bag.write(topic, msg, stamp)
 
     def _publish_state(self, q: np.ndarray) -> None:
-        msg = self.ros.JointState()
-        msg.header.stamp = self.ros.rospy.Time.now()
-        msg.name = self.names
-        extra = len(self.names) - self.nq
-        msg.position = [float(v) for v in q] + [0.0] * extra
-        msg.velocity = [0.0] * len(self.names)
-        msg.effort = [0.0] * len(self.names)
+        msg = joint_state_message(self.ros, self.names, q, self.ros.rospy.Time.now())
         self._pub_state.publish(msg)
         self._write_bag(self.hw.joint_state_topic, msg, msg.header.stamp)
 
     def _publish_depth(self, frame: DepthFrame, stamp: Any) -> None:
-        cam = frame.camera
-        img = self.ros.Image()
-        img.header.stamp = stamp
-        img.header.frame_id = "kinect2_ir_optical_frame"
-        img.height, img.width = cam.height, cam.width
-        img.encoding = self.encoding
-        img.is_bigendian = 0
-        img.step, img.data = encode_depth(frame.depth_m, self.encoding)
-        info = self.ros.CameraInfo()
-        info.header = img.header
-        info.height, info.width = cam.height, cam.width
-        info.distortion_model = "plumb_bob"
-        info.D = [0.0] * 5
-        info.K = [cam.fx, 0.0, cam.cx, 0.0, cam.fy, cam.cy, 0.0, 0.0, 1.0]
-        info.R = [1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0]
-        info.P = [cam.fx, 0.0, cam.cx, 0.0, 0.0, cam.fy, cam.cy, 0.0, 0.0, 0.0, 1.0, 0.0]
+        img, info = depth_messages(self.ros, frame, self.encoding, stamp)
         self._pub_info.publish(info)
         self._pub_depth.publish(img)
         self._write_bag(self.hw.camera_info_topic, info, stamp)

@@ -141,3 +141,34 @@ def write_config(path: Path, base: str | Path = "case1.toml", **sections: dict[s
 
 def read_json(path: Path) -> dict[str, Any]:
     return json.loads(path.read_text())
+
+
+@dataclass
+class SocketCalls:
+    """Every connection, datagram and name lookup a test's code attempted (none is carried out)."""
+
+    calls: list[tuple[str, Any]]
+
+
+@pytest.fixture
+def no_socket_calls(monkeypatch: pytest.MonkeyPatch) -> SocketCalls:
+    """Record and refuse every outgoing connection, datagram and name lookup of this process.
+
+    A refused attempt raises ``OSError`` before anything is sent, so code under test that would
+    reach for the network (or for a DNS server) sends nothing, and the test sees that it tried.
+    """
+    record = SocketCalls([])
+
+    def refuse(what: str) -> Any:
+        def call(*args: Any, **kwargs: Any) -> Any:
+            record.calls.append((what, args[1:] if args and isinstance(args[0], socket.socket) else args))
+            raise OSError(f"{what} refused by the test")
+
+        return call
+
+    for name in ("connect", "connect_ex", "sendto", "sendmsg"):
+        monkeypatch.setattr(socket.socket, name, refuse(name))
+    monkeypatch.setattr(socket, "create_connection", refuse("create_connection"))
+    monkeypatch.setattr(socket, "getaddrinfo", refuse("getaddrinfo"))
+    monkeypatch.setattr(socket, "gethostbyname", refuse("gethostbyname"))
+    return record

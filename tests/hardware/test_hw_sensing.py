@@ -227,7 +227,7 @@ def test_joint_states_delivered_late_keep_their_stamps_for_the_self_filter(monke
     clock = [100.0]
     monkeypatch.setattr(ros_io.time, "monotonic", lambda: clock[0])
     monkeypatch.setattr(ros_io.time, "time", lambda: clock[0] + 1000.0)
-    hw = HardwareConfig()
+    hw = HardwareConfig(joint_names=tuple(f"joint_{i}" for i in range(1, 8)))
     io = ros_io.RosRobotIO(hw, np.full(7, 0.6), 0.01, use_depth=False, dry_run=True)
     io.start_clock()
     io._sent = np.full(7, 0.5)  # the arm moves at 0.5 rad/s per joint
@@ -246,9 +246,12 @@ def test_joint_states_delivered_late_keep_their_stamps_for_the_self_filter(monke
     np.testing.assert_allclose(io.q_at(0.255), 0.5 * 0.25)  # by arrival: 0.5 · 0.10, the arm 150 ms back
     lag = io.rates["joint_state"].stats()  # the report shows how late they came
     assert lag["delivery_lag_max_ms"] == pytest.approx(150.0) and lag["count"] == 26
-    # The newest state came late (stamped 0.10 s, delivered at 0.25 s; rospy's queue of 1 dropped the rest):
-    io._history.clear()
-    for k in range(11):
+    # The newest state came late (stamped 0.10 s, delivered at 0.25 s; rospy's queue of 1 dropped the rest),
+    # on a fresh bridge (this one's stamp check would drop stamps going back to 0):
+    io = ros_io.RosRobotIO(hw, np.full(7, 0.6), 0.01, use_depth=False, dry_run=True)
+    io.start_clock()
+    io._sent = np.full(7, 0.5)
+    for k in range(10):
         state(0.01 * k, 0.01 * k + 0.001)
     state(0.10, 0.25)
     io._capture_of = {round(100.255, 6): 100.255}  # a frame taken at 0.255 s

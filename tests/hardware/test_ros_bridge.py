@@ -217,6 +217,7 @@ def test_case1_through_the_driver_model_is_as_safe_as_in_simulation(
     hw = summary["methods"]["tpik"]
     report = hw["hardware"]
     assert (out / "steps").is_dir() and list((out / "plots").glob("*.png"))
+    assert report["halt_cause"] is None and report["ignored_messages"] == {}  # the stand-in's messages are valid
     t0 = report["clock_start_monotonic_s"]
     t1 = t0 + hw["sim_time_s"]
 
@@ -409,6 +410,13 @@ def test_dry_run_publishes_nothing_and_calls_no_service(ros_env, procs, case1_co
     assert rec["command_t"] == [] and rec["services"] == []
     summary = read_json(tmp_path / "hw" / "summary.json")["methods"]["tpik"]
     assert summary["hardware"]["dry_run"] and summary["steps"] > 50
+    # roscore with ROS_IP=127.0.0.1 and this node: loopback only; only the stand-in feeds the bridge.
+    network = summary["hardware"]["network"]
+    assert network["problems"] == [] and network["node_sockets"] == [] and not network["allowed"]
+    assert network["master_sockets"] == [f"127.0.0.1:{ros_env['ROS_MASTER_URI'].rsplit(':', 1)[1]}"]
+    assert summary["hardware"]["halt_cause"] is None and summary["hardware"]["ignored_messages"] == {}
+    feeders = summary["hardware"]["publishers_at_start"]["/j2s7s300_driver/out/joint_state"]
+    assert len(feeders) == 1 and feeders[0].startswith("/j2s7s300_driver_standin")  # (an anonymous node name)
 
 
 def test_start_refused_outside_the_safety_thresholds(ros_env, procs, case1_config, tmp_path, jaco):
@@ -486,3 +494,55 @@ def test_sigint_ends_with_zero_velocity_in_stop_and_keeps_the_results(ros_env, p
     assert _stops_after(rec, t_sig), _services(rec)
     summary = read_json(out / "summary.json")["methods"]["tpik"]
     assert summary["interrupted"] == "SIGINT" and summary["steps"] > 10
+
+
+@pytest.mark.parametrize("which", ["command", "joint_state"])
+def test_a_second_publisher_halts_the_arm_within_one_watchdog_period(ros_env, procs, case1_config, tmp_path, which):
+    """A node registering on the driver's command topic (or on the joint states the bridge reads)
+    halts the run: zero velocity, then ``in/stop``; the cause is in the results. It is found by the
+    first poll of the master after its registration (polls every half watchdog period)."""
+    hw_cfg = tomllib.loads(case1_config.read_text())["hardware"]
+    topic, msg_type = (
+        (hw_cfg.get("velocity_topic", "/j2s7s300_driver/in/joint_velocity"), "JointVelocity")
+        if which == "command"
+        else (hw_cfg.get("joint_state_topic", "/j2s7s300_driver/out/joint_state"), "JointState")
+    )
+    standin, record = _standin(procs, ros_env, case1_config, tmp_path)
+    out = tmp_path / "hw"
+    hw = start(procs, ros_env, ["-m", "compare.cli", "hw", str(case1_config), "--out", str(out), "-q", "--no-plots",
+                                "--duration", "20"], tmp_path / "hw.log")  # fmt: skip
+    deadline = time.monotonic() + TIMEOUT_S
+    while time.monotonic() < deadline and "hardware run" not in hw.output():  # the loop is starting
+        assert hw.popen.poll() is None, hw.output()[-3000:]
+        time.sleep(0.1)
+    time.sleep(1.0)
+    foreign_record = tmp_path / "foreign.json"
+    start(procs, ros_env, ["-m", "tests.hardware.foreign_publisher", topic, msg_type, "--record", str(foreign_record)],
+          tmp_path / "foreign.log")  # fmt: skip
+    assert hw.popen.wait(timeout=TIMEOUT_S) == 3, hw.output()[-3000:]  # halted, results written
+    rec = _stop(standin, record)
+    foreign = read_json(foreign_record)
+    caller = foreign["caller_id"]
+    cause = f"foreign command publisher {caller}" if which == "command" else f"second publisher {caller} on {topic}"
+    assert f"halted: {cause}" in hw.output()
+    report = read_json(out / "summary.json")["methods"]["tpik"]["hardware"]
+    assert report["halt_cause"] == cause
+    watch = report["publisher_watch"]
+    assert watch["cause"] == cause and watch["failed_polls"] == 0
+    t0 = report["clock_start_monotonic_s"]
+    registered = foreign["registered_t"]
+    found = t0 + watch["cause_t_s"]  # start of the poll that found it
+    timeout = report["state_timeout_s"]
+    assert watch["period_s"] == pytest.approx(timeout / 2)
+    # The stand-in saw the halt: the command stream ends in zeros after the registration, then in/stop.
+    t_zero, stays_zero = _first_zero_after(rec, foreign["before_t"])
+    stops = _stops_after(rec, foreign["before_t"])
+    print(f"\n{which}: found {1e3 * (found - registered):.0f} ms after the registration (poll period "
+          f"{1e3 * watch['period_s']:.0f} ms, max poll interval {watch['poll_interval_max_ms']:.0f} ms); "
+          f"zero at the driver {1e3 * (t_zero - registered):.0f} ms, in/stop requested "
+          f"{1e3 * (stops[0] - registered):.0f} ms after it (watchdog period {1e3 * timeout:.0f} ms)")  # fmt: skip
+    assert stays_zero and stops, _services(rec)
+    # Found by the first or second poll after it (the second when one was in flight at registration).
+    assert found - registered <= 2 * watch["period_s"] + SANITY_S
+    assert t_zero - registered < timeout + SANITY_S and stops[0] - registered < timeout + SANITY_S
+    assert report["driver_services"][-1]["service"] == "stop" and report["driver_services"][-1]["cause"] == cause

@@ -86,14 +86,17 @@ def test_the_bridge_records_each_verdicts_next_joint_state_when_it_arrives_not_f
 
     clock = [100.0]
     monkeypatch.setattr(ros_io.time, "monotonic", lambda: clock[0])
-    hw = HardwareConfig()
+    hw = HardwareConfig(joint_names=tuple(f"joint_{i}" for i in range(1, 8)))
     io = ros_io.RosRobotIO(hw, V_MAX, 0.01, use_depth=False, dry_run=True)  # bookkeeping only, no ROS node
+    unstamped = SimpleNamespace(stamp=SimpleNamespace(to_sec=lambda: 0.0))
     io.rates["joint_state"] = ros_io._RateCounter(maxlen=3)  # a log far shorter than the run
     io.start_clock()
 
     def state_at(t: float) -> None:
         clock[0] = 100.0 + t
-        io._on_joint_state(SimpleNamespace(name=list(hw.joint_names), position=[0.0] * 7, velocity=[]))
+        io._on_joint_state(
+            SimpleNamespace(name=list(hw.joint_names), position=[0.0] * 7, velocity=[], header=unstamped)
+        )
 
     def check_at(t: float) -> None:
         clock[0] = 100.0 + t
