@@ -397,6 +397,47 @@ def claims(
         out.with_suffix(".json").write_text(json.dumps(data, indent=2) + "\n", encoding="utf-8")
 
 
+@app.command("paper-claims")
+def paper_claims(
+    out: Annotated[
+        Path, typer.Option("--out", "-o", help="Run directories and the tables (claims.md, claims.json).")
+    ] = Path("results/paper-claims"),
+    seeds: Annotated[
+        list[int] | None, typer.Option("--seed", help="Scenario seed (repeatable; default 0).", show_default=False)
+    ] = None,
+    methods: MethodsOpt = None,
+    configs: Annotated[Path, typer.Option(help="Folder of the case configs.")] = Path("configs"),
+    quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress bars.")] = False,
+) -> None:
+    """Run the paper's case studies (and their paper-paced variants) and print the claims of Sec. IV per method.
+
+    The same tables as README.md's, regenerated on this code (compare/campaign/paper_claims.py);
+    runs already in --out with the same config are reused.
+    """
+    from compare.analysis.exceptions import ResultsError
+    from compare.campaign.paper_claims import CASES, claims_details, claims_json, claims_tables, run_paper_claims
+    from compare.config import ConfigError
+
+    missing = [name for name, _ in CASES if not (configs / name).is_file()]
+    if missing:
+        _fail(f"{configs}: missing case configs {', '.join(missing)}")
+        return
+    picked = seeds or [0]
+    try:
+        results = run_paper_claims(configs, out, picked, methods, progress=not quiet, announce=typer.echo)
+    except (ConfigError, ResultsError) as exc:
+        _fail(str(exc))
+        return
+    tables = claims_tables(results, picked)
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "claims.md").write_text(tables + "\n\n" + claims_details(results) + "\n", encoding="utf-8")
+    import json
+
+    (out / "claims.json").write_text(json.dumps(claims_json(results), indent=2) + "\n", encoding="utf-8")
+    typer.echo(tables)
+    typer.echo(f"tables and what was measured: {out / 'claims.md'}")
+
+
 @app.command()
 def ablation(
     config: ConfigArg,

@@ -27,6 +27,8 @@ from compare.loop.simulation import build_simulation
 from compare.loop.warmup import warm_up_process
 from compare.loop.waypoints import WaypointSchedule
 from compare.methods import make_method
+from compare.sensing.person import Person
+from compare.sensing.person_track import PersonTrack, max_speeds_by_part
 from tpik.hierarchy import Hierarchy
 from tpik.step_result import IkSolver
 from tpik.tasks import ObstacleDistanceTask
@@ -102,6 +104,13 @@ def loop_setup(
         max_sensing_age_s=config.sensor.max_age_s,
     )
     return schedule, settings
+
+
+def person_speeds(config: Config, robot: robots.Robot) -> dict[str, float]:
+    """The realized person's fastest capsule end per body part over the run, at the control rate [m/s]."""
+    sc = config.scenario
+    person = Person(robot.workcell_model(), config.person.keyframes, time_scale=sc.time_scale)
+    return max_speeds_by_part(PersonTrack.from_person(person, sc.sim_time_s, sc.dt))
 
 
 def write_plots(out_dir: Path) -> None:
@@ -296,6 +305,8 @@ def run_scenario(
         config, oracle = _realize_with_oracle(config, robot, Path(out_dir))
         if oracle is not None:
             writer.set_run_info("oracle", oracle)
+        if config.person.keyframes:
+            writer.set_run_info("person", {"max_speed_mps": person_speeds(config, robot)})
         columns = (
             TextColumn("[bold]{task.description:<12}"),
             BarColumn(),

@@ -22,7 +22,7 @@ from typing import Any
 
 import numpy as np
 
-from compare.analysis.results import RUNS_DIR, SUMMARY_FILE
+from compare.analysis.results import SUMMARY_FILE, run_summaries
 from compare.analysis.statistics import mcnemar, rate
 
 LABELS = ("avoidable", "unavoidable", "undecided")
@@ -63,17 +63,6 @@ def has_oracle(run_dir: Path) -> bool:
     return isinstance(oracle, dict) and oracle.get("label") in LABELS
 
 
-def _run_summaries(sweep_dir: Path) -> list[dict[str, Any]]:
-    runs_dir = Path(sweep_dir) / RUNS_DIR
-    out = []
-    for run_dir in sorted(p for p in runs_dir.glob("*") if p.is_dir()) if runs_dir.is_dir() else []:
-        try:
-            out.append(json.loads((run_dir / SUMMARY_FILE).read_text(encoding="utf-8")))
-        except (OSError, ValueError):
-            continue
-    return out
-
-
 def _witness_counts(summaries: list[dict[str, Any]]) -> dict[str, dict[str, int]]:
     """Per witness: runs it was tried in, runs it held, and runs it is the verdict's witness of."""
     out: dict[str, dict[str, int]] = {}
@@ -99,7 +88,7 @@ def oracle_sweep_summary(sweep_dir: Path) -> dict[str, Any] | None:
         rate for a method counts the runs with that label and at least one obstacle violation over
         all its runs; ``avoidable_given_held`` conditions on the runs labelled ``avoidable``.
     """
-    summaries = [s for s in _run_summaries(sweep_dir) if isinstance(s.get("oracle"), dict)]
+    summaries = [s for s in run_summaries(sweep_dir) if isinstance(s.get("oracle"), dict)]
     if not summaries:
         return None
     labels = [run_label(s["oracle"]) for s in summaries]

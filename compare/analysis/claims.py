@@ -10,6 +10,9 @@ tolerance (1 mm / 1 mrad).
 
 Case 1 (Sec. IV-B, Figs. 3–5):
 
+* ``c1_free_before``: before the person steps in (until their first motion), the arm reaches both
+  waypoints while the person stays outside the obstacle tasks' activation thresholds (true
+  distances) and no obstacle task activates;
 * ``c1_obstacle_tasks``: the wrist and hand obstacle tasks (second and third control points)
   activate while the person is in, and only those two;
 * ``c1_arm_stops``: the arm stops while they are active: from 1 s after the person has arrived and
@@ -24,12 +27,21 @@ Case 1 (Sec. IV-B, Figs. 3–5):
 
 Case 2 (Sec. IV-C, Figs. 6–10):
 
+* ``c2_moves_away``: while the person reaches in, an obstacle task activates and the arm moves
+  away: the EE leaves its start position by at least :data:`MOVED_AWAY_M` (Fig. 6);
 * ``c2_inside_box``: while the person pushes, a wall task activates and the EE stays within
   every wall's safety threshold;
 * ``c2_distances``: every control point stays beyond the obstacle safety threshold;
 * ``c2_joint_limits``: the joints stay within their limits' safety thresholds;
 * ``c2_returns``: after the person steps away the EE returns to its start position (within the
-  waypoint tolerance) before the end of the run (Fig. 7).
+  waypoint tolerance) before the end of the run (Fig. 7);
+* ``c2_chattering``: the chattering of Fig. 9 is the person's doing ("the person is moving and the
+  points at minimum distance change"): the obstacle tasks' activations toggle only while the
+  person moves, none while the person stands still (before the first motion, and from
+  :data:`DEACTIVATION_GRACE_S` after the last keyframe).
+
+Every threshold above is a module constant or a config value, fixed before any result was looked
+at; a claim holds for a method in a set of runs only when it holds in each run.
 """
 
 from __future__ import annotations
@@ -54,6 +66,8 @@ STOP_WINDOW_S = 1.0
 """Window of the net EE displacement [s]: a controller chattering in place makes path, no progress."""
 DEACTIVATION_GRACE_S = 2.0
 """Time after the person's last keyframe within which the obstacle tasks must be inactive [s]."""
+MOVED_AWAY_M = 0.05
+"""EE displacement from its start that counts as "the arm moves away" in case 2 [m]."""
 
 
 @dataclass(frozen=True)
@@ -259,6 +273,13 @@ def _short(name: str, control_points: Sequence[str]) -> str:
     return next((cp for cp in control_points if name.endswith(cp)), name)
 
 
+def _any_obstacle_active(steps: pd.DataFrame, ctx: ClaimContext) -> np.ndarray:
+    active = np.zeros(len(steps), dtype=bool)
+    for task in ctx.group("obstacles"):
+        active |= activated(steps, task)
+    return active
+
+
 def _distances_claim(key: str, steps: pd.DataFrame, ctx: ClaimContext) -> Claim:
     tasks = ctx.group("obstacles")
     worst, name, when = _worst_margin(steps, tasks)
@@ -276,6 +297,35 @@ def _distances_claim(key: str, steps: pd.DataFrame, ctx: ClaimContext) -> Claim:
 
 
 # --------------------------------------------------------------------------------- case 1
+
+
+def _c1_free_before(steps: pd.DataFrame, ctx: ClaimContext) -> Claim:
+    text = (
+        "before the person steps in, the arm reaches both waypoints with the person outside the activation thresholds"
+    )
+    before = _col(steps, "t") < ctx.person.t_move
+    err = _col(steps, "ee_error_m")
+    wp = steps["waypoint"].to_numpy() if "waypoint" in steps.columns else np.zeros(len(steps), dtype=int)
+    with np.errstate(invalid="ignore"):
+        reached = sorted({int(w) for w in wp[before & (err < ctx.waypoint_tolerance_m)]})
+    closest = math.inf
+    outside = True
+    for task in ctx.group("obstacles"):
+        truth = _safety_sigma(steps, task)[before]
+        finite = truth[np.isfinite(truth)]
+        if finite.size:
+            closest = min(closest, float(finite.min()))
+            outside &= bool(np.all(finite > task.activation_lower))
+    activations = int(np.count_nonzero(_any_obstacle_active(steps, ctx) & before))
+    holds = len(reached) >= 2 and outside and activations == 0
+    return Claim(
+        "c1_free_before",
+        text,
+        holds,
+        f"0–{ctx.person.t_move:.1f} s: waypoints reached {reached or 'none'}; person at ≥ {closest:.3f} m;"
+        f" {activations} steps with an obstacle task active",
+        {"waypoints_reached": reached, "min_distance_m": closest, "active_steps": activations},
+    )
 
 
 def _c1_obstacle_tasks(steps: pd.DataFrame, ctx: ClaimContext) -> Claim:
@@ -300,10 +350,7 @@ def _c1_obstacle_tasks(steps: pd.DataFrame, ctx: ClaimContext) -> Claim:
 def _first_obstacle_activation(steps: pd.DataFrame, ctx: ClaimContext) -> float | None:
     p = ctx.person
     window = _window(steps, p.t_move, p.t_gone)
-    any_active = np.zeros(len(steps), dtype=bool)
-    for task in ctx.group("obstacles"):
-        any_active |= activated(steps, task)
-    hits = np.flatnonzero(any_active & window)
+    hits = np.flatnonzero(_any_obstacle_active(steps, ctx) & window)
     return float(_col(steps, "t")[hits[0]]) if hits.size else None
 
 
@@ -369,11 +416,8 @@ def _c1_resumes(steps: pd.DataFrame, ctx: ClaimContext) -> Claim:
     text = "the motion resumes when the person leaves"
     p = ctx.person
     t = _col(steps, "t")
-    any_active = np.zeros(len(steps), dtype=bool)
-    for task in ctx.group("obstacles"):
-        any_active |= activated(steps, task)
     late = t > p.t_gone + DEACTIVATION_GRACE_S
-    still = bool(np.any(any_active & late))
+    still = bool(np.any(_any_obstacle_active(steps, ctx) & late))
     after = t >= p.t_leave
     err = _col(steps, "ee_error_m")
     with np.errstate(invalid="ignore"):
@@ -412,6 +456,43 @@ def _c2_inside_box(steps: pd.DataFrame, ctx: ClaimContext) -> Claim:
     )
 
 
+def _c2_moves_away(steps: pd.DataFrame, ctx: ClaimContext) -> Claim:
+    p = ctx.person
+    window = _window(steps, p.t_move, p.t_gone)
+    active = bool(np.any(_any_obstacle_active(steps, ctx) & window))
+    ee = np.column_stack([_col(steps, f"ee_{a}") for a in "xyz"])
+    moved = float(np.nanmax(np.linalg.norm(ee[window] - ee[0], axis=1))) if np.any(window) else 0.0
+    holds = active and moved >= MOVED_AWAY_M
+    return Claim(
+        "c2_moves_away",
+        "the obstacle tasks activate and the arm moves away from the person",
+        holds,
+        f"obstacle task {'activated' if active else 'never activated'}; EE up to {100.0 * moved:.1f} cm from its"
+        f" start (≥ {100.0 * MOVED_AWAY_M:g} cm counts)",
+        {"activated": active, "ee_displacement_m": moved},
+    )
+
+
+def _c2_chattering(steps: pd.DataFrame, ctx: ClaimContext) -> Claim:
+    p = ctx.person
+    t = _col(steps, "t")
+    active = _any_obstacle_active(steps, ctx)
+    toggle = np.concatenate([[False], active[1:] != active[:-1]])
+    moving = _window(steps, p.t_move, p.t_gone + DEACTIVATION_GRACE_S)
+    while_moving = int(np.count_nonzero(toggle & moving))
+    while_still = int(np.count_nonzero(toggle & ~moving))
+    span = max(p.t_gone - p.t_move, 1e-9)
+    first_still = float(t[np.flatnonzero(toggle & ~moving)[0]]) if while_still else None
+    return Claim(
+        "c2_chattering",
+        "the obstacle tasks chatter only while the person moves",
+        while_still == 0,
+        f"{while_moving} activation toggles while the person moves ({while_moving / span:.1f} /s),"
+        f" {while_still} while still" + (f" (first at {first_still:.1f} s)" if first_still is not None else ""),
+        {"toggles_moving": while_moving, "toggles_still": while_still},
+    )
+
+
 def _c2_joint_limits(steps: pd.DataFrame, ctx: ClaimContext) -> Claim:
     worst, name, when = _worst_margin(steps, ctx.group("joint_limits"))
     holds = worst >= -VIOLATION_TOLERANCE
@@ -444,6 +525,7 @@ def _c2_returns(steps: pd.DataFrame, ctx: ClaimContext) -> Claim:
 
 
 CASE1_CLAIMS: tuple[Callable[[pd.DataFrame, ClaimContext], Claim], ...] = (
+    _c1_free_before,
     _c1_obstacle_tasks,
     _c1_arm_stops,
     lambda steps, ctx: _distances_claim("c1_distances", steps, ctx),
@@ -451,10 +533,12 @@ CASE1_CLAIMS: tuple[Callable[[pd.DataFrame, ClaimContext], Claim], ...] = (
     _c1_resumes,
 )
 CASE2_CLAIMS: tuple[Callable[[pd.DataFrame, ClaimContext], Claim], ...] = (
+    _c2_moves_away,
     _c2_inside_box,
     lambda steps, ctx: _distances_claim("c2_distances", steps, ctx),
     _c2_joint_limits,
     _c2_returns,
+    _c2_chattering,
 )
 
 

@@ -17,6 +17,7 @@ from rich.text import Text
 from compare.analysis.atomic_files import write_text_atomic
 from compare.analysis.avoidability import report_lines
 from compare.analysis.metrics import GROUPS, group_summary, summary_groups
+from compare.analysis.person_speeds import report_lines as person_speed_lines
 from compare.analysis.results import REPORT_FILE, SWEEP_REPORT_FILE, load_summary
 from compare.analysis.statistics import rate_value
 
@@ -422,7 +423,8 @@ def render_sweep_report(sweep_dir: Path, command: str | None = None) -> Path:
         " before contact if the person kept coming (compare/analysis/iso15066.py).",
     ]
     out += _paired_section(summary.get("paired") or {})
-    out += report_lines(summary)  # avoidable / unavoidable obstacle violations (oracle)
+    out += report_lines(summary)  # obstacle violations by the run's verdict
+    out += person_speed_lines(summary)
     failed = summary.get("failed_runs") or []
     if failed:
         out += ["", "## Failed runs", ""] + [f"- {line}" for line in failed[:50]]

@@ -726,6 +726,18 @@ def _method_aggregate(rows: pd.DataFrame) -> dict[str, Any]:
     }
 
 
+def run_summaries(sweep_dir: Path) -> list[dict[str, Any]]:
+    """Every readable ``summary.json`` of a sweep's runs, in run order (unreadable ones left out)."""
+    runs_dir = Path(sweep_dir) / RUNS_DIR
+    out = []
+    for run_dir in sorted(p for p in runs_dir.glob("*") if p.is_dir()) if runs_dir.is_dir() else []:
+        try:
+            out.append(json.loads((run_dir / SUMMARY_FILE).read_text(encoding="utf-8")))
+        except (OSError, ValueError):
+            continue
+    return out
+
+
 PAIRED_OUTCOMES: dict[str, tuple[str, ...]] = {
     "limit_or_wall_violation": ("joint_limits", "walls"),
     "obstacle_violation": ("obstacles",),

@@ -37,6 +37,7 @@ from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, T
 from compare.analysis.atomic_files import remove_stale_temporaries, write_text_atomic
 from compare.analysis.avoidability import oracle_sweep_summary
 from compare.analysis.exceptions import ResultsConflict
+from compare.analysis.person_speeds import sweep_person_speeds
 from compare.analysis.preflight import check_output_dir
 from compare.analysis.results import (
     CONFIG_FILE,
@@ -48,6 +49,7 @@ from compare.analysis.results import (
     finished_methods,
     is_sweep_dir,
     load_summary,
+    run_summaries,
     sweep_run_dir,
     write_json_atomic,
     write_sweep_summary,
@@ -256,6 +258,9 @@ def _execute(
     }
     if failures:
         summary["failed_runs"] = failures
+    speeds = sweep_person_speeds(run_summaries(out_dir))
+    if speeds is not None:
+        summary["person"] = {"max_speed_mps": speeds}
     split = oracle_sweep_summary(out_dir)
     if split is not None:  # obstacle violations by the run's verdict (compare.analysis.avoidability)
         summary["oracle"] = split["oracle"]

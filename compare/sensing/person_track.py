@@ -61,6 +61,26 @@ class PersonTrack:
         return np.maximum(va, vb) / self.step_s
 
 
+PARTS: dict[str, tuple[str, ...]] = {
+    "torso": ("torso", "head", "leg"),
+    "upper_arm": ("upperarm",),
+    "forearm": ("forearm",),
+    "hand": ("hand",),
+}
+"""Body parts of the speed summary, by the words their capsule names contain."""
+
+
+def max_speeds_by_part(track: PersonTrack) -> dict[str, float]:
+    """Fastest capsule end of each body part (:data:`PARTS`) over the track [m/s], at the track's sampling."""
+    speeds = track.speeds().max(axis=0) if track.a.shape[0] > 1 else np.zeros(len(track.names))
+    out: dict[str, float] = {}
+    for part, words in PARTS.items():
+        picked = [float(v) for name, v in zip(track.names, speeds, strict=True) if any(w in name for w in words)]
+        if picked:
+            out[part] = max(picked)
+    return out
+
+
 def capsule_margins(
     points: np.ndarray, a: np.ndarray, b: np.ndarray, radius: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray]:
