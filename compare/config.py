@@ -452,8 +452,9 @@ class Iso15066Config(_Strict):
 class SolverLimitConfig(_Strict):
     """Per-call time limit of every method's solve (``[solver_limit]``, ``compare.loop.deadline``).
 
-    A solve that takes longer than the limit is treated as not having arrived: the step uses the
-    loop's fallback, is FAILED and counts as a deadline miss (per-step ``deadline_miss``,
+    Enforced on hardware, and in simulation only with ``[loop] realtime = true``: a solve that
+    takes longer than the limit is treated as not having arrived: the step uses the loop's
+    fallback, is FAILED and counts as a deadline miss (per-step ``deadline_miss``,
     ``deadline_misses`` in summary.json). QP backends with a time limit of their own (OSQP,
     Clarabel, DAQP) also get the remaining budget on every call, on the wall clock.
 
@@ -537,6 +538,21 @@ DEFAULT_WITNESSES = (
     "preview-0s",
 )
 """The verdict's witnesses, in the order tried: the most often successful first (docs/separating.md)."""
+
+
+class LoopConfig(_Strict):
+    """How the simulated loop treats time (``[loop]``).
+
+    Attributes:
+        realtime: Enforce ``[solver_limit]`` in simulation as on hardware: a solve that has not
+            answered within the limit is replaced by the fallback (FAILED step), and QP backends
+            get what is left of the budget. The trajectory then depends on the machine's speed and
+            load. Off (the default): every solve's answer is applied, so a run is a function of
+            (config, seed) alone; a solve longer than the control period is reported as a deadline
+            miss and changes nothing.
+    """
+
+    realtime: bool = False
 
 
 class OracleConfig(_Strict):
@@ -820,6 +836,7 @@ class Config(_Strict):
     iso15066: Iso15066Config = Field(default_factory=Iso15066Config)
     extensions: ExtensionsConfig = Field(default_factory=ExtensionsConfig)
     solver_limit: SolverLimitConfig = Field(default_factory=SolverLimitConfig)
+    loop: LoopConfig = Field(default_factory=LoopConfig)
     oracle: OracleConfig = Field(default_factory=OracleConfig)
 
     def hierarchy_description(self) -> list[dict[str, Any]]:

@@ -165,7 +165,8 @@ def run_method(
     warm_up_process(config, method, robot, q0)  # once per process: kernels loaded, caches built (throwaway copy)
     warmup_steps = warm_up_solver(solver, hierarchy, robot, q0, sc.dt)  # before faults and timing
     inner = injector.wrap_solver(solver)
-    solver = guard_solver(inner, config.solver_limit, sc.dt)
+    # Only with [loop] realtime does a late solve change the run: otherwise it is a function of (config, seed).
+    solver = guard_solver(inner, config.solver_limit, sc.dt) if config.loop.realtime else inner
     if solver_hook is not None:
         solver = solver_hook(solver, inner)
     stale_after_s = (
@@ -225,8 +226,15 @@ def steal_excused_entry(solver: object) -> dict[str, Any]:
 
 
 def solver_limit_entry(config: Config, realtime: bool) -> dict[str, Any]:
-    """The time limit a run's solves had, for ``summary.json`` (``time_limit_s`` None = none)."""
-    limit = config.solver_limit.limit_s(config.scenario.dt)
+    """The time limit a run's solves had, for ``summary.json`` (``time_limit_s`` None = none).
+
+    Args:
+        config: The run's config.
+        realtime: A hardware run (wall clock, always enforced); in simulation the limit is
+            enforced only with ``[loop] realtime``.
+    """
+    enforced = realtime or config.loop.realtime
+    limit = config.solver_limit.limit_s(config.scenario.dt) if enforced else None
     clock = "wall" if realtime else config.solver_limit.simulation_clock
     return {"time_limit_s": limit, "clock": clock if limit is not None else None}
 

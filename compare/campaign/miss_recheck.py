@@ -341,13 +341,19 @@ def recheck_sweep(
         per method (when it exists).
 
     Raises:
-        ResultsError: Not a sweep directory.
+        ResultsError: Not a sweep directory, or a sweep without ``[loop] realtime`` (its
+            misses changed nothing).
         ConfigError: Its ``config.toml`` is unreadable or invalid.
     """
     sweep_dir = Path(sweep_dir)
     if not (sweep_dir / CONFIG_FILE).exists():
         raise ResultsError(f"{sweep_dir} has no {CONFIG_FILE}: not a sweep directory")
     config, _ = load_config(sweep_dir / CONFIG_FILE)
+    if not config.loop.realtime:
+        raise ResultsError(
+            f"{sweep_dir} ran without [loop] realtime: its deadline misses are reports (every answer was"
+            " applied), nothing to re-time"
+        )
     if replays < 1:
         raise ConfigError(f"replays must be >= 1, got {replays}")
     misses = find_misses(sweep_dir, methods)

@@ -42,6 +42,7 @@ def _case1_steps() -> tuple[pd.DataFrame, ClaimContext]:
     x = np.where(t < 3.2, 0.1 * t, 0.32)  # the EE moves, stops at 3.2 s while the tasks are active ...
     x = np.where(t >= 6.0, 0.32 + 0.1 * (t - 6.0), x)  # ... and resumes when the person leaves
     err = np.where(t < 7.5, 0.3, 0.01)
+    err = np.where((t >= 0.8) & (t < 1.0) | (t >= 1.8) & (t < 1.9), 0.01, err)  # both waypoints before 2 s
     steps = pd.DataFrame(
         {
             "t": t,
@@ -49,7 +50,7 @@ def _case1_steps() -> tuple[pd.DataFrame, ClaimContext]:
             "ee_y": 0.4,
             "ee_z": 0.7,
             "ee_error_m": err,
-            "waypoint": np.where(t < 8.0, 1, 0),
+            "waypoint": np.where((t >= 1.0) & (t < 8.0), 1, 0),
             "sigma:joint_limit_2": 2.0,
             "sigma:joint_limit_4": np.where((t > 1.0) & (t < 1.5), 0.64, 1.5),
             "sigma:joint_limit_6": 2.0,
@@ -72,11 +73,32 @@ def _by_key(steps, ctx):
 def test_case1_claims_hold_when_the_run_does_what_the_paper_says():
     steps, ctx = _case1_steps()
     claims = _by_key(steps, ctx)
-    assert list(claims) == ["c1_obstacle_tasks", "c1_arm_stops", "c1_distances", "c1_joint4_limit", "c1_resumes"]
+    assert list(claims) == [
+        "c1_free_before",
+        "c1_obstacle_tasks",
+        "c1_arm_stops",
+        "c1_distances",
+        "c1_joint4_limit",
+        "c1_resumes",
+    ]
     assert all(c.holds for c in claims.values()), {k: c.measured for k, c in claims.items()}
     assert claims["c1_distances"].values["min_distance_m"] == pytest.approx(0.38)
     assert claims["c1_joint4_limit"].values["margin_rad"] == pytest.approx(0.02)
     assert claims["c1_resumes"].values["waypoint_reached_s"] == pytest.approx(7.5)
+    assert claims["c1_free_before"].values["waypoints_reached"] == [0, 1]
+
+
+def test_case1_free_before_needs_both_waypoints_a_distant_person_and_no_activation():
+    steps, ctx = _case1_steps()
+    one = steps.assign(ee_error_m=np.where(steps.t.between(1.8, 1.9), 0.3, steps.ee_error_m))
+    assert not _by_key(one, ctx)["c1_free_before"].holds  # only waypoint 0 reached before 2 s
+    near = steps.assign(**{"truth:obstacle_link_6": np.where(steps.t.between(1.0, 1.2), 0.39, 0.9)})
+    claim = _by_key(near, ctx)["c1_free_before"]
+    assert not claim.holds and claim.values["min_distance_m"] == pytest.approx(0.39)  # inside the activation band
+    seen = steps.assign(
+        **{"sigma:obstacle_link_7": np.where(steps.t.between(1.0, 1.2), 0.39, steps["sigma:obstacle_link_7"])}
+    )
+    assert not _by_key(seen, ctx)["c1_free_before"].holds  # a task activated on the measured distance
 
 
 def test_case1_each_claim_fails_on_its_own_defect():
@@ -115,7 +137,7 @@ def test_case1_each_claim_fails_on_its_own_defect():
 
 
 def test_case2_claims():
-    t = np.round(np.arange(0.0, 8.0, 0.01), 10)
+    t = np.round(np.arange(0.0, 9.0, 0.01), 10)
     pushed = (t > 2.0) & (t < 4.0)
     steps = pd.DataFrame(
         {
@@ -131,18 +153,35 @@ def test_case2_claims():
             "sigma:wall_y_min": 0.7,
             **{f"sigma:obstacle_{cp}": 0.5 for cp in CPS},
             **{f"truth:obstacle_{cp}": 0.5 for cp in CPS},
+            "sigma:obstacle_link_7": np.where(pushed, 0.39, 0.5),
         }
     )
     ctx = ClaimContext("case2", _tasks(walls=True), CPS, PersonTimeline(1.0, 5.0, 1.0, 5.0), 0.02)
     claims = _by_key(steps, ctx)
-    assert list(claims) == ["c2_inside_box", "c2_distances", "c2_joint_limits", "c2_returns"]
-    assert all(c.holds for c in claims.values())
+    assert list(claims) == [
+        "c2_moves_away",
+        "c2_inside_box",
+        "c2_distances",
+        "c2_joint_limits",
+        "c2_returns",
+        "c2_chattering",
+    ]
+    assert all(c.holds for c in claims.values()), {k: c.measured for k, c in claims.items()}
     assert claims["c2_inside_box"].values["walls_activated"] == ["wall_z_min"]
     assert claims["c2_returns"].values["returned_s"] == pytest.approx(6.0)
+    assert claims["c2_moves_away"].values["ee_displacement_m"] == pytest.approx(0.24)
+    assert claims["c2_chattering"].values == {"toggles_moving": 2, "toggles_still": 0}
     through = steps.assign(**{"sigma:wall_z_min": np.where(pushed, -0.01, 0.25)})
     assert not _by_key(through, ctx)["c2_inside_box"].holds
     loose = steps.assign(**{"sigma:wall_z_min": 0.25})
     assert not _by_key(loose, ctx)["c2_inside_box"].holds  # the walls never had to act
+    stays = steps.assign(ee_z=np.where(pushed, 0.42, 0.45))
+    assert not _by_key(stays, ctx)["c2_moves_away"].holds  # 3 cm < 5 cm
+    unseen = steps.assign(**{"sigma:obstacle_link_7": 0.5})
+    assert not _by_key(unseen, ctx)["c2_moves_away"].holds  # moved, but no obstacle task acted
+    chatter = steps.assign(**{"sigma:obstacle_link_7": np.where(pushed | ((t > 7.5) & (t < 7.6)), 0.39, 0.5)})
+    claim = _by_key(chatter, ctx)["c2_chattering"]
+    assert not claim.holds and claim.values["toggles_still"] == 2  # on and off 2.5 s after the person stopped
 
 
 def test_person_timeline_of_case_configs():
@@ -164,5 +203,5 @@ def test_claims_table_rows_per_claim_and_method():
     lines = text.splitlines()
     assert lines[0] == "| claim | method | slow | fast |"
     assert len(lines) == 2 + 2 * len(claims)
-    assert lines[2].startswith("| the wrist and hand obstacle tasks activate") and "| a | ✓" in lines[2]
+    assert lines[2].startswith("| before the person steps in, the arm reaches both waypoints") and "| a | ✓" in lines[2]
     assert lines[3].startswith("|  | b | ✗") and lines[3].endswith("| – |")

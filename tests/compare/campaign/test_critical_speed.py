@@ -153,7 +153,7 @@ def test_critical_speed_two_speeds_end_to_end(tmp_path, jaco):
     assert claims["tpik"]["critical"] is (crit is not None)
     assert claims["tpik"]["speed_mps"] == pytest.approx(crit if crit is not None else 0.3)  # else the slowest
     keys = {c["key"] for c in claims["tpik"]["claims"]}
-    assert keys == {"c2_inside_box", "c2_distances", "c2_joint_limits", "c2_returns"}
+    assert keys == {"c2_moves_away", "c2_inside_box", "c2_distances", "c2_joint_limits", "c2_returns", "c2_chattering"}
     table = CliRunner().invoke(app, ["claims", str(out), "--out", str(tmp_path / "claims.md")])
     assert table.exit_code == 0, table.output
     text = (tmp_path / "claims.md").read_text()

@@ -81,6 +81,7 @@ def _sweep_with_one_run(tmp_path: Path, method: str, duration_s: float = 0.5, **
         "scenario.duration_s": duration_s,
         "scenario.sensing": "geometric",
         "methods.names": [method],
+        "loop.realtime": True,
     }
     overrides.update({f"solver_limit.{k}": v for k, v in limit.items()})
     config, text = load_config(ROOT / "configs" / "random.toml", overrides)
@@ -167,7 +168,7 @@ def test_cli_rechecks_writes_and_the_report_shows_it(tmp_path):
 def test_sweep_recheck_misses_flag_rechecks_after_the_sweep(tmp_path):
     config = tmp_path / "limit.toml"
     text = (ROOT / "configs" / "random.toml").read_text(encoding="utf-8")
-    config.write_text(text + "\n[solver_limit]\ntime_limit_s = 1e-6\n", encoding="utf-8")
+    config.write_text(text + "\n[solver_limit]\ntime_limit_s = 1e-6\n\n[loop]\nrealtime = true\n", encoding="utf-8")
     out = tmp_path / "sweep"
     args = ["sweep", str(config), "--n", "1", "--workers", "1", "--duration", "0.03", "-m", "tpik"]
     result = CliRunner().invoke(app, [*args, "--out", str(out), "--recheck-misses"])

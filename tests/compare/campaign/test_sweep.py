@@ -71,10 +71,10 @@ def test_sweep_runs_four_seeds_then_skips_them(tmp_path):
     assert campaign["sim_s_per_cpu_s"] == pytest.approx(4 * 2 * 3.0 / campaign["cpu_time_s"])
     assert 0.0 <= campaign["cpu_system_s"] < campaign["cpu_time_s"]  # the kernel's part of it
     assert campaign["steal_time_s"] is None or 0.0 <= campaign["steal_time_s"] <= 2 * campaign["wall_time_s"]
-    for name, m in summary["methods"].items():  # the worst step after warm-up, on the limit's (CPU) clock
-        worst = max(json.loads((r / "summary.json").read_text())["methods"][name]["solve_worst_us"]["us"] for r in runs)
-        assert m["solve_time_us"]["max_on_limit_clock"] == pytest.approx(worst) and 0.0 < worst
-        assert worst <= m["solve_time_us"]["max"] * (1.0 + 1e-6) + 5.0  # CPU time <= the elapsed time around it
+    for name, m in summary["methods"].items():  # no solver time limit in simulation without [loop] realtime
+        worst = [json.loads((r / "summary.json").read_text())["methods"][name]["solve_worst_us"]["us"] for r in runs]
+        assert worst == [None] * 4 and m["solve_time_us"]["max_on_limit_clock"] is None
+        assert m["solve_time_us"]["max"] > 0.0
     report = (out / "sweep_report.md").read_text()
     assert "simulated s per CPU s" in report and "worst step after warm-up" in report
     kernel = f"({campaign['cpu_system_s'] / campaign['cpu_time_s']:.0%} of it in the kernel)"

@@ -42,11 +42,13 @@ def robot() -> robots.Robot:
 
 
 def _config(duration: float = 0.6, methods: tuple[str, ...] = ("tpik",), **solver_limit: Any):
+    """Case 1 with ``[loop] realtime = true``: the simulation enforces the limit (the guard under test)."""
     config, _ = load_config(CONFIGS / "case1.toml")
     data = config.model_dump(mode="python")
     data["scenario"].update(duration_s=duration, time_scale=1.0, sensing="geometric")
     data["methods"] = {"names": list(methods), "settings": {}}
     data["solver_limit"] = solver_limit
+    data["loop"] = {"realtime": True}
     return parse_config(data)
 
 
@@ -79,7 +81,7 @@ def _slow_method(monkeypatch, calls: set[int], seconds: float, busy: bool = True
     monkeypatch.setattr("compare.run.make_method", lambda *a, **k: SlowOnCalls(real(*a, **k), calls, seconds, busy))
 
 
-# ------------------------------------------------------------------ simulation
+# ------------------------------------------------------------------ simulation, [loop] realtime = true
 
 
 def test_a_late_solve_in_simulation_is_a_failed_deadline_miss_and_sim_time_does_not_wait(robot, monkeypatch):

