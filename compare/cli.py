@@ -207,6 +207,7 @@ def run(
     results of, is refused (exit 2) unless --overwrite.
     """
     from compare.analysis.exceptions import ResultsError
+    from compare.campaign.realize import realize_with_verdict
     from compare.config import ConfigError, load_config
     from compare.run import run_scenario
 
@@ -220,7 +221,13 @@ def run(
     out_dir = out or Path("results") / cfg.scenario.name
     try:
         summary = run_scenario(
-            cfg, out_dir, config_text=text, progress=not quiet, make_plots=plots, overwrite=overwrite
+            cfg,
+            out_dir,
+            config_text=text,
+            progress=not quiet,
+            make_plots=plots,
+            overwrite=overwrite,
+            prepare=realize_with_verdict,
         )
     except ResultsError as exc:
         _fail(str(exc))

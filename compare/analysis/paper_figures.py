@@ -29,13 +29,13 @@ from matplotlib.axes import Axes
 from matplotlib.figure import Figure
 
 from compare.analysis.claims import activated
-from compare.analysis.plots import (
+from compare.analysis.plot_style import (
     ACTIVE_STYLE,
     PLOTS_DIR,
     SAFETY_STYLE,
-    _figure,
-    _finite,
-    _save,
+    figure,
+    finite,
+    save_figure,
     wall_axis,
 )
 from compare.analysis.results import load_steps, load_summary
@@ -57,7 +57,7 @@ def _person_mask(t: np.ndarray, timeline: Any) -> np.ndarray:
 
 
 def _grid(rows: int, cols: int, height_per_row: float) -> tuple[Any, Any]:
-    fig, axes = _figure(rows, cols, height_in=height_per_row * rows + 0.9, width_in=max(6.0, 3.6 * cols))
+    fig, axes = figure(rows, cols, height_in=height_per_row * rows + 0.9, width_in=max(6.0, 3.6 * cols))
     for ax in axes.flat[1:]:
         ax.sharex(axes.flat[0])
     for r in range(rows):
@@ -79,7 +79,7 @@ def _fig_ee_error(data: list[tuple[str, pd.DataFrame]], ctx: Any) -> Figure:
         ax = axes[0, col]
         t = steps["t"].to_numpy(dtype=float)
         _band(ax, t, _person_mask(t, ctx.person), PERSON_STYLE, "person in" if col == 0 else None)
-        ax.plot(t, _finite(steps["ee_error_m"]), color="tab:blue")
+        ax.plot(t, finite(steps["ee_error_m"]), color="tab:blue")
         ax.set_title(name)
         ax.set_xlabel("t [s]")
         _frame(ax, "EE position error [m]", col)
@@ -101,11 +101,11 @@ def _fig_distances(data: list[tuple[str, pd.DataFrame]], ctx: Any, title: str) -
             _band(ax, t, activated(steps, task), ACTIVE_STYLE, "task active (eq. 7)" if row == col == 0 else None)
             if f"dist_true:{cp}" in steps.columns:
                 first = row == col == 0
-                ax.plot(t, _finite(steps[f"dist_true:{cp}"]), color="tab:blue", label="true" if first else None)
+                ax.plot(t, finite(steps[f"dist_true:{cp}"]), color="tab:blue", label="true" if first else None)
             if f"dist_meas:{cp}" in steps.columns:
                 ax.plot(
                     t,
-                    _finite(steps[f"dist_meas:{cp}"]),
+                    finite(steps[f"dist_meas:{cp}"]),
                     color="tab:green",
                     linestyle="--",
                     linewidth=0.8,
@@ -131,7 +131,7 @@ def _fig_joints(data: list[tuple[str, pd.DataFrame]], ctx: Any, title: str) -> F
             ax = axes[row, col]
             _band(ax, t, _person_mask(t, ctx.person), PERSON_STYLE)
             _band(ax, t, activated(steps, task), ACTIVE_STYLE)
-            ax.plot(t, _finite(steps[f"sigma:{task.name}"]), color="tab:blue")
+            ax.plot(t, finite(steps[f"sigma:{task.name}"]), color="tab:blue")
             ax.axhline(task.safety_lower, **SAFETY_STYLE)
             ax.axhline(task.safety_upper, **SAFETY_STYLE)
             _frame(ax, f"{task.name} [rad]", col)
@@ -152,7 +152,7 @@ def _fig_ee_walls(data: list[tuple[str, pd.DataFrame]], ctx: Any) -> Figure:
         for row, axis in enumerate("xyz"):
             ax = axes[row, col]
             _band(ax, t, _person_mask(t, ctx.person), PERSON_STYLE)
-            ax.plot(t, _finite(steps[f"ee_{axis}"]), color="tab:blue")
+            ax.plot(t, finite(steps[f"ee_{axis}"]), color="tab:blue")
             _frame(ax, f"EE {axis} [m]", col)
             if row == 0:
                 ax.set_title(name)
@@ -176,7 +176,7 @@ def _fig_ee_path(data: list[tuple[str, pd.DataFrame]], ctx: Any, config: Any) ->
     from compare.sensing.person import Person
     from compare.sensing.scene import load_workcell
 
-    fig, axes = _figure(1, len(data), height_in=3.8, width_in=max(6.0, 3.6 * len(data)))
+    fig, axes = figure(1, len(data), height_in=3.8, width_in=max(6.0, 3.6 * len(data)))
     person = Person(
         load_workcell(config.scenario.robot), config.person.keyframes, time_scale=config.scenario.time_scale
     )
@@ -264,4 +264,4 @@ def paper_figures(results_dir: Path) -> dict[str, Figure]:
 def plot_paper_figures(results_dir: Path) -> list[Path]:
     """Write :func:`paper_figures` of a run directory to ``plots/<name>.png``; returns the files."""
     out = Path(results_dir) / PLOTS_DIR
-    return [_save(fig, out / f"{name}.png") for name, fig in paper_figures(results_dir).items()]
+    return [save_figure(fig, out / f"{name}.png") for name, fig in paper_figures(results_dir).items()]

@@ -48,8 +48,8 @@ def _episodes(margin: np.ndarray) -> list[tuple[int, int]]:
 
 def explain_run(run_dir: Path) -> list[dict[str, Any]]:
     """One row per obstacle violation episode of every method of a run (module docstring)."""
-    from compare.campaign.random_scenario import realize
     from compare.config import load_config
+    from compare.scenarios.random_scenario import realize
     from compare.sensing.person import Person
     from compare.sensing.person_track import PersonTrack
     from compare.sensing.scene import load_workcell

@@ -257,9 +257,9 @@ def recheck_miss(config: Config, miss: Miss, replays: int = DEFAULT_REPLAYS) -> 
         miss: The miss to re-time.
         replays: Copies timed at the step.
     """
-    from compare.campaign.random_scenario import realize
     from compare.campaign.sweep import seeded_config
     from compare.run import run_method
+    from compare.scenarios.random_scenario import realize
 
     run_config = seeded_config(config, miss.seed, [miss.method])
     robot = run_config.load_robot()

@@ -56,7 +56,8 @@ import pandas as pd
 
 from compare.config import FaultsConfig, FaultSpec
 from compare.loop.closed_loop import DistanceResultLike, ObstacleSource
-from compare.loop.robot_io import DepthFrame, JointReading, RobotIO
+from compare.loop.robot_io import JointReading, RobotIO
+from compare.sensing.frames import DepthFrame
 from compare.sensing.results import DistanceResult, ObstacleReading
 from robots import Kinematics
 from tpik.hierarchy import Hierarchy

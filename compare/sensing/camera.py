@@ -21,8 +21,8 @@ from dataclasses import dataclass
 import mujoco
 import numpy as np
 
-from compare.loop.robot_io import CameraModel, DepthFrame
 from compare.sensing.exceptions import SensingError, UnknownSceneElement
+from compare.sensing.frames import CameraModel, DepthFrame
 
 DEFAULT_RANGE_M = (0.5, 4.5)
 """Kinect v2 valid depth range [m], used when the model has no ``depth_camera_range`` numeric."""

@@ -48,10 +48,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from compare.loop.robot_io import CameraModel, DepthFrame
 from compare.sensing._kernels import SUPPORT_DEPTH_M, closest_in_boxes, surveillance_boxes
 from compare.sensing.camera import base_to_sensor, normalized_coordinates, sensor_to_base, valid_fraction
 from compare.sensing.exceptions import SensingError
+from compare.sensing.frames import CameraModel, DepthFrame
 from compare.sensing.results import DistanceResult, ObstacleReading
 
 

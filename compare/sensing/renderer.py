@@ -21,9 +21,9 @@ from __future__ import annotations
 import mujoco
 import numpy as np
 
-from compare.loop.robot_io import CameraModel, DepthFrame
 from compare.sensing.camera import DepthNoise, camera_id, camera_model_from_mujoco
 from compare.sensing.exceptions import SensingError
+from compare.sensing.frames import CameraModel, DepthFrame
 
 STATIC_GROUP = 0
 """Geom group of the static environment (floor, table)."""

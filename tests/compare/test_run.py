@@ -67,9 +67,9 @@ def test_case1_keeps_joint_limits_and_physical_distance(case1, method):
 
 
 def _only_late_solves_failed(m: dict) -> None:
-    """No failed step but a few late solves: on a VM the CPU clock of the solver time limit also
-    counts the hypervisor's steal (docs/benchmarks.md, "Deadline misses and the VM's CPU clock")."""
-    assert m["failures"] == m["deadline_misses"] == m["fallbacks"]
+    """No failed step and no fallback: in simulation a late solve is only reported (a deadline
+    miss: a solve longer than the control period, on a machine shared with other work)."""
+    assert m["failures"] == m["fallbacks"] == 0
     assert m["deadline_misses"] <= 0.005 * m["steps"]
 
 

@@ -5,10 +5,12 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from compare.loop.closed_loop import SOLVER_ERRORS, LoopSettings, run_loop, warm_up_solver
-from compare.loop.robot_io import DepthFrame, JointReading, RobotIO
+from compare.loop.closed_loop import SOLVER_ERRORS, run_loop, warm_up_solver
+from compare.loop.robot_io import JointReading, RobotIO
+from compare.loop.settings import LoopSettings
 from compare.loop.waypoints import WaypointSchedule
 from compare.methods import make_method
+from compare.sensing.frames import DepthFrame
 from qp_baseline.exceptions import NoSolutionFound
 from tests.qp_baseline.helpers import joint_limit_level, position_level, wall_behind_ee
 from tpik.exceptions import TargetNotSet

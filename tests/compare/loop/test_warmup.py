@@ -9,10 +9,10 @@ import pandas as pd
 import pytest
 
 import robots
-from compare.campaign.random_scenario import realize
 from compare.config import load_config, parse_config
 from compare.loop import warmup
 from compare.run import run_method
+from compare.scenarios.random_scenario import realize
 
 CONFIGS = Path(__file__).resolve().parents[3] / "configs"
 TIMING = ["solve_time_us", "deadline_miss"]
