@@ -190,7 +190,7 @@ def worst_solve_entry(solver: object, config: Config) -> dict[str, Any]:
     Returns:
         ``{"us": worst [µs] or None when the solver had no time limit, "clock": "cpu" | "wall" | None}``.
     """
-    worst = getattr(solver, "worst_s", None) if isinstance(solver, MeasuredDeadline) else None
+    worst = solver.worst_s if isinstance(solver, MeasuredDeadline) else None
     clock = config.solver_limit.simulation_clock if worst is not None else None
     return {"us": None if worst is None else 1e6 * float(worst), "clock": clock}
 

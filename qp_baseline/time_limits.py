@@ -34,6 +34,7 @@ from collections.abc import Callable, Mapping
 from typing import Any, Protocol
 
 from qp_baseline.exceptions import HqpError
+from tpik.step_result import SolverBase
 
 BACKEND_TIME_LIMIT: dict[str, str] = {"osqp": "time_limit", "clarabel": "time_limit", "daqp": "time_limit"}
 """Backend → name of its time-limit setting [s] (module docstring)."""
@@ -119,7 +120,7 @@ class CallBudget:
         return {key: left} if key is not None and self.backend_limits else {}
 
 
-class TimeLimited:
+class TimeLimited(SolverBase):
     """Mixin of the QP-based methods: :meth:`set_time_limit` gives every solve call a :class:`CallBudget`."""
 
     budget: CallBudget | None = None

@@ -92,7 +92,7 @@ from tpik.exceptions import InvalidSettings, InvalidTaskState, TpikError
 from tpik.hierarchy import Hierarchy
 from tpik.limits import Limit, VelocityLimit, compose_box, scale_into_box
 from tpik.reference import ControlReference
-from tpik.step_result import SolveStatus, StepResult, failed
+from tpik.step_result import SolverBase, SolveStatus, StepResult, failed
 from tpik.step_rows import (
     OUT_CANDIDATES,
     OUT_EVALUATED,
@@ -360,7 +360,7 @@ def _frame_buffers(
     return True, (chain[0], chain[1], frame_parent, frame_t, support)
 
 
-class TpikSolver:
+class TpikSolver(SolverBase):
     """Set-based task-priority inverse kinematics (the paper's solver); see the module docstring.
 
     Args:

@@ -22,6 +22,7 @@ DETAIL_FILE = "critical_speed_detail.json"
 CLAIMS_FILE = "claims_at_critical.json"
 PLOT_FILE = "critical_speed.png"
 
+
 def hand_speed(torso_mps: float) -> float:
     """Hand speed tied to a torso speed [m/s]: the same fraction of both ranges on a log scale."""
     return float(log_map(np.asarray(torso_mps, dtype=float), TORSO_RANGE_MPS, HAND_RANGE_MPS))

@@ -22,7 +22,6 @@ ACTIVE_STYLE: dict[str, Any] = {"color": "tab:orange", "alpha": 0.15, "linewidth
 OCCLUDED_STYLE: dict[str, Any] = {"color": "tab:purple", "marker": ".", "markersize": 3, "linestyle": "none"}
 
 
-
 def figure(nrows: int = 1, ncols: int = 1, height_in: float = 3.2, width_in: float = 8.0) -> tuple[Figure, Any]:
     """A headless figure with an ``nrows`` × ``ncols`` grid of axes (always 2-D) [inches]."""
     fig = Figure(figsize=(width_in, height_in), layout="constrained")

@@ -199,9 +199,6 @@ def plot_joints(steps: pd.DataFrame, method: str, joint_tasks: Sequence[SetTaskI
     return save_figure(fig, path)
 
 
-
-
-
 def plot_ee_walls(steps: pd.DataFrame, method: str, wall_tasks: Sequence[SetTaskInfo], path: Path) -> Path | None:
     """EE x, y, z with the positions of the virtual walls (paper Fig. 8).
 

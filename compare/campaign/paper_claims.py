@@ -61,7 +61,13 @@ def _run(config: Config, text: str, run_dir: Path, progress: bool) -> None:
         if all(m in done for m in config.methods.names):
             return
     run_scenario(
-        config, run_dir, config_text=text, progress=progress, make_plots=False, overwrite=True, prepare=realize_with_verdict
+        config,
+        run_dir,
+        config_text=text,
+        progress=progress,
+        make_plots=False,
+        overwrite=True,
+        prepare=realize_with_verdict,
     )
 
 
