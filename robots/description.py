@@ -101,11 +101,6 @@ def resolve_package_uri(uri: str, search_path: Iterable[Path]) -> Path:
     raise NotInstalled(f"package '{name}' not found for {uri}{hint}; searched {where}")
 
 
-def mesh_files(path: Path, root: ET.Element) -> list[str]:
-    """Mesh file names a URDF refers to (``<mesh filename=...>`` of visuals and collisions)."""
-    return [m.get("filename", "") for m in root.iter("mesh")]
-
-
 def missing_files(path: Path, package_dirs: Sequence[Path] = ()) -> str | None:
     """Why the description (or a mesh its collision geometry needs) is not installed, or None."""
     try:

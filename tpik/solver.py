@@ -201,11 +201,6 @@ class TpikSettings:
         _check_number("admissibility_tolerance", self.admissibility_tolerance, allow_zero=True)
 
     @property
-    def selection_rule(self) -> str:
-        """The rule used among admissible modes (``selection``)."""
-        return self.selection
-
-    @property
     def deviations(self) -> tuple[str, ...]:
         """Names of the :data:`DEVIATIONS` from the paper these settings keep on."""
         return tuple(name for name, dev in DEVIATIONS.items() if getattr(self, dev.setting) != dev.paper)
