@@ -27,13 +27,15 @@ from compare.loop.deadline import MeasuredDeadline, ThreadedDeadline, guard_solv
 from compare.loop.robot_io import JointReading, RobotIO
 from compare.methods import make_method
 from compare.run import loop_setup, run_method
+from qp_baseline.backends import BACKENDS
 from qp_baseline.hqp import HqpSolver, available_qp_solvers
-from qp_baseline.time_limits import BACKEND_TIME_LIMIT, RESERVE_FRACTION, CallBudget, TimeLimitReached
+from qp_baseline.time_limits import RESERVE_FRACTION, CallBudget, TimeLimitReached
 from tests.qp_baseline.helpers import DT, position_level
 from tpik.hierarchy import Hierarchy
 from tpik.step_result import SolverBase, StepResult
 
 CONFIGS = Path(__file__).resolve().parents[3] / "configs"
+BACKEND_TIME_LIMIT = {name: b.time_limit_key for name, b in BACKENDS.items() if b.time_limit_key is not None}
 
 
 @pytest.fixture(scope="module")
