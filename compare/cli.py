@@ -63,6 +63,7 @@ class _App(typer.Typer):
 app = _App(
     add_completion=False,
     no_args_is_help=True,
+    rich_markup_mode=None,  # help texts are plain: "[m]" and "[scenario] robot" are units and config keys
     help="Set-based task-priority IK vs hierarchical QP vs mink on a robot arm ([scenario] robot), side by side.",
 )
 
@@ -243,9 +244,9 @@ def _print_summary(summary: dict[str, object], out_dir: Path) -> None:
     from compare.analysis.report import summary_table
 
     console = Console()
-    if not console.is_terminal or console.width < 140:
-        console = Console(width=160)
-    console.print(summary_table(summary))
+    if not console.is_terminal:
+        console = Console(width=160)  # a log or a pipe: one line per method
+    console.print(summary_table(summary, narrow=console.width < 140))
     console.print(f"results: {out_dir}/summary.json   plots: {out_dir}/plots/")
 
 
@@ -602,10 +603,10 @@ def bench(
 ) -> None:
     """Solver, sensing and QP-correctness benchmarks: medians, p95, ratios, timing vs correctness.
 
-    ``--only correctness`` judges every HQP backend against the stored lexicographic reference
+    --only correctness judges every HQP backend against the stored lexicographic reference
     (compare/bench/data/qp_reference.json): success rate, level errors, qpbenchmark residuals, time.
-    ``--only plant`` times a sweep's plant alone; with ``--sweep DIR`` it adds that sweep's
-    throughput ceiling (compare/bench/plant.py). ``--only loop`` times the closed loop's parts on
+    --only plant times a sweep's plant alone; with --sweep DIR it adds that sweep's
+    throughput ceiling (compare/bench/plant.py). --only loop times the closed loop's parts on
     whole runs, one method at a time: where a campaign step goes (compare/bench/loop_parts.py).
     """
     from compare.bench.__main__ import GROUPS

@@ -27,6 +27,7 @@ import numpy as np
 import pandas as pd
 from matplotlib.axes import Axes
 from matplotlib.figure import Figure
+from matplotlib.lines import Line2D
 
 from compare.analysis.claims import activated
 from compare.analysis.plot_style import (
@@ -43,6 +44,8 @@ from compare.analysis.results import load_steps, load_summary
 log = logging.getLogger(__name__)
 
 PERSON_STYLE: dict[str, Any] = {"color": "0.5", "alpha": 0.12, "linewidth": 0}
+TRUE_STYLE: dict[str, Any] = {"color": "tab:blue"}
+MEASURED_STYLE: dict[str, Any] = {"color": "tab:green", "linestyle": "--", "linewidth": 0.8}
 
 
 def _band(ax: Axes, t: np.ndarray, mask: np.ndarray, style: dict[str, Any], label: str | None = None) -> None:
@@ -93,32 +96,47 @@ def _fig_ee_error(data: list[tuple[str, pd.DataFrame]], ctx: Any) -> Figure:
 def _fig_distances(data: list[tuple[str, pd.DataFrame]], ctx: Any, title: str) -> Figure:
     tasks = ctx.group("obstacles")
     fig, axes = _grid(len(tasks), len(data), 1.9)
+    columns = [f"dist_{kind}:{cp}" for cp in ctx.control_points for kind in ("true", "meas")]
+    peak = max(
+        (
+            float(np.nanmax(v))
+            for _, steps in data
+            for c in columns
+            if c in steps
+            for v in [finite(steps[c])]
+            if np.any(np.isfinite(v))
+        ),
+        default=0.0,
+    )
+    top = min(3.0, max(1.2, 1.05 * peak))  # the paper's 1.2 m, more when a distance is above it
+    drawn = {"true": False, "measured": False}
     for col, (name, steps) in enumerate(data):
         t = steps["t"].to_numpy(dtype=float)
         for row, (task, cp) in enumerate(zip(tasks, ctx.control_points, strict=True)):
             ax = axes[row, col]
             _band(ax, t, _person_mask(t, ctx.person), PERSON_STYLE)
             _band(ax, t, activated(steps, task), ACTIVE_STYLE, "task active (eq. 7)" if row == col == 0 else None)
-            if f"dist_true:{cp}" in steps.columns:
-                first = row == col == 0
-                ax.plot(t, finite(steps[f"dist_true:{cp}"]), color="tab:blue", label="true" if first else None)
-            if f"dist_meas:{cp}" in steps.columns:
-                ax.plot(
-                    t,
-                    finite(steps[f"dist_meas:{cp}"]),
-                    color="tab:green",
-                    linestyle="--",
-                    linewidth=0.8,
-                    label="measured" if row == col == 0 else None,
-                )
+            for kind, column, style in (
+                ("true", f"dist_true:{cp}", TRUE_STYLE),
+                ("measured", f"dist_meas:{cp}", MEASURED_STYLE),
+            ):
+                if column in steps.columns:
+                    values = finite(steps[column])
+                    ax.plot(t, values, **style)
+                    drawn[kind] |= bool(np.any(np.isfinite(values)))
             ax.axhline(task.safety_lower, **SAFETY_STYLE)
             _frame(ax, f"{cp} [m]", col)
-            ax.set_ylim(0.0, 1.2)
+            ax.set_ylim(0.0, top)
             if row == 0:
                 ax.set_title(name)
         axes[-1, col].set_xlabel("t [s]")
     fig.suptitle(title)
-    axes[0, 0].legend(fontsize="x-small", loc="upper right")
+    handles, labels = axes[0, 0].get_legend_handles_labels()
+    for kind, style in (("true", TRUE_STYLE), ("measured", MEASURED_STYLE)):
+        if drawn[kind]:  # a legend entry only for a line drawn somewhere
+            handles.append(Line2D([], [], **style))
+            labels.append(kind)
+    axes[0, 0].legend(handles, labels, fontsize="x-small", loc="upper right")
     return fig
 
 

@@ -100,7 +100,7 @@ def git_commit() -> str | None:
 
 
 def run_versions() -> dict[str, str]:
-    """:func:`compare.bench.timing.versions` plus ``git_commit`` when available."""
+    """:func:`compare.versions.versions` plus ``git_commit`` when available."""
     out = dict(versions())
     commit = git_commit()
     if commit is not None:

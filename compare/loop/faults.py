@@ -26,7 +26,7 @@ fraction); frozen → the last update before the window, stamp included; delay �
 ``delay_s`` ago.
 
 Expected reactions (measured by :meth:`FaultInjector.summarize`, checked by
-``tests/compare/test_faults.py``):
+``tests/compare/loop/test_faults.py``):
 
 * blind or invalid frames → zero velocity at the sensing update that receives the first one,
   logged (``reason`` column, ``events``);

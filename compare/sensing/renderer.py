@@ -7,7 +7,7 @@ Kinect) and reuses its GL context, scene and buffers between frames.
 MuJoCo 4 renders with a reversed, floating-point depth buffer read as ``mjDEPTH_ZEROFAR``
 (0 = far plane). The buffer value :math:`z \in [0, 1]` maps to the depth along the optical
 axis (eye-space distance, not the Euclidean range of the pixel; checked against a plane in
-``tests/compare/test_camera.py``) as
+``tests/compare/sensing/test_camera.py``) as
 
 .. math:: d = \frac{f\, n}{(f - n)\, z + n}
 
