@@ -63,10 +63,10 @@ def test_case1_keeps_joint_limits_and_physical_distance(case1, method):
     m = case1["methods"][method]
     assert m["joint_limits"]["safety_margin_min"] > -SAFETY_TOL["joint_limits"]
     assert m["obstacles"]["physical_margin_min"] > 0.0
-    _only_late_solves_failed(m)
+    _no_failed_step(m)
 
 
-def _only_late_solves_failed(m: dict) -> None:
+def _no_failed_step(m: dict) -> None:
     """No failed step and no fallback: in simulation a late solve (a deadline miss, how many
     depends on the machine's load) is only reported."""
     assert m["failures"] == m["fallbacks"] == 0
@@ -149,7 +149,7 @@ def test_case1_short_with_depth_sensing(tmp_path):
     assert m["sensing"] == "depth"
     assert m["joint_limits"]["safety_margin_min"] > -SAFETY_TOL["joint_limits"]
     assert m["obstacles"]["physical_margin_min"] > 0.0
-    _only_late_solves_failed(m)
+    _no_failed_step(m)
 
 
 # ------------------------------------------------------------------ one results directory, several runs
@@ -218,7 +218,7 @@ def test_case1_with_two_cameras_logs_what_each_reading_is(tmp_path):
     m = summary["methods"]["tpik"]
     assert m["sensing"] == "depth"
     assert m["obstacles"]["physical_margin_min"] > 0.0
-    _only_late_solves_failed(m)
+    _no_failed_step(m)
     steps = load_steps(tmp_path / "case1_two_cameras", "tpik")
     seen = set()
     for cp in ("link_4", "link_6", "link_7"):
