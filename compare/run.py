@@ -18,7 +18,7 @@ from compare.analysis.avoidability import split_obstacle_violations
 from compare.analysis.metrics import RunMeta, SetTaskInfo, compute_summary
 from compare.analysis.results import ResultsWriter
 from compare.campaign.random_scenario import realize
-from compare.config import Config
+from compare.config import Config, dump_config
 from compare.config_hash import config_fingerprint, config_hash, method_settings
 from compare.loop.closed_loop import LoopOutput, LoopSettings, ObstacleSource, control_points, run_loop, warm_up_solver
 from compare.loop.deadline import MeasuredDeadline, guard_solver
@@ -305,6 +305,7 @@ def run_scenario(
         config, oracle = _realize_with_oracle(config, robot, Path(out_dir))
         if oracle is not None:
             writer.set_run_info("oracle", oracle)
+        writer.set_replay(dump_config(config))
         if config.person.keyframes:
             writer.set_run_info("person", {"max_speed_mps": person_speeds(config, robot)})
         columns = (

@@ -54,12 +54,11 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-import tomli_w
 
 import robots
 from compare.analysis.metrics import to_jsonable
 from compare.analysis.results import is_finished, load_steps, load_summary, run_versions, write_json_atomic
-from compare.config import Config, ConfigError, PersonKeyframe
+from compare.config import Config, ConfigError, PersonKeyframe, dump_config
 from tpik.tasks import ObstacleDistanceTask
 
 log = logging.getLogger(__name__)
@@ -271,9 +270,8 @@ def retreat_speed_bound(kin: robots.Kinematics, frame: str, direction: np.ndarra
     return float(np.abs(u @ kin.position_jacobian(frame)) @ v_max)
 
 
-def config_toml(config: Config) -> str:
-    """A config as TOML text that :func:`compare.config.load_config` reads back to the same config."""
-    return tomli_w.dumps(config.model_dump(mode="python", exclude_none=True))
+config_toml = dump_config
+"""A config as TOML text that :func:`compare.config.load_config` reads back to the same config."""
 
 
 # ---------------------------------------------------------------------------------------- running
