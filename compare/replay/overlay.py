@@ -15,6 +15,7 @@ from dataclasses import dataclass
 import mujoco
 import numpy as np
 
+from compare.analysis.metrics import VIOLATION_TOLERANCE
 from compare.replay.run_data import MethodRun, ReplayRun
 
 RGB = tuple[float, float, float]
@@ -59,12 +60,16 @@ class PanelInfo:
 
 
 def margin_colour(distance_m: float, physical_m: float, safety_m: float, activation_m: float) -> RGB:
-    """Colour of a distance by the zone it is in (module docstring); grey when unknown or out of range."""
+    """Colour of a distance by the zone it is in (module docstring); grey when unknown or out of range.
+
+    A threshold is crossed as the metrics count it: by more than
+    :data:`compare.analysis.metrics.VIOLATION_TOLERANCE` (an active task holds σ at its threshold).
+    """
     if not math.isfinite(distance_m):
         return UNKNOWN
-    if math.isfinite(physical_m) and distance_m < physical_m:
+    if math.isfinite(physical_m) and distance_m < physical_m - VIOLATION_TOLERANCE:
         return PHYSICAL
-    if math.isfinite(safety_m) and distance_m < safety_m:
+    if math.isfinite(safety_m) and distance_m < safety_m - VIOLATION_TOLERANCE:
         return SAFETY
     if math.isfinite(activation_m) and distance_m < activation_m:
         return ACTIVATION
@@ -121,6 +126,10 @@ class OverlayStyle:
     full_bar_m: float
     max_active_lines: int = 4
 
+    def strip_px(self, bars: int) -> int:
+        """Height of the strip under the 3D view that holds ``bars`` distance bars [px]."""
+        return 8 + bars * (self.row_px + 4) if bars else 0
+
     @classmethod
     def for_height(cls, height_px: int, full_bar_m: float) -> OverlayStyle:
         """Sizes proportional to the frame height (720 px: 24 px rows)."""
@@ -129,8 +138,15 @@ class OverlayStyle:
 
 
 def draw_panel(ctx: mujoco.MjrContext, rect: mujoco.MjrRect, info: PanelInfo, style: OverlayStyle) -> None:
-    """Draw ``info`` over the 3D view already rendered in ``rect`` (GL pixels, origin bottom-left)."""
+    """Draw ``info`` into the panel ``rect`` (GL pixels, origin bottom-left).
+
+    The 3D view is already rendered above the bottom strip (:meth:`OverlayStyle.strip_px`); the
+    text goes over it, the distance bars into the strip.
+    """
     font = mujoco.mjtFont.mjFONT_NORMAL
+    strip = style.strip_px(len(info.distances))
+    if strip:
+        mujoco.mjr_rectangle(mujoco.MjrRect(rect.left, rect.bottom, rect.width, strip), 0.08, 0.08, 0.1, 1.0)
     lines = list(info.active[: style.max_active_lines])
     if len(info.active) > style.max_active_lines:
         lines.append(f"+{len(info.active) - style.max_active_lines} more")

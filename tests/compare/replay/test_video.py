@@ -62,6 +62,7 @@ def test_margin_colours_follow_the_threshold_zones():
     limits = (0.1, 0.35, 0.4)
     assert margin_colour(0.05, *limits) == PHYSICAL
     assert margin_colour(0.2, *limits) == SAFETY
+    assert margin_colour(0.3495, *limits) == ACTIVATION  # held at the threshold: not a violation
     assert margin_colour(0.38, *limits) == ACTIVATION
     assert margin_colour(0.6, *limits) == CLEAR
     assert margin_colour(math.inf, *limits) == UNKNOWN
