@@ -67,15 +67,23 @@ class ReplayScene:
 
     def set_time(self, t: float) -> list[int]:
         """Pose every method's arm and the person at time ``t`` [s]; returns each method's step index."""
-        return [self.pose(i, t) for i in range(len(self.datas))]
+        first = self.datas[0]
+        self.person.apply(t, first)
+        for data in self.datas[1:]:  # the person is the same in every method's run
+            data.mocap_pos[:] = first.mocap_pos
+            data.mocap_quat[:] = first.mocap_quat
+        return [self._arm_at(i, t) for i in range(len(self.datas))]
 
     def pose(self, index: int, t: float) -> int:
         """Pose method ``index``'s arm and the person in its data at time ``t`` [s]; returns the step index."""
+        self.person.apply(t, self.datas[index])
+        return self._arm_at(index, t)
+
+    def _arm_at(self, index: int, t: float) -> int:
         method, data = self.run.methods[index], self.datas[index]
         k = int(method.rows_at([t])[0])
         data.qpos[self._arm] = method.q[k]
         data.time = t
-        self.person.apply(t, data)
         mujoco.mj_kinematics(self.model, data)
         return k
 
