@@ -572,6 +572,9 @@ def replay(
     depth_stride: Annotated[
         int, typer.Option("--depth-stride", min=1, help="Recording: keep every N-th depth pixel row and column.")
     ] = 4,
+    workers: Annotated[
+        int, typer.Option("--workers", "-w", min=1, help="Video: processes rendering segments in parallel.")
+    ] = 2,
     quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress bar.")] = False,
 ) -> None:
     """Replay a finished run: the methods side by side as a video, a 3D recording (rerun) or a still.
@@ -582,9 +585,10 @@ def replay(
     """
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
+    from compare.replay.panels import check_still_path, write_still
     from compare.replay.recording import check_recording_path, write_recording
     from compare.replay.run_data import load_run
-    from compare.replay.video import VideoSettings, check_still_path, check_video_path, write_still, write_video
+    from compare.replay.video import VideoSettings, check_video_path, write_video
 
     if video is None and rerun_file is None and still is None:
         _fail("nothing to write: give --video FILE.mp4, --rerun FILE.rrd and/or --still FILE.png")
@@ -596,18 +600,19 @@ def replay(
     run = load_run(results, methods, seed, t_from, t_to)
     names = ", ".join(m.name for m in run.methods)
     typer.echo(f"replaying {run.run_dir} ({names}; {run.t_from:g}–{run.t_to:g} s)")
-    if still is not None:
-        write_still(run, still, run.t_from, width, height)
-        typer.echo(f"still:     {still} (t = {run.t_from:g} s)")
     if video is not None:
         bar = Progress(TextColumn("[bold]video"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(), disable=quiet)
         with bar:
             task = bar.add_task("video", total=len(settings.frame_times(run.t_from, run.t_to)))
-            stats = write_video(run, video, settings, progress=lambda done, _total: bar.update(task, completed=done))
+            stats = write_video(run, video, settings, lambda done, _total: bar.update(task, completed=done), workers)
         typer.echo(
             f"video:     {video} ({stats.frames} frames, {width}x{height} at {fps:g} frames/s; "
-            f"{stats.video_s:.1f} s rendered in {stats.wall_s:.1f} s, {stats.realtime_factor:.1f}x real time)"
+            f"{stats.video_s:.1f} s rendered in {stats.wall_s:.1f} s by {stats.workers} process(es), "
+            f"{stats.realtime_factor:.1f}x real time)"
         )
+    if still is not None:
+        write_still(run, still, run.t_from, width, height)
+        typer.echo(f"still:     {still} (t = {run.t_from:g} s)")
     if rerun_file is not None:
         bar = Progress(TextColumn("[bold]recording {task.description}"), TimeElapsedColumn(), disable=quiet)
         with bar:

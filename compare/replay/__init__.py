@@ -6,7 +6,7 @@ and the person from the scenario's keyframes at the same instant. Nothing is sim
 
 Modules, one job each: :mod:`~compare.replay.run_data` (find and load a run),
 :mod:`~compare.replay.scene` (the MuJoCo state at an instant, geometry),
-:mod:`~compare.replay.overlay` (what a video panel shows), :mod:`~compare.replay.video`
-(render and encode), :mod:`~compare.replay.depth` (depth point clouds),
-:mod:`~compare.replay.recording` (the ``.rrd`` file).
+:mod:`~compare.replay.overlay` (what a video panel shows), :mod:`~compare.replay.panels`
+(draw the frames), :mod:`~compare.replay.video` (encode them), :mod:`~compare.replay.depth`
+(depth point clouds), :mod:`~compare.replay.recording` (the ``.rrd`` file).
 """

@@ -87,3 +87,14 @@ def test_the_person_moves_at_the_control_rate_and_the_depth_clouds_at_the_camera
     assert max(len(p) for p in points) > 50  # the person (and the arm) in front of the background
     t_cp, cps = _column(recording, "/world/mink/control_points", "Points3D:colors")
     assert len(t_cp) == 100 and all(len(c) == 3 for c in cps)
+
+
+def test_the_arm_is_posed_from_the_recorded_joint_angles(recording, case2_run):
+    """The end-effector body of the recording is where the run recorded its end effector."""
+    run = load_run(case2_run)
+    for method in run.methods:
+        t, translation = _column(
+            recording, f"/world/{method.name}/arm/j2s7s300_end_effector", "Transform3D:translation"
+        )
+        recorded = method.steps[["ee_x", "ee_y", "ee_z"]].to_numpy()[method.rows_at(t)]
+        np.testing.assert_allclose(np.array([v[0] for v in translation]), recorded, atol=1e-5)

@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+import dataclasses
 import math
+import shutil
 
 import imageio.v3 as iio
 import imageio_ffmpeg
@@ -85,3 +87,24 @@ def test_no_ffmpeg_is_one_line(case2_run, tmp_path, monkeypatch):
     monkeypatch.setattr(imageio_ffmpeg, "get_ffmpeg_exe", missing)
     with pytest.raises(ReplayError, match="no ffmpeg"):
         write_video(load_run(case2_run, t_to=0.2), tmp_path / "v.mp4")
+
+
+@pytest.mark.slow
+def test_segments_rendered_by_two_processes_join_into_one_video_of_every_frame(case2_run, tmp_path):
+    out = tmp_path / "joined.mp4"
+    run = load_run(case2_run)
+    stats = write_video(run, out, VideoSettings(320, 192, 50.0), workers=2)  # 200 frames: two segments
+    assert stats.workers == 2 and stats.frames == 200
+    frames, seconds = imageio_ffmpeg.count_frames_and_secs(str(out))
+    assert frames == 200 and seconds == pytest.approx(4.0, abs=0.03)
+    assert not list(tmp_path.glob(".replay-*"))  # the segments are removed
+
+
+def test_a_failing_worker_is_one_line(case2_run, tmp_path):
+    run = load_run(case2_run)
+    broken = tmp_path / "broken"
+    shutil.copytree(case2_run, broken)
+    moved = dataclasses.replace(run, run_dir=broken)
+    shutil.rmtree(broken / "steps")  # the workers reload the run from its directory
+    with pytest.raises(ReplayError, match="rendering .* failed: ReplayError: no per-step table"):
+        write_video(moved, tmp_path / "v.mp4", VideoSettings(320, 192, 50.0), workers=2)
