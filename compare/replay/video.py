@@ -2,7 +2,8 @@
 
 Frames go through a pipe to the ffmpeg binary shipped by ``imageio-ffmpeg``, which encodes in its
 own process while the next frame renders. A long video is cut into contiguous segments rendered
-by worker processes in parallel (one per core asked for), then joined without re-encoding.
+in parallel (this process and spawned workers, as many in all as asked for), then joined
+without re-encoding.
 """
 
 from __future__ import annotations
@@ -174,22 +175,26 @@ def _write_in_parallel(
     segments: Sequence[np.ndarray],
     report: Callable[[int, int], None],
 ) -> None:
-    """Render each segment in its own process (spawned: no GL state is inherited), then join them."""
+    """The first segment rendered here, each other by a spawned process (no GL state inherited); then joined."""
     ctx = multiprocessing.get_context("spawn")
     messages: multiprocessing.Queue = ctx.Queue()
     total = sum(len(s) for s in segments)
+    counter = _FrameCounter(messages, lambda done: report(done, total))
+    window = (run.t_from, run.t_to)
     methods = [m.name for m in run.methods]
     with tempfile.TemporaryDirectory(prefix=".replay-", dir=path.parent) as tmp:
         parts = [Path(tmp) / f"part{i:02d}.mp4" for i in range(len(segments))]
-        args = [
-            (run.run_dir, methods, (run.t_from, run.t_to), p, settings, s, messages)
-            for p, s in zip(parts, segments, strict=True)
+        procs = [
+            ctx.Process(
+                target=_segment_worker, args=(run.run_dir, methods, window, p, settings, s, messages), daemon=True
+            )
+            for p, s in zip(parts[1:], segments[1:], strict=True)
         ]
-        procs = [ctx.Process(target=_segment_worker, args=a, daemon=True) for a in args]
         for proc in procs:
             proc.start()
         try:
-            errors = _collect(procs, messages, lambda done: report(done, total))
+            _write_segment(run, parts[0], settings, segments[0], lambda _k: counter.add_local_frame())
+            errors = counter.wait(procs)
         finally:
             for proc in procs:
                 proc.join(timeout=5.0)
@@ -200,29 +205,45 @@ def _write_in_parallel(
         _join(parts, path)
 
 
-def _collect(
-    procs: Sequence[multiprocessing.process.BaseProcess],
-    messages: multiprocessing.Queue,
-    done: Callable[[int], None],
-) -> list[str]:
-    """Count the workers' frames until each has finished; their errors (a worker that died says so)."""
-    frames, finished, errors = 0, 0, []
-    while finished < len(procs):
-        try:
-            kind, value = messages.get(timeout=1.0)
-        except queue_module.Empty:
-            dead = [p for p in procs if p.exitcode not in (None, 0)]
-            if dead:
-                return [*errors, f"a worker process exited with code {dead[0].exitcode}"]
-            continue
+class _FrameCounter:
+    """Frames done here and by the worker processes (their messages), reported as one count."""
+
+    def __init__(self, messages: multiprocessing.Queue, done: Callable[[int], None]) -> None:
+        self._messages = messages
+        self._done = done
+        self.frames = 0
+        self.finished = 0
+        self.errors: list[str] = []
+
+    def add_local_frame(self) -> None:
+        """One frame rendered in this process; the workers' news read on the way."""
+        self.frames += 1
+        while True:
+            try:
+                self._handle(*self._messages.get_nowait())
+            except queue_module.Empty:
+                break
+        self._done(self.frames)
+
+    def _handle(self, kind: str, value: object) -> None:
         if kind == "frame":
-            frames += 1
-            done(frames)
+            self.frames += 1
+            self._done(self.frames)
         else:
-            finished += 1
+            self.finished += 1
             if value is not None:
-                errors.append(str(value))
-    return errors
+                self.errors.append(str(value))
+
+    def wait(self, procs: Sequence[multiprocessing.process.BaseProcess]) -> list[str]:
+        """Count the workers' frames until each has finished; their errors (a worker that died says so)."""
+        while self.finished < len(procs):
+            try:
+                self._handle(*self._messages.get(timeout=1.0))
+            except queue_module.Empty:
+                dead = [p for p in procs if p.exitcode not in (None, 0)]
+                if dead:
+                    return [*self.errors, f"a worker process exited with code {dead[0].exitcode}"]
+        return self.errors
 
 
 def _join(parts: Sequence[Path], path: Path) -> None:
