@@ -166,7 +166,7 @@ def _draw_bar(ctx: mujoco.MjrContext, panel: mujoco.MjrRect, y: int, bar: Distan
     h = style.row_px
     label_w = round(0.42 * panel.width)
     x0 = panel.left + 6
-    text = f"{bar.measured_m:.2f} m" if math.isfinite(bar.measured_m) else "-"
+    text = f"{bar.measured_m:.3f} m" if math.isfinite(bar.measured_m) else "-"
     mujoco.mjr_overlay(
         mujoco.mjtFont.mjFONT_NORMAL,
         mujoco.mjtGridPos.mjGRID_LEFT,
