@@ -8,5 +8,6 @@ Modules, one job each: :mod:`~compare.replay.run_data` (find and load a run),
 :mod:`~compare.replay.scene` (the MuJoCo state at an instant, geometry),
 :mod:`~compare.replay.overlay` (what a video panel shows), :mod:`~compare.replay.panels`
 (draw the frames), :mod:`~compare.replay.video` (encode them), :mod:`~compare.replay.depth`
-(depth point clouds), :mod:`~compare.replay.recording` (the ``.rrd`` file).
+(depth point clouds), :mod:`~compare.replay.recording` (the ``.rrd`` file, with
+:mod:`~compare.replay.rerun_shapes` and :mod:`~compare.replay.rerun_series`).
 """

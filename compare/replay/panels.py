@@ -64,7 +64,7 @@ class PanelRenderer:
         mujoco.mjr_setBuffer(mujoco.mjtFramebuffer.mjFB_OFFSCREEN, self._ctx)
         self._scn = mujoco.MjvScene(model, maxgeom=1000)
         for flag in ("mjRND_SHADOW", "mjRND_REFLECTION", "mjRND_SKYBOX", "mjRND_HAZE", "mjRND_FOG"):
-            self._scn.flags[getattr(mujoco.mjtRndFlag, flag)] = 0  # a third of the llvmpipe time each
+            self._scn.flags[getattr(mujoco.mjtRndFlag, flag)] = 0  # costly in software, not needed to read the scene
         self._option = mujoco.MjvOption()
         self._option.sitegroup[:] = 0
         self._camera = mujoco.MjvCamera()
@@ -83,7 +83,7 @@ class PanelRenderer:
         self._gl.make_current()
         rows = self.scene.set_time(t)
         infos = [source.info(row, t) for source, row in zip(self._sources, rows, strict=True)]
-        points, closest = self._marker_points(infos, t)
+        points, closest = self._marker_points(infos, rows, t)
         for i, (rect, data, info) in enumerate(zip(self.rects, self.scene.datas, infos, strict=True)):
             mujoco.mjv_updateScene(
                 self.scene.model, data, self._option, None, self._camera, mujoco.mjtCatBit.mjCAT_ALL, self._scn
@@ -111,14 +111,13 @@ class PanelRenderer:
             mujoco.mjv_connector(g, mujoco.mjtGeom.mjGEOM_LINE, 1.5, a, b)
             scn.ngeom += 1
 
-    def _marker_points(self, infos: list[PanelInfo], t: float) -> tuple[np.ndarray, np.ndarray]:
+    def _marker_points(self, infos: list[PanelInfo], rows: list[int], t: float) -> tuple[np.ndarray, np.ndarray]:
         """Control points [m] of every panel (P, K, 3) and their closest points on the person (P, K, 3)."""
-        nq = self.run.robot.nq
-        rows = []
-        for info, data in zip(infos, self.scene.datas, strict=True):
-            kin = self.run.robot.kinematics(data.qpos[:nq].copy())
-            rows.append([kin.frame_position(b.frame) for b in info.distances])
-        points = np.array(rows, dtype=float).reshape(len(infos), -1, 3)
+        positions = []
+        for info, method, row in zip(infos, self.run.methods, rows, strict=True):
+            kin = self.run.robot.kinematics(method.q[row])
+            positions.append([kin.frame_position(b.frame) for b in info.distances])
+        points = np.array(positions, dtype=float).reshape(len(infos), -1, 3)
         caps = self.scene.person.capsule_ends([t])
         _, closest = closest_on_capsules(points.reshape(-1, 3), caps.a[0], caps.b[0], caps.radius)
         return points, closest.reshape(points.shape)
