@@ -124,6 +124,8 @@ class OverlayStyle:
     row_px: int
     badge_px: tuple[int, int]
     full_bar_m: float
+    label_px: int = 0
+    """Width of a bar's label (frame and distance); 0: 42 % of the panel."""
     max_active_lines: int = 4
 
     def strip_px(self, bars: int) -> int:
@@ -131,10 +133,19 @@ class OverlayStyle:
         return 8 + bars * (self.row_px + 4) if bars else 0
 
     @classmethod
-    def for_height(cls, height_px: int, full_bar_m: float) -> OverlayStyle:
+    def for_height(cls, height_px: int, full_bar_m: float, label_px: int = 0) -> OverlayStyle:
         """Sizes proportional to the frame height (720 px: 24 px rows)."""
         row = max(12, round(height_px / 30))
-        return cls(row, (max(40, round(height_px / 8)), row + 4), full_bar_m)
+        return cls(row, (max(40, round(height_px / 8)), row + 4), full_bar_m, label_px)
+
+
+def label_width_px(ctx: mujoco.MjrContext, frames: tuple[str, ...]) -> int:
+    """Width of the widest bar label (``frame  0.000 m``) in the context's normal font [px]."""
+
+    def width(text: str) -> int:
+        return int(sum(ctx.charWidth[ord(c)] for c in text if ord(c) < len(ctx.charWidth)))
+
+    return max((width(f) for f in frames), default=0) + width("0.000 m") + ctx.charHeight
 
 
 def draw_panel(ctx: mujoco.MjrContext, rect: mujoco.MjrRect, info: PanelInfo, style: OverlayStyle) -> None:
@@ -164,7 +175,7 @@ def draw_panel(ctx: mujoco.MjrContext, rect: mujoco.MjrRect, info: PanelInfo, st
 def _draw_bar(ctx: mujoco.MjrContext, panel: mujoco.MjrRect, y: int, bar: DistanceBar, style: OverlayStyle) -> None:
     """One control point's row: a label, then the bar with its threshold ticks."""
     h = style.row_px
-    label_w = round(0.42 * panel.width)
+    label_w = style.label_px or round(0.42 * panel.width)
     x0 = panel.left + 6
     text = f"{bar.measured_m:.3f} m" if math.isfinite(bar.measured_m) else "-"
     mujoco.mjr_overlay(
@@ -175,7 +186,7 @@ def _draw_bar(ctx: mujoco.MjrContext, panel: mujoco.MjrRect, y: int, bar: Distan
         bar.frame,
         ctx,
     )
-    bx, bw = x0 + label_w + 4, panel.width - label_w - 16
+    bx, bw = x0 + label_w + 4, max(20, panel.width - label_w - 16)
     mujoco.mjr_rectangle(mujoco.MjrRect(bx, y, bw, h), 0.1, 0.1, 0.12, 0.75)
 
     def x_of(d: float) -> int:

@@ -17,7 +17,7 @@ import mujoco
 import numpy as np
 
 from compare.replay.exceptions import ReplayError
-from compare.replay.overlay import OverlayStyle, PanelInfo, PanelSource, draw_panel, margin_colour
+from compare.replay.overlay import OverlayStyle, PanelInfo, PanelSource, draw_panel, label_width_px, margin_colour
 from compare.replay.run_data import ReplayRun
 from compare.replay.scene import ReplayScene, ViewPoint, default_view
 from compare.sensing.geometric_distance import closest_on_capsules
@@ -70,7 +70,8 @@ class PanelRenderer:
         self._camera = mujoco.MjvCamera()
         self._sources = [PanelSource(run, m) for m in run.methods]
         activation = [th.safety_lower + th.activation_margin for th in run.obstacle_thresholds().values()]
-        self.style = OverlayStyle.for_height(height, max([run.config.sensor.rho_m, *(1.5 * a for a in activation)]))
+        full_bar_m = max([run.config.sensor.rho_m, *(1.5 * a for a in activation)])
+        self.style = OverlayStyle.for_height(height, full_bar_m, label_width_px(self._ctx, run.control_points))
         view_height = height - self.style.strip_px(len(run.control_points))
         self.view = view or default_view(run, self.scene.person, self.rects[0].width / view_height)
         self.view.apply(self._camera)

@@ -140,11 +140,16 @@ def test_a_sweep_s_run_is_replayed_by_its_seed(tmp_path):
     assert run.run_dir == sweep / "runs" / "00001"
     drawn = realize(config.model_copy(update={"scenario": config.scenario.model_copy(update={"seed": 501})}))
     assert run.config.person.keyframes == drawn.person.keyframes  # the seed's own draw, not seed 500's
-    out = tmp_path / "seed501.mp4"
-    args = ["replay", str(sweep), "--seed", "501", "--video", str(out), "--size", "320x192", "--fps", "10", "-q"]
-    result = CliRunner().invoke(app, args)
+    out, rrd = tmp_path / "seed501.mp4", tmp_path / "seed501.rrd"
+    args = ["replay", str(sweep), "--seed", "501", "--video", str(out), "--size", "320x192", "--fps", "10"]
+    result = CliRunner().invoke(app, [*args, "--rerun", str(rrd), "-q"])
     assert result.exit_code == 0, result.output
     assert "runs/00001" in result.output and out.stat().st_size > 0
+    from rerun.chunk import RrdReader
+
+    paths = {chunk.entity_path for chunk in RrdReader(rrd).stream().collect().stream()}
+    assert "/world/tpik/control_points" in paths and "/plots/solve_time_us/tpik" in paths
+    assert not any("depth" in p or "cameras" in p for p in paths)  # geometric sensing: no camera
 
 
 def test_the_replay_package_reads_results_without_importing_what_runs_a_scenario():
