@@ -216,7 +216,7 @@ def read_previous(out_dir: Path) -> dict[str, Any] | None:
 
 
 def clear_run_results(out_dir: Path) -> None:
-    """Remove the results of a run directory (``--overwrite``): summary, tables, plots, report, config."""
+    """Remove the results of a run directory (``--overwrite``): summary, tables, plots, report, configs."""
     out_dir = Path(out_dir)
     for name in (SUMMARY_FILE, CONFIG_FILE, REPORT_FILE, REPLAY_FILE):
         (out_dir / name).unlink(missing_ok=True)

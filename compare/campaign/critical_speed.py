@@ -270,10 +270,6 @@ def retreat_speed_bound(kin: robots.Kinematics, frame: str, direction: np.ndarra
     return float(np.abs(u @ kin.position_jacobian(frame)) @ v_max)
 
 
-config_toml = dump_config
-"""A config as TOML text that :func:`compare.config.load_config` reads back to the same config."""
-
-
 # ---------------------------------------------------------------------------------------- running
 
 
@@ -415,7 +411,7 @@ def run_critical_speed(
                 log.warning("run %s failed: %s", run_dir.name, error)
             bar.advance(task)
 
-        LocalExecutor(workers).run([Job(r.config, config_toml(r.config), r.run_dir) for r in todo], done)
+        LocalExecutor(workers).run([Job(r.config, dump_config(r.config), r.run_dir) for r in todo], done)
     wall = time.perf_counter() - start
     return _write_results(config, out_dir, plan, speeds, dirs, robot, failures, wall, len(todo), command)
 
