@@ -61,6 +61,10 @@ install: system-deps $(STAMP) $(KERNELS)
 demo: install
 	$(VENV)/bin/tpik-compare run configs/case1.toml --out results/case1 --overwrite
 	$(VENV)/bin/tpik-compare run configs/case2.toml --out results/case2 --overwrite
+	@echo "replay the case studies headless (video ~1 min each, docs/replay.md):"
+	@echo "  $(VENV)/bin/tpik-compare replay results/case1 --video results/case1.mp4 --rerun results/case1.rrd"
+	@echo "  $(VENV)/bin/tpik-compare replay results/case2 --video results/case2.mp4 --rerun results/case2.rrd"
+	@echo "  open a recording with: $(VENV)/bin/rerun results/case2.rrd"
 
 # The same two case studies seen by two depth cameras, fused (docs/sensing.md); reruns regenerate them.
 demo-cameras: install

@@ -18,7 +18,7 @@ from compare.analysis.avoidability import split_obstacle_violations
 from compare.analysis.metrics import RunMeta, compute_summary, set_task_infos
 from compare.analysis.person_speeds import part_max_speeds
 from compare.analysis.results import ResultsWriter
-from compare.config import Config
+from compare.config import Config, dump_config
 from compare.config_hash import config_fingerprint, config_hash, method_settings
 from compare.loop.closed_loop import LoopOutput, ObstacleSource, control_points, run_loop, warm_up_solver
 from compare.loop.deadline import MeasuredDeadline, guard_solver
@@ -308,6 +308,7 @@ def run_scenario(
         config, oracle = prepare(config, robot, Path(out_dir))
         if oracle is not None:
             writer.set_run_info("oracle", oracle)
+        writer.set_replay(dump_config(config))
         if config.person.keyframes:
             writer.set_run_info("person", {"max_speed_mps": part_max_speeds(config, robot)})
         columns = (

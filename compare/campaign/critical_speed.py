@@ -54,7 +54,6 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-import tomli_w
 
 import robots
 from compare.analysis.critical_speed_results import (
@@ -67,7 +66,7 @@ from compare.analysis.critical_speed_results import (
 from compare.analysis.metrics import to_jsonable
 from compare.analysis.person_speeds import resolved_hands
 from compare.analysis.results import is_finished, load_steps, load_summary, run_versions, write_json_atomic
-from compare.config import Config, ConfigError, PersonKeyframe
+from compare.config import Config, ConfigError, PersonKeyframe, dump_config
 from tpik.tasks import ObstacleDistanceTask
 
 log = logging.getLogger(__name__)
@@ -232,11 +231,6 @@ def retreat_speed_bound(kin: robots.Kinematics, frame: str, direction: np.ndarra
     return float(np.abs(u @ kin.position_jacobian(frame)) @ v_max)
 
 
-def config_toml(config: Config) -> str:
-    """A config as TOML text that :func:`compare.config.load_config` reads back to the same config."""
-    return tomli_w.dumps(config.model_dump(mode="python", exclude_none=True))
-
-
 # ---------------------------------------------------------------------------------------- running
 
 
@@ -378,7 +372,7 @@ def run_critical_speed(
                 log.warning("run %s failed: %s", run_dir.name, error)
             bar.advance(task)
 
-        LocalExecutor(workers).run([Job(r.config, config_toml(r.config), r.run_dir) for r in todo], done)
+        LocalExecutor(workers).run([Job(r.config, dump_config(r.config), r.run_dir) for r in todo], done)
     wall = time.perf_counter() - start
     return _write_results(config, out_dir, plan, speeds, dirs, robot, failures, wall, len(todo), command)
 
