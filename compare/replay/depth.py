@@ -12,9 +12,9 @@ from __future__ import annotations
 import mujoco
 import numpy as np
 
-from compare.loop.robot_io import CameraModel
 from compare.replay.run_data import ReplayRun
 from compare.sensing.camera import normalized_coordinates, sensor_to_base
+from compare.sensing.frames import CameraModel
 from compare.sensing.pipeline import DepthSensingSettings
 from compare.sensing.renderer import DepthCamera
 
