@@ -2,7 +2,11 @@
 VENV   ?= .venv
 PYTHON ?= python3
 PY      = $(VENV)/bin/python
-STAMP   = $(VENV)/.installed
+# Extras of pyproject.toml installed: dev (tests, lint) for everyone; add cluster for the Ray executor
+# (`make install EXTRAS=dev,cluster`; its tests skip without it).
+EXTRAS ?= dev
+STAMP   = $(VENV)/.installed.$(subst $(comma),-,$(EXTRAS))
+comma  := ,
 export MUJOCO_GL ?= egl
 
 .PHONY: install system-deps hw-deps demo demo-cameras test lint format docs bench clean
@@ -32,7 +36,7 @@ hw-deps:
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install --quiet --upgrade pip
-	$(PY) -m pip install --quiet -e ".[dev,cluster]"
+	$(PY) -m pip install --quiet -e ".[$(EXTRAS)]"
 	touch $(STAMP)
 
 # The numba kernels compiled once, cached beside their sources (__pycache__), so that no run and
@@ -57,17 +61,22 @@ install: system-deps $(STAMP) $(KERNELS)
 demo: install
 	$(VENV)/bin/tpik-compare run configs/case1.toml --out results/case1 --overwrite
 	$(VENV)/bin/tpik-compare run configs/case2.toml --out results/case2 --overwrite
+	@echo "replay the case studies headless (video ~1 min each, docs/replay.md):"
+	@echo "  $(VENV)/bin/tpik-compare replay results/case1 --video results/case1.mp4 --rerun results/case1.rrd"
+	@echo "  $(VENV)/bin/tpik-compare replay results/case2 --video results/case2.mp4 --rerun results/case2.rrd"
+	@echo "  open a recording with: $(VENV)/bin/rerun results/case2.rrd"
+
+# The same two case studies seen by two depth cameras, fused (docs/sensing.md); reruns regenerate them.
+demo-cameras: install
+	$(VENV)/bin/tpik-compare run configs/case1_two_cameras.toml --out results/case1_two_cameras --overwrite
+	$(VENV)/bin/tpik-compare run configs/case2_two_cameras.toml --out results/case2_two_cameras --overwrite
 
 # mypy checks the packages listed in pyproject.toml ([tool.mypy] files): robots, tpik, qp_baseline.
-# The same two case studies seen by two depth cameras, fused (docs/sensing.md).
-demo-cameras: install
-	$(VENV)/bin/tpik-compare run configs/case1_two_cameras.toml --out results/case1_two_cameras
-	$(VENV)/bin/tpik-compare run configs/case2_two_cameras.toml --out results/case2_two_cameras
-
 lint: install
 	$(VENV)/bin/ruff check .
 	$(VENV)/bin/ruff format --check .
 	$(VENV)/bin/mypy
+	$(VENV)/bin/lint-imports  # the layers of docs/design.md: no circle, no upward import ([tool.importlinter] in pyproject.toml)
 
 format: install
 	$(VENV)/bin/ruff check --fix .

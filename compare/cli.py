@@ -1,4 +1,4 @@
-"""``tpik-compare``: run scenarios, sweeps, plots, benchmarks and the viewer (DESIGN §7).
+"""``tpik-compare``: run scenarios, sweeps, plots, benchmarks, replays and the viewer (DESIGN §7).
 
 User mistakes (bad config, unknown method, missing directory) print one line on stderr
 and exit with code 2; no traceback. Every command gets that for the error roots of the
@@ -63,6 +63,7 @@ class _App(typer.Typer):
 app = _App(
     add_completion=False,
     no_args_is_help=True,
+    rich_markup_mode=None,  # help texts are plain: "[m]" and "[scenario] robot" are units and config keys
     help="Set-based task-priority IK vs hierarchical QP vs mink on a robot arm ([scenario] robot), side by side.",
 )
 
@@ -207,6 +208,7 @@ def run(
     results of, is refused (exit 2) unless --overwrite.
     """
     from compare.analysis.exceptions import ResultsError
+    from compare.campaign.realize import realize_with_verdict
     from compare.config import ConfigError, load_config
     from compare.run import run_scenario
 
@@ -220,7 +222,13 @@ def run(
     out_dir = out or Path("results") / cfg.scenario.name
     try:
         summary = run_scenario(
-            cfg, out_dir, config_text=text, progress=not quiet, make_plots=plots, overwrite=overwrite
+            cfg,
+            out_dir,
+            config_text=text,
+            progress=not quiet,
+            make_plots=plots,
+            overwrite=overwrite,
+            prepare=realize_with_verdict,
         )
     except ResultsError as exc:
         _fail(str(exc))
@@ -236,9 +244,9 @@ def _print_summary(summary: dict[str, object], out_dir: Path) -> None:
     from compare.analysis.report import summary_table
 
     console = Console()
-    if not console.is_terminal or console.width < 140:
-        console = Console(width=160)
-    console.print(summary_table(summary))
+    if not console.is_terminal:
+        console = Console(width=160)  # a log or a pipe: one line per method
+    console.print(summary_table(summary, narrow=console.width < 140))
     console.print(f"results: {out_dir}/summary.json   plots: {out_dir}/plots/")
 
 
@@ -538,6 +546,89 @@ def plot(results: Annotated[Path, typer.Argument(help="A run or sweep results di
         typer.echo(str(p))
 
 
+def _parse_size(size: str) -> tuple[int, int]:
+    """``WIDTHxHEIGHT`` [px] as two integers; a malformed value exits with one line."""
+    parts = size.lower().split("x")
+    if len(parts) != 2 or not all(p.strip().isdigit() for p in parts):
+        _fail(f"--size must be WIDTHxHEIGHT in pixels (e.g. 1280x720), got '{size}'")
+    return int(parts[0]), int(parts[1])
+
+
+@app.command()
+def replay(
+    results: Annotated[Path, typer.Argument(help="A run directory, or a sweep directory with --seed.")],
+    methods: Annotated[
+        list[str] | None,
+        typer.Option("--method", "-m", help="Method to show (repeatable; default every method of the run)."),
+    ] = None,
+    seed: Annotated[int | None, typer.Option("--seed", min=0, help="The sweep's run of this scenario seed.")] = None,
+    video: Annotated[
+        Path | None, typer.Option("--video", help="Write the methods side by side as an H.264 video (.mp4).")
+    ] = None,
+    rerun_file: Annotated[
+        Path | None, typer.Option("--rerun", help="Write a 3D recording for the rerun viewer (.rrd).")
+    ] = None,
+    still: Annotated[Path | None, typer.Option("--still", help="Write the frame at --from as an image (.png).")] = None,
+    fps: Annotated[float, typer.Option("--fps", help="Video frame rate, frames per second.")] = 25.0,
+    size: Annotated[str, typer.Option("--size", help="Video and still size WIDTHxHEIGHT in pixels.")] = "1280x720",
+    t_from: Annotated[
+        float | None, typer.Option("--from", help="Start of the replayed window, in seconds of the run.")
+    ] = None,
+    t_to: Annotated[
+        float | None, typer.Option("--to", help="End of the replayed window, in seconds of the run.")
+    ] = None,
+    depth_stride: Annotated[
+        int, typer.Option("--depth-stride", min=1, help="Recording: keep every N-th depth pixel row and column.")
+    ] = 4,
+    workers: Annotated[
+        int, typer.Option("--workers", "-w", min=1, help="Video: processes rendering segments in parallel.")
+    ] = 2,
+    quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress bar.")] = False,
+) -> None:
+    """Replay a finished run: the methods side by side as a video, a 3D recording (rerun) or a still.
+
+    The arm is redrawn from each method's recorded joint angles and the person from the run's
+    scenario at the same instant (offscreen, headless); nothing is simulated again. Results
+    written before runs recorded their scenario for replays are refused (exit 2).
+    """
+    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+
+    from compare.replay.panels import check_still_path, write_still
+    from compare.replay.recording import check_recording_path, write_recording
+    from compare.replay.run_data import load_run
+    from compare.replay.video import VideoSettings, check_video_path, write_video
+
+    if video is None and rerun_file is None and still is None:
+        _fail("nothing to write: give --video FILE.mp4, --rerun FILE.rrd and/or --still FILE.png")
+    for path, check in ((video, check_video_path), (rerun_file, check_recording_path), (still, check_still_path)):
+        if path is not None:
+            check(path)
+    width, height = _parse_size(size)
+    settings = VideoSettings(width, height, fps)
+    run = load_run(results, methods, seed, t_from, t_to)
+    names = ", ".join(m.name for m in run.methods)
+    typer.echo(f"replaying {run.run_dir} ({names}; {run.t_from:g}–{run.t_to:g} s)")
+    if video is not None:
+        bar = Progress(TextColumn("[bold]video"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(), disable=quiet)
+        with bar:
+            task = bar.add_task("video", total=len(settings.frame_times(run.t_from, run.t_to)))
+            stats = write_video(run, video, settings, lambda done, _total: bar.update(task, completed=done), workers)
+        typer.echo(
+            f"video:     {video} ({stats.frames} frames, {width}x{height} at {fps:g} frames/s; "
+            f"{stats.video_s:.1f} s rendered in {stats.wall_s:.1f} s by {stats.workers} process(es), "
+            f"{stats.realtime_factor:.1f}x real time)"
+        )
+    if still is not None:
+        write_still(run, still, run.t_from, width, height)
+        typer.echo(f"still:     {still} (t = {run.t_from:g} s)")
+    if rerun_file is not None:
+        bar = Progress(TextColumn("[bold]recording {task.description}"), TimeElapsedColumn(), disable=quiet)
+        with bar:
+            task = bar.add_task("", total=None)
+            write_recording(run, rerun_file, lambda part: bar.update(task, description=part), depth_stride)
+        typer.echo(f"recording: {rerun_file} (open with: rerun {rerun_file})")
+
+
 @app.command()
 def bench(
     json_out: Annotated[Path | None, typer.Option("--json", help="Write results as JSON (DESIGN §7).")] = None,
@@ -595,10 +686,10 @@ def bench(
 ) -> None:
     """Solver, sensing and QP-correctness benchmarks: medians, p95, ratios, timing vs correctness.
 
-    ``--only correctness`` judges every HQP backend against the stored lexicographic reference
+    --only correctness judges every HQP backend against the stored lexicographic reference
     (compare/bench/data/qp_reference.json): success rate, level errors, qpbenchmark residuals, time.
-    ``--only plant`` times a sweep's plant alone; with ``--sweep DIR`` it adds that sweep's
-    throughput ceiling (compare/bench/plant.py). ``--only loop`` times the closed loop's parts on
+    --only plant times a sweep's plant alone; with --sweep DIR it adds that sweep's
+    throughput ceiling (compare/bench/plant.py). --only loop times the closed loop's parts on
     whole runs, one method at a time: where a campaign step goes (compare/bench/loop_parts.py).
     """
     from compare.bench.__main__ import GROUPS

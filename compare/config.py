@@ -1048,3 +1048,8 @@ def load_config(path: str | Path, overrides: dict[str, Any] | None = None) -> tu
         listed = ", ".join(f"{k} = {v!r}" for k, v in overrides.items())
         text = f"# {p.name} with command-line overrides: {listed}\n" + tomli_w.dumps(data)
     return config, text
+
+
+def dump_config(config: Config) -> str:
+    """``config`` as TOML text that :func:`parse_config` (or :func:`load_config`) reads back to an equal config."""
+    return tomli_w.dumps(config.model_dump(mode="python", exclude_none=True))

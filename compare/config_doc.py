@@ -223,7 +223,8 @@ def _dataclass_rows(cls: type, where: str) -> list[list[str]]:
 
 
 def _methods_settings() -> Iterator[str]:
-    from qp_baseline.hqp import SOLVER_DEFAULTS, HqpSettings
+    from qp_baseline.backends import BACKENDS
+    from qp_baseline.hqp import HqpSettings
     from qp_baseline.mink_peer import MinkSettings
     from tpik.solver import TpikSettings
 
@@ -240,10 +241,10 @@ def _methods_settings() -> Iterator[str]:
     yield from _table(_HEADERS, _dataclass_rows(HqpSettings, "methods.settings.hqp"))
     yield ""
     yield from _table(
-        ["backend", "settings the cascade starts from (`SOLVER_DEFAULTS`)"],
+        ["backend", "settings the cascade starts from (`qp_baseline.backends.BACKENDS`)"],
         [
-            [f"`{name}`", f"`{_toml(values)}`" if values else "its own defaults"]
-            for name, values in SOLVER_DEFAULTS.items()
+            [f"`{name}`", f"`{_toml(dict(backend.defaults))}`" if backend.defaults else "its own defaults"]
+            for name, backend in BACKENDS.items()
         ],
     )
     yield from ["", "### `[methods.settings.mink]`", ""]

@@ -15,36 +15,25 @@ from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 import robots
 from compare.analysis import iso15066, preflight
 from compare.analysis.avoidability import split_obstacle_violations
-from compare.analysis.metrics import RunMeta, SetTaskInfo, compute_summary
+from compare.analysis.metrics import RunMeta, compute_summary, set_task_infos
+from compare.analysis.person_speeds import part_max_speeds
 from compare.analysis.results import ResultsWriter
-from compare.campaign.random_scenario import realize
-from compare.config import Config
+from compare.config import Config, dump_config
 from compare.config_hash import config_fingerprint, config_hash, method_settings
-from compare.loop.closed_loop import LoopOutput, LoopSettings, ObstacleSource, control_points, run_loop, warm_up_solver
+from compare.loop.closed_loop import LoopOutput, ObstacleSource, control_points, run_loop, warm_up_solver
 from compare.loop.deadline import MeasuredDeadline, guard_solver
 from compare.loop.faults import FaultInjector, unsafe_commands
+from compare.loop.settings import LoopSettings
 from compare.loop.simulation import build_simulation
 from compare.loop.warmup import warm_up_process
 from compare.loop.waypoints import WaypointSchedule
 from compare.methods import make_method
-from compare.sensing.person import Person
-from compare.sensing.person_track import PersonTrack, max_speeds_by_part
+from compare.scenarios.random_scenario import realize
 from tpik.hierarchy import Hierarchy
 from tpik.step_result import IkSolver
 from tpik.tasks import ObstacleDistanceTask
 
 log = logging.getLogger(__name__)
-
-
-def set_task_infos(hierarchy: Hierarchy) -> tuple[SetTaskInfo, ...]:
-    """Group (:attr:`tpik.tasks.SetTask.group`) and thresholds of every set-based task, for the metrics."""
-    infos = []
-    for task in hierarchy.set_tasks:
-        th = task.thresholds
-        infos.append(
-            SetTaskInfo(task.name, task.group, th.physical_lower, th.safety_lower, th.safety_upper, th.physical_upper)
-        )
-    return tuple(infos)
 
 
 def run_meta(
@@ -104,13 +93,6 @@ def loop_setup(
         max_sensing_age_s=config.sensor.max_age_s,
     )
     return schedule, settings
-
-
-def person_speeds(config: Config, robot: robots.Robot) -> dict[str, float]:
-    """The realized person's fastest capsule end per body part over the run, at the control rate [m/s]."""
-    sc = config.scenario
-    person = Person(robot.workcell_model(), config.person.keyframes, time_scale=sc.time_scale)
-    return max_speeds_by_part(PersonTrack.from_person(person, sc.sim_time_s, sc.dt))
 
 
 def write_plots(out_dir: Path) -> None:
@@ -208,7 +190,7 @@ def worst_solve_entry(solver: object, config: Config) -> dict[str, Any]:
     Returns:
         ``{"us": worst [µs] or None when the solver had no time limit, "clock": "cpu" | "wall" | None}``.
     """
-    worst = getattr(solver, "worst_s", None) if isinstance(solver, MeasuredDeadline) else None
+    worst = solver.worst_s if isinstance(solver, MeasuredDeadline) else None
     clock = config.solver_limit.simulation_clock if worst is not None else None
     return {"us": None if worst is None else 1e6 * float(worst), "clock": clock}
 
@@ -288,6 +270,15 @@ def open_results(
     )
 
 
+def realize_only(config: Config, robot: robots.Robot, out_dir: Path) -> tuple[Config, dict[str, Any] | None]:
+    """The concrete scenario of ``config`` and no verdict: the default ``prepare`` of :func:`run_scenario`."""
+    return realize(config, robot), None
+
+
+Prepare = Callable[[Config, robots.Robot, Path], tuple[Config, dict[str, Any] | None]]
+"""``prepare(config, robot, out_dir) -> (realized config, the run's verdict or None)``, before the methods run."""
+
+
 def run_scenario(
     config: Config,
     out_dir: Path,
@@ -295,8 +286,12 @@ def run_scenario(
     progress: bool = True,
     make_plots: bool = True,
     overwrite: bool = False,
+    prepare: Prepare = realize_only,
 ) -> dict[str, Any]:
     """Run every method of ``config`` on the same scenario; results survive a crash of one method.
+
+    ``prepare`` realizes the scenario and may compute its verdict (``summary.json["oracle"]``;
+    :func:`compare.campaign.realize.realize_with_verdict` does when ``[oracle] enabled``).
 
     ``out_dir`` is checked before the first step (:func:`open_results`): results already there
     of the same scenario and configuration get these methods added; anything else is refused
@@ -310,11 +305,12 @@ def run_scenario(
     """
     robot = config.load_robot()
     with open_results(config, Path(out_dir), config_text, robot, overwrite, make_plots) as writer:
-        config, oracle = _realize_with_oracle(config, robot, Path(out_dir))
+        config, oracle = prepare(config, robot, Path(out_dir))
         if oracle is not None:
             writer.set_run_info("oracle", oracle)
+        writer.set_replay(dump_config(config))
         if config.person.keyframes:
-            writer.set_run_info("person", {"max_speed_mps": person_speeds(config, robot)})
+            writer.set_run_info("person", {"max_speed_mps": part_max_speeds(config, robot)})
         columns = (
             TextColumn("[bold]{task.description:<12}"),
             BarColumn(),
@@ -338,25 +334,6 @@ def run_scenario(
         if make_plots:
             write_plots(Path(out_dir))
         return writer.summary
-
-
-ORACLE_CACHE_DIR = "oracle"
-"""Sub-directory of a run directory caching its witness runs (``<key>.json``)."""
-
-
-def _realize_with_oracle(config: Config, robot: robots.Robot, out_dir: Path) -> tuple[Config, dict[str, Any] | None]:
-    """The concrete scenario and, with ``[oracle] enabled``, its verdict (witness runs cached in ``out_dir``)."""
-    if not config.oracle.enabled:
-        return realize(config, robot), None
-    from compare.campaign.verdict import run_verdict
-
-    cache = out_dir / ORACLE_CACHE_DIR
-    if config.oracle.avoidable_only and config.scenario.kind == "random":
-        from compare.campaign.avoidable import realize_avoidable
-
-        return realize_avoidable(config, robot, cache)
-    config = realize(config, robot)
-    return config, run_verdict(config, robot, cache)
 
 
 def view_scenario(config: Config, method: str) -> None:

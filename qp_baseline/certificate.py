@@ -122,11 +122,6 @@ class Certificate:
     passed: bool
     reason: str = ""
 
-    @property
-    def suboptimality(self) -> float:
-        """:math:`f(x) - f_{lo}`: how far above the best known lower bound the answer is (≥ 0 for a feasible x)."""
-        return self.objective - self.lower_bound
-
     def to_dict(self) -> dict[str, float | str | bool]:
         """JSON-ready fields (the qpbenchmark results columns plus the bounds)."""
         return {

@@ -59,8 +59,8 @@ point, and its level objective within ``objective_tolerance`` of the lower bound
 backend's multipliers (or multipliers recovered for the answer) prove — the primal residual, dual
 residual and duality gap of qpbenchmark are reported in ``extras["certificates"]``. An answer that
 fails is polished (:mod:`qp_baseline.polish`, exact KKT solves of its active set) and certified
-again; then retried once with :data:`RETRY_SETTINGS` and :data:`RETRY_REGULARIZATION`. What
-remains:
+again; then retried once with its backend's retry settings (:data:`qp_baseline.backends.BACKENDS`)
+and :data:`RETRY_REGULARIZATION`. What remains:
 
 * no usable answer (infeasible, non-finite, worse than the known feasible point): the level is
   **given up** — level 0 → FAILED with zero velocity, a later level → DEGRADED keeping the
@@ -92,6 +92,7 @@ import numpy as np
 import qpsolvers
 import scipy.sparse as spa
 
+from qp_baseline.backends import BACKENDS, SUPPORTED_SOLVERS
 from qp_baseline.cascade_kernels import (
     binds,
     clip_into,
@@ -118,103 +119,17 @@ from tpik.reference import ControlReference
 from tpik.step_result import SolveStatus, StepResult, failed
 from tpik.tasks import SetTask, Task
 
-SUPPORTED_SOLVERS: tuple[str, ...] = ("daqp", "quadprog", "osqp", "proxqp", "clarabel", "piqp")
-"""QP backends this module is tested with."""
 
-SOLVER_DEFAULTS: dict[str, dict[str, Any]] = {
-    # Active-set solvers: exact on their active set, defaults are fine (near-singular Hessians
-    # are the regularisation's business).
-    "daqp": {},
-    "quadprog": {},
-    # OSQP (issue 23; measured in docs/benchmarks.md, "QP backends: timing vs correctness"): its
-    # defaults (eps 1e-3, no polish) leave violations of ~1e-3. eps 1e-6 with eps_rel 0 (absolute:
-    # our rows are in rad/s and m/s), polishing with 10 refinement steps; no duality-gap
-    # termination test (OSQP 1.x's absolute gap test kept it iterating to max_iter on most level
-    # QPs: the certificate checks the gap itself); infeasibility detection effectively off
-    # (eps_prim_inf 1e-9: every level QP is feasible by construction, and at 1e-4 OSQP declared
-    # feasible QPs infeasible); 2000 iterations, the retry 1e-9 with 4000. Before issue 23: eps
-    # 1e-8, 10 000 iterations, retry at 1e-6: 69 of 200 random states lost a level.
-    "osqp": {
-        "eps_abs": 1e-6,
-        "eps_rel": 0.0,
-        "polish": True,
-        "polish_refine_iter": 10,
-        "check_dualgap": False,
-        "eps_prim_inf": 1e-9,
-        "max_iter": 2000,
-    },
-    # ProxQP's default eps_abs is 1e-3 (qpsolvers documentation). Its default equality-constrained
-    # initial guess ends in PROXQP_PRIMAL_INFEASIBLE on many of our (feasible) level QPs. It does not
-    # test the duality gap by default, so a "solved" answer may be suboptimal: the certificate
-    # catches those (retry or KKT polish); check_duality_gap = true costs ~50× the iterations here.
-    "proxqp": {"eps_abs": 1e-9, "eps_rel": 0.0, "initial_guess": "NO_INITIAL_GUESS"},
-    "clarabel": {"tol_feas": 1e-9, "tol_gap_abs": 1e-9, "tol_gap_rel": 1e-9},
-    "piqp": {"eps_abs": 1e-9, "eps_rel": 0.0},
-}
-"""Settings each backend starts from; user settings override them key by key. ProxQP's
-``initial_guess`` may be given by name (``"NO_INITIAL_GUESS"``, ``"WARM_START"``, ...)."""
+def available_qp_solvers() -> list[str]:
+    """Backends usable here: the supported ones (:mod:`qp_baseline.backends`) that qpsolvers has installed."""
+    installed = set(qpsolvers.available_solvers)
+    return [name for name in SUPPORTED_SOLVERS if name in installed]
 
-RETRY_SETTINGS: dict[str, dict[str, Any]] = {
-    # DAQP's proximal-point iterations for near-singular Hessians (converge to the optimum of the
-    # QP as posed): on 3 of the 200 random bench states DAQP reported level 2 unsolvable without.
-    "daqp": {"eps_prox": 1e-6},
-    "quadprog": {},
-    # A looser retry converges where 1e-8 ran out of iterations; TOLERANCES["osqp"] still checks it.
-    "osqp": {"eps_abs": 1e-9, "eps_rel": 0.0, "max_iter": 4000},
-    # ProxQP's false infeasibility: solve the closest feasible problem instead; our own feasibility
-    # check decides (every level QP is feasible by construction).
-    "proxqp": {
-        "eps_abs": 1e-7,
-        "eps_rel": 0.0,
-        "max_iter": 100000,
-        "initial_guess": "NO_INITIAL_GUESS",
-        "primal_infeasibility_solving": True,
-    },
-    "clarabel": {"tol_feas": 1e-7, "tol_gap_abs": 1e-7, "tol_gap_rel": 1e-7, "max_iter": 500},
-    "piqp": {"eps_abs": 1e-7, "eps_rel": 0.0, "max_iter": 1000},
-}
-"""Settings of the one retry after a failed or rejected answer (with :data:`RETRY_REGULARIZATION`)."""
 
 RETRY_REGULARIZATION = 1e-7
 """Extra diagonal added to the Hessian on the retry (near-singular Hessians: DAQP, quadprog). Small
-enough that the retry's answer still passes the certificate of the original problem (1e-6, the
-value before issue 23, shifted well-conditioned levels by about the certificate's tolerance)."""
-
-TOLERANCES: dict[str, float] = {
-    "daqp": 1e-6,
-    "quadprog": 1e-6,
-    "osqp": 1e-6,
-    "proxqp": 1e-6,
-    "clarabel": 1e-6,
-    "piqp": 1e-6,
-}
-"""Default accepted constraint violation [rad/s or m/s] of each backend's answer."""
-
-MIN_NORM_LEVEL: dict[str, bool] = {
-    "daqp": False,
-    "quadprog": False,
-    "osqp": True,
-    "proxqp": True,
-    "clarabel": True,
-    "piqp": True,
-}
-"""Whether the final min-norm level is solved by default (inexact backends need it)."""
-
-WARM_START: dict[str, bool] = dict.fromkeys(SUPPORTED_SOLVERS, False)
-"""Whether each level's backend starts from that level's previous-step answer by default. Only OSQP
-and ProxQP take a start point through qpsolvers (the primal x alone: a new solver object, ρ, duals
-and factorisation every call), and it did not pay consistently: on an 80-step closed-loop rollout
-with a wall binding (``tests/qp_baseline``'s wall scenario) OSQP took 206 975 iterations warm vs
-174 950 cold, 158 975 vs 190 950 once the KKT polish changed which levels retry
-(``docs/benchmarks.md``). Off by default, ``warm_start = true`` to try it."""
-
-_SPARSE_SOLVERS = frozenset({"osqp", "clarabel"})  # qpsolvers converts (and warns) otherwise
-
-
-def available_qp_solvers() -> list[str]:
-    """Backends usable here: :data:`SUPPORTED_SOLVERS` that ``qpsolvers.available_solvers`` lists."""
-    installed = set(qpsolvers.available_solvers)
-    return [name for name in SUPPORTED_SOLVERS if name in installed]
+enough that the retry's answer still passes the certificate of the original problem (1e-6 shifted
+well-conditioned levels by about the certificate's tolerance)."""
 
 
 def _check_solver(solver: str) -> None:
@@ -252,7 +167,7 @@ def backend_kwargs(solver: str, settings: Mapping[str, Any]) -> dict[str, Any]:
     """
     kwargs = dict(settings)
     guess = kwargs.get("initial_guess")
-    if solver == "proxqp" and isinstance(guess, str):
+    if BACKENDS[solver].initial_guess_by_name and isinstance(guess, str):
         from proxsuite import proxqp
 
         names = proxqp.InitialGuess.__members__
@@ -262,12 +177,9 @@ def backend_kwargs(solver: str, settings: Mapping[str, Any]) -> dict[str, Any]:
     return kwargs
 
 
-_WARNING_SOLVERS = frozenset({"osqp", "quadprog", "clarabel"})  # qpsolvers warns on their failures
-
-
 def _solve_quietly(problem: qpsolvers.Problem, solver: str, quiet: bool, **kwargs: Any) -> qpsolvers.Solution:
     """``qpsolvers.solve_problem`` without the failure warnings (failures are reported in StepResult)."""
-    if solver not in _WARNING_SOLVERS:
+    if not BACKENDS[solver].warns_on_failure:
         return qpsolvers.solve_problem(problem, solver=solver, **kwargs)
     with warnings.catch_warnings(), _quiet_stdout(quiet):
         warnings.simplefilter("ignore")
@@ -286,7 +198,7 @@ def probe_settings(solver: str, settings: Mapping[str, Any]) -> None:
         InvalidSettings: A setting is unknown or unusable.
     """
     _check_solver(solver)
-    if solver == "piqp":
+    if BACKENDS[solver].ignores_unknown_settings:  # PIQP
         import piqp
 
         known = {a for a in dir(piqp.DenseSolver().settings) if not a.startswith("_")}
@@ -295,12 +207,12 @@ def probe_settings(solver: str, settings: Mapping[str, Any]) -> None:
                 raise InvalidSettings(solver, f"unknown setting '{key}'; known: {', '.join(sorted(known))}", key)
     P = np.eye(2)
     G = np.array([[1.0, 1.0]])
-    if solver in _SPARSE_SOLVERS:
+    if BACKENDS[solver].sparse:
         problem = qpsolvers.Problem(spa.csc_matrix(P), np.array([-1.0, -1.0]), spa.csc_matrix(G), np.ones(1))
     else:
         problem = qpsolvers.Problem(P, np.array([-1.0, -1.0]), G, np.ones(1))
     try:
-        solution = _solve_quietly(problem, solver, solver == "osqp", **backend_kwargs(solver, settings))
+        solution = _solve_quietly(problem, solver, BACKENDS[solver].prints, **backend_kwargs(solver, settings))
     except Exception as exc:  # noqa: BLE001 - whatever the backend raises is a settings error here
         bad_key = next((k for k in settings if re.search(rf"\b{re.escape(k)}\b", str(exc))), None)
         named = f"setting '{bad_key}'" if bad_key else f"settings {dict(settings)}"
@@ -326,13 +238,14 @@ class HqpSettings:
     Attributes:
         regularization: ε of :math:`\epsilon\|\dot q\|^2` on every task level (unitless, > 0).
         tolerance: Accepted constraint violation of a backend answer [rad/s or m/s]; the
-            backend's entry of :data:`TOLERANCES` when None.
+            backend's tolerance (:data:`qp_baseline.backends.BACKENDS`) when None.
         slack_tolerance: A slack above this makes the step DEGRADED; a row within it of its bound
             is reported binding (active set) [task unit / s]. ``max(1e-6, tolerance)`` when None.
         rank_tolerance: Relative singular-value threshold of the null-space bases.
         unconstrained_first: Skip the backend when a level's unconstrained minimiser is feasible.
-        min_norm_level: Solve the final min-norm level; :data:`MIN_NORM_LEVEL` when None.
-        retry: Retry a failed level once with :data:`RETRY_SETTINGS`.
+        min_norm_level: Solve the final min-norm level; the backend's default
+            (:data:`qp_baseline.backends.BACKENDS`) when None.
+        retry: Retry a failed level once with its backend's retry settings (:data:`qp_baseline.backends.BACKENDS`).
         gain_cap: Cap every task gain at 1/dt in the control reference (:mod:`tpik.reference`;
             the same default as TPIK and mink).
         certify: Judge every backend answer by its certificate (:mod:`qp_baseline.certificate`:
@@ -341,7 +254,7 @@ class HqpSettings:
         objective_tolerance: Accepted error of a level's residual norm, relative to 1 + ρ
             (:attr:`~qp_baseline.certificate.Tolerances.level`); ``max(1e-6, tolerance)`` when None.
         warm_start: Start each level's backend from that level's answer at the previous step;
-            :data:`WARM_START` when None.
+            the backend's default (off for every backend) when None.
         kkt_polish: When a backend answer is not certified, polish it (:func:`qp_baseline.polish.polish`:
             exact KKT solves of the active set the answer identifies) and keep the polished answer if
             it is certified — OSQP's polishing idea, for every backend (one small least squares).
@@ -505,7 +418,7 @@ class HqpSolver(TimeLimited):
         robot: The robot (velocity and position limits).
         solver: Backend name, one of :func:`available_qp_solvers`.
         settings: Cascade options (fields of :class:`HqpSettings`) and backend keyword arguments in
-            one table; backend arguments override :data:`SOLVER_DEFAULTS`.
+            one table; backend arguments override the backend's defaults (:data:`qp_baseline.backends.BACKENDS`).
         name: Method name reported in results (default ``hqp-<solver>``).
         limits: Joint limits (:mod:`tpik.limits`) composed in order into the hard box of every
             level; :func:`default_limits` (velocity, then position) when None.
@@ -534,9 +447,10 @@ class HqpSolver(TimeLimited):
         self.options, user_kwargs = split_settings(solver, settings)
         self.reference = ControlReference(gain_cap=self.options.gain_cap)
         probe_settings(solver, user_kwargs)
-        self.qp_settings: dict[str, Any] = {**SOLVER_DEFAULTS[solver], **user_kwargs}
+        backend = BACKENDS[solver]
+        self.qp_settings: dict[str, Any] = {**backend.defaults, **user_kwargs}
         self._kwargs = backend_kwargs(solver, self.qp_settings)
-        self._retry_kwargs = backend_kwargs(solver, {**self.qp_settings, **RETRY_SETTINGS[solver]})
+        self._retry_kwargs = backend_kwargs(solver, {**self.qp_settings, **backend.retry})
         self._resolve_defaults(solver)
         warm_up_certificate()  # the compiled certificate and kernels are loaded now, not at the first step
         warm_up_kernels(robot.nq)
@@ -544,8 +458,8 @@ class HqpSolver(TimeLimited):
         """When a list, every backend-solved level QP is appended to it (:class:`LevelQp`)."""
         self._previous: dict[int, np.ndarray] = {}  # level → its q̇ answer at the previous step
         self._certificates: dict[int, Certificate] = {}  # this step's, per level
-        self._sparse = solver in _SPARSE_SOLVERS
-        self._quiet = solver == "osqp"
+        self._sparse = backend.sparse
+        self._quiet = backend.prints
         n = robot.nq
         self._eye = np.eye(n)
         self._eps_eye = self.options.regularization * np.eye(n)
@@ -570,17 +484,17 @@ class HqpSolver(TimeLimited):
 
     def _resolve_defaults(self, solver: str) -> None:
         """Tolerances, min-norm level and warm start: the options, or the backend's defaults."""
-        self.tolerance = float(self.options.tolerance or TOLERANCES[solver])
+        self.tolerance = float(self.options.tolerance or BACKENDS[solver].tolerance)
         self.slack_tolerance = float(self.options.slack_tolerance or max(1e-6, self.tolerance))
         self.slack_margin = 0.1 * self.tolerance
         mnl = self.options.min_norm_level
-        self.min_norm_level = MIN_NORM_LEVEL[solver] if mnl is None else mnl
+        self.min_norm_level = BACKENDS[solver].min_norm_level if mnl is None else mnl
         self.objective_tolerance = float(self.options.objective_tolerance or max(1e-6, self.tolerance))
         self.certificate_tolerances = Tolerances(
             primal=self.tolerance, level=self.objective_tolerance, active=max(1e-6, self.tolerance)
         )
         ws = self.options.warm_start
-        self.warm_start = WARM_START[solver] if ws is None else ws
+        self.warm_start = BACKENDS[solver].warm_start if ws is None else ws
 
     def __repr__(self) -> str:
         return f"HqpSolver(name={self.name!r}, solver={self.solver!r}, settings={self.qp_settings})"
@@ -1198,7 +1112,8 @@ class HqpSolver(TimeLimited):
         feasible point ``x0``, and within ``objective_tolerance`` of the dual bound — in the
         level's residual norm when ``level_value`` is given. The backend's own status does not
         decide: a certified answer is right whatever the backend reported, an uncertified
-        "solved" one is not. A failed certificate is retried once with :data:`RETRY_SETTINGS`,
+        "solved" one is not. A failed certificate is retried once with its backend's retry settings
+        (:data:`qp_baseline.backends.BACKENDS`),
         :data:`RETRY_REGULARIZATION` added to the diagonal of P (the answer is still certified
         against the original P) and ``x0`` as warm start (when ``retry`` is on). If no answer is
         certified, the first *usable* one (feasible within ``tolerance``, no worse than ``x0``)

@@ -1,7 +1,7 @@
 r"""One level QP of the HQP cascade as a backend saw it, and the answer the cascade took.
 
 :class:`LevelQp` records are what :attr:`qp_baseline.hqp.HqpSolver.qp_log` collects (when it
-is a list) and what :mod:`qp_baseline.qpbenchmark_export` writes as a qpbenchmark test set.
+is a list) and what :mod:`compare.bench.qp_export` writes as a qpbenchmark test set.
 :class:`LevelAnswer` is what :meth:`qp_baseline.hqp.HqpSolver.solve_qp` returns.
 """
 

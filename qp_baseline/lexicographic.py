@@ -25,7 +25,7 @@ Each level QP is solved by Clarabel at tight tolerances (then Clarabel's default
 :data:`FIRST_PASSES`), then **polished** (:func:`qp_baseline.polish.polish`: exact KKT solves of
 the active set until it repeats); an answer is kept only if its optimality conditions hold
 (:func:`qp_baseline.certificate.certify`, tolerances :data:`REFERENCE_TOLERANCES`). A level whose
-QP cannot be certified raises :class:`ReferenceError`: the reference is never a guess.
+QP cannot be certified raises :class:`ReferenceSolutionError`: the reference is never a guess.
 
 The level objective compared across methods is a function of the command alone,
 :math:`f_k(\dot q) = \|J_k\dot q - r_k\|^2 + \|[G_k\dot q - h_k]^+\|^2` (the smallest slacks
@@ -66,7 +66,7 @@ FIRST_PASSES: tuple[tuple[str, dict[str, Any]], ...] = (
 polished and certified, the first certified one is kept."""
 
 
-class ReferenceError(HqpError):
+class ReferenceSolutionError(HqpError):
     """A level of the reference could not be solved to its optimality tolerances."""
 
 
@@ -95,7 +95,7 @@ def level_rows(hierarchy: Hierarchy, kin: Kinematics, dt: float) -> list[LevelRo
     """Evaluate every task of ``hierarchy`` at ``kin`` into its level's rows.
 
     Raises:
-        ReferenceError: A task gives a non-finite Jacobian or reference.
+        ReferenceSolutionError: A task gives a non-finite Jacobian or reference.
     """
     n = kin.nq
     out = []
@@ -122,7 +122,7 @@ def level_rows(hierarchy: Hierarchy, kin: Kinematics, dt: float) -> list[LevelRo
         G = np.array(Gs).reshape(-1, n)
         h = np.array(hs, dtype=float)
         if not (np.isfinite(J).all() and np.isfinite(r).all() and np.isfinite(G).all() and np.isfinite(h).all()):
-            raise ReferenceError(f"level '{level.name}': non-finite task Jacobian or reference")
+            raise ReferenceSolutionError(f"level '{level.name}': non-finite task Jacobian or reference")
         out.append(LevelRows(level.name, J, r, G, h, tuple(owners)))
     return out
 
@@ -201,7 +201,7 @@ def solve_level_qp(
     """Solve one QP to the reference's accuracy: Clarabel, then active-set polish, then certify.
 
     Raises:
-        ReferenceError: Neither the polished nor the raw answer meets ``tolerances``.
+        ReferenceSolutionError: Neither the polished nor the raw answer meets ``tolerances``.
     """
     problem = qpsolvers.Problem(
         P, c, G if h.size else None, h if h.size else None, A if b.size else None, b if b.size else None, lb, ub
@@ -235,8 +235,8 @@ def solve_level_qp(
     if certified is not None:
         return certified
     if best is None:
-        raise ReferenceError("no backend found a solution of a reference level QP (feasible by construction)")
-    raise ReferenceError(f"reference level QP not certified: {best.reason}")
+        raise ReferenceSolutionError("no backend found a solution of a reference level QP (feasible by construction)")
+    raise ReferenceSolutionError(f"reference level QP not certified: {best.reason}")
 
 
 def _task_level_qp(
@@ -290,7 +290,7 @@ def solve_reference(
         tolerances: Optimality tolerances of every level QP.
 
     Raises:
-        ReferenceError: A level QP could not be certified.
+        ReferenceSolutionError: A level QP could not be certified.
     """
     n = lb.shape[0]
     qdot = np.clip(np.zeros(n), lb, ub)

@@ -55,7 +55,7 @@ In ``mink`` the return tasks of the safety levels above it so get :math:`\rho, \
 A step calls :func:`mink.build_ik` then :func:`qpsolvers.solve_problem` and divides by ``dt``,
 which is all :func:`mink.solve_ik` does besides a limit check that only logs; the build and solve
 times can so be reported apart. The answer is checked as mink's own problem states it:
-:math:`G\Delta q \le h` to the backend's tolerance (:data:`qp_baseline.hqp.TOLERANCES`, in Δq
+:math:`G\Delta q \le h` to the backend's tolerance (:data:`qp_baseline.backends.BACKENDS`, in Δq
 units). A backend's no-solution or a failed check gives a FAILED step with zero velocity; an
 error of a task (:class:`tpik.TpikError`) propagates, as from every solver.
 """
@@ -74,8 +74,9 @@ import mujoco
 import numpy as np
 import qpsolvers
 
+from qp_baseline.backends import BACKENDS
 from qp_baseline.exceptions import InvalidSettings, UnknownSolver
-from qp_baseline.hqp import TOLERANCES, available_qp_solvers, backend_iterations, backend_kwargs, probe_settings
+from qp_baseline.hqp import available_qp_solvers, backend_iterations, backend_kwargs, probe_settings
 from qp_baseline.mink_kinematics import MinkKinematics
 from qp_baseline.set_rows import SetRowBuilder, SetRows
 from qp_baseline.time_limits import TimeLimited
@@ -103,7 +104,7 @@ class MinkSettings:
             the k-th above it (set-task return tasks) ρ^k.
         configuration_limit_gain: Gain in (0, 1] of :class:`mink.ConfigurationLimit`.
         tolerance: Accepted violation of the returned step's constraints, in Δq units [rad or
-            task unit]; None = the backend's tolerance (:data:`qp_baseline.hqp.TOLERANCES`).
+            task unit]; None = the backend's tolerance (:data:`qp_baseline.backends.BACKENDS`).
         gain_cap: Cap every task gain at 1/dt in the control reference (:mod:`tpik.reference`;
             the same default as TPIK and HQP).
         qp_settings: Keyword arguments forwarded to the QP backend.
@@ -283,7 +284,7 @@ class MinkSolver(TimeLimited):
         self.settings = MinkSettings.from_dict(settings)
         s = self.settings
         self.reference = ControlReference(gain_cap=s.gain_cap)
-        self.tolerance = float(s.tolerance if s.tolerance is not None else TOLERANCES[s.solver])
+        self.tolerance = float(s.tolerance if s.tolerance is not None else BACKENDS[s.solver].tolerance)
         self._qp_kwargs = backend_kwargs(s.solver, s.qp_settings or {})
         self.configuration = mink.Configuration(robot.mj_model)
         nv = robot.nq

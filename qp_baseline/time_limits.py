@@ -33,9 +33,10 @@ import time
 from collections.abc import Callable, Mapping
 from typing import Any, Protocol
 
+from qp_baseline.backends import BACKENDS
 from qp_baseline.exceptions import HqpError
+from tpik.step_result import SolverBase
 
-BACKEND_TIME_LIMIT: dict[str, str] = {"osqp": "time_limit", "clarabel": "time_limit", "daqp": "time_limit"}
 """Backend → name of its time-limit setting [s] (module docstring)."""
 
 CLOCKS: dict[str, Callable[[], float]] = {"wall": time.perf_counter, "cpu": time.thread_time}
@@ -115,11 +116,12 @@ class CallBudget:
             left += self._stolen_s()
         if left <= 0.0:
             raise TimeLimitReached(f"time limit of {1e3 * self.limit_s:.3g} ms reached before the {solver} call")
-        key = BACKEND_TIME_LIMIT.get(solver)
+        backend = BACKENDS.get(solver)
+        key = backend.time_limit_key if backend is not None else None
         return {key: left} if key is not None and self.backend_limits else {}
 
 
-class TimeLimited:
+class TimeLimited(SolverBase):
     """Mixin of the QP-based methods: :meth:`set_time_limit` gives every solve call a :class:`CallBudget`."""
 
     budget: CallBudget | None = None

@@ -33,7 +33,9 @@ import numpy as np
 import pinocchio as pin
 
 from robots.exceptions import InvalidDescription, NotInstalled
-from robots.spec import PACKAGE_URI as _PACKAGE
+
+PACKAGE_URI = "package://"
+"""Scheme of a ROS package path (``package://<name>/<path>``)."""
 
 _REVOLUTE = {"JointModelRX", "JointModelRY", "JointModelRZ", "JointModelRevoluteUnaligned"}
 AGREEMENT_TOL = 1e-9
@@ -65,7 +67,7 @@ def description_format(path: Path, root: ET.Element | None = None) -> str:
 
 
 def package_search_path(extra: Sequence[Path] = ()) -> list[Path]:
-    """Directories searched for ``package://<name>/...``: ``extra``, cmeel prefixes, ``ROS_PACKAGE_PATH``.
+    """Directories searched for ``package://<name>/...``: ``extra``, cmeel prefixes, ``ROSPACKAGE_URI_PATH``.
 
     Each directory holds packages as sub-directories (``<dir>/<name>/...``). pip-installed
     cmeel packages (``example-robot-data``) live in ``<site-packages>/cmeel.prefix/share``.
@@ -75,7 +77,7 @@ def package_search_path(extra: Sequence[Path] = ()) -> list[Path]:
         share = Path(entry or ".") / "cmeel.prefix" / "share"
         if share.is_dir() and share not in dirs:
             dirs.append(share)
-    for entry in os.environ.get("ROS_PACKAGE_PATH", "").split(os.pathsep):
+    for entry in os.environ.get("ROSPACKAGE_URI_PATH", "").split(os.pathsep):
         if entry and Path(entry) not in dirs:
             dirs.append(Path(entry))
     return dirs
@@ -87,21 +89,16 @@ def resolve_package_uri(uri: str, search_path: Iterable[Path]) -> Path:
     Raises:
         NotInstalled: no directory of ``search_path`` holds ``<name>/<rest>``.
     """
-    rest = uri[len(_PACKAGE) :]
+    rest = uri[len(PACKAGE_URI) :]
     name = rest.split("/", 1)[0]
     dirs = list(search_path)
     for d in dirs:
         candidate = d / rest
         if candidate.is_file():
             return candidate
-    where = ", ".join(str(d) for d in dirs) or "nowhere (no cmeel prefix, ROS_PACKAGE_PATH empty)"
+    where = ", ".join(str(d) for d in dirs) or "nowhere (no cmeel prefix, ROSPACKAGE_URI_PATH empty)"
     hint = " (pip install example-robot-data)" if name == "example-robot-data" else ""
     raise NotInstalled(f"package '{name}' not found for {uri}{hint}; searched {where}")
-
-
-def mesh_files(path: Path, root: ET.Element) -> list[str]:
-    """Mesh file names a URDF refers to (``<mesh filename=...>`` of visuals and collisions)."""
-    return [m.get("filename", "") for m in root.iter("mesh")]
 
 
 def missing_files(path: Path, package_dirs: Sequence[Path] = ()) -> str | None:
@@ -116,7 +113,7 @@ def missing_files(path: Path, package_dirs: Sequence[Path] = ()) -> str | None:
     for collision in root.iter("collision"):
         for mesh in collision.iter("mesh"):
             uri = mesh.get("filename", "")
-            if uri.startswith(_PACKAGE):
+            if uri.startswith(PACKAGE_URI):
                 try:
                     resolve_package_uri(uri, search)
                 except NotInstalled as exc:
@@ -156,7 +153,7 @@ def mujoco_spec(path: Path, package_dirs: Sequence[Path] = ()) -> mujoco.MjSpec:
         search = package_search_path(package_dirs)
         for mesh in spec.meshes:
             uri = mesh.file
-            if uri.startswith(_PACKAGE):
+            if uri.startswith(PACKAGE_URI):
                 mesh.file = str(resolve_package_uri(uri, search))
             elif not Path(uri).is_absolute():
                 mesh.file = str((path.parent / uri).resolve())

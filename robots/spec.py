@@ -20,9 +20,8 @@ from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from robots.description import PACKAGE_URI, package_search_path, resolve_package_uri
 from robots.exceptions import InvalidSpec
-
-PACKAGE_URI = "package://"
 
 
 @dataclass(frozen=True)
@@ -71,8 +70,6 @@ class RobotSpec:
     def __post_init__(self) -> None:
         description = self.description
         if isinstance(description, str) and description.startswith(PACKAGE_URI):
-            from robots.description import package_search_path, resolve_package_uri
-
             description = resolve_package_uri(description, package_search_path(self.package_dirs))
         object.__setattr__(self, "description", Path(description))
         if self.workcell is not None:

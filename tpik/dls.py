@@ -194,33 +194,6 @@ def cholesky_solve(S: np.ndarray, shift: float, r: np.ndarray, m: int, L: np.nda
 
 
 @numba.njit(cache=True, nogil=True)
-def gram_dls(
-    S: np.ndarray, r: np.ndarray, m: int, velocity_norm_max: float, rank_tol: float, work: np.ndarray, y: np.ndarray
-) -> float:
-    r"""Damped least squares in Gram coordinates: :math:`y = (S + \lambda^2 I)^{-1} r`.
-
-    :func:`gram_dls_star` with :math:`\sigma^* = \|r\|/\|\dot q\|_{\max}` (the reference
-    of the level in place of the paper's task error, see :class:`tpik.solver.TpikSettings`).
-
-    Args:
-        S: :math:`BB^T`; leading m × m block used.
-        r: Level reference [task unit/s]; first m entries used.
-        m: Number of rows of the level.
-        velocity_norm_max: :math:`\|\dot q\|_{\max}` [rad/s].
-        rank_tol: Rank tolerance on singular values.
-        work: Workspace, at least m × m.
-        y: Output, at least m entries.
-
-    Returns:
-        λ.
-    """
-    rn2 = 0.0
-    for i in range(m):
-        rn2 += r[i] * r[i]
-    return gram_dls_star(S, r, m, math.sqrt(rn2) / velocity_norm_max, rank_tol, work, y)
-
-
-@numba.njit(cache=True, nogil=True)
 def gram_dls_star(
     S: np.ndarray, r: np.ndarray, m: int, sigma_star: float, rank_tol: float, work: np.ndarray, y: np.ndarray
 ) -> float:

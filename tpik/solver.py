@@ -92,7 +92,7 @@ from tpik.exceptions import InvalidSettings, InvalidTaskState, TpikError
 from tpik.hierarchy import Hierarchy
 from tpik.limits import Limit, VelocityLimit, compose_box, scale_into_box
 from tpik.reference import ControlReference
-from tpik.step_result import SolveStatus, StepResult, failed
+from tpik.step_result import SolverBase, SolveStatus, StepResult, failed
 from tpik.step_rows import (
     OUT_CANDIDATES,
     OUT_EVALUATED,
@@ -199,11 +199,6 @@ class TpikSettings:
             _check_number("velocity_norm_max", self.velocity_norm_max)
         _check_number("rank_tolerance", self.rank_tolerance)
         _check_number("admissibility_tolerance", self.admissibility_tolerance, allow_zero=True)
-
-    @property
-    def selection_rule(self) -> str:
-        """The rule used among admissible modes (``selection``)."""
-        return self.selection
 
     @property
     def deviations(self) -> tuple[str, ...]:
@@ -360,7 +355,7 @@ def _frame_buffers(
     return True, (chain[0], chain[1], frame_parent, frame_t, support)
 
 
-class TpikSolver:
+class TpikSolver(SolverBase):
     """Set-based task-priority inverse kinematics (the paper's solver); see the module docstring.
 
     Args:

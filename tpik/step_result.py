@@ -9,6 +9,8 @@ from typing import TYPE_CHECKING, Any, Protocol
 
 import numpy as np
 
+from tpik.reference import DEFAULT_REFERENCE, ControlReference
+
 if TYPE_CHECKING:
     from robots import Kinematics
     from tpik.hierarchy import Hierarchy
@@ -43,6 +45,7 @@ class StepResult:
         damping: Damping λ used per level name (DLS; 0 = undamped).
         message: Why the status is not OK (empty otherwise).
         extras: Solver-specific data (slacks, iterations, candidate count, ...).
+        deadline_miss: No answer within the time limit (the velocity is the fallback's zero).
     """
 
     qdot: np.ndarray
@@ -53,6 +56,7 @@ class StepResult:
     damping: dict[str, float] = field(default_factory=dict)
     message: str = ""
     extras: dict[str, Any] = field(default_factory=dict)
+    deadline_miss: bool = False
 
     def __iter__(self) -> Iterator[Any]:
         yield self.qdot
@@ -63,22 +67,51 @@ class StepResult:
         """Whether a usable velocity was produced (OK or DEGRADED)."""
         return self.status is not SolveStatus.FAILED
 
-    @property
-    def total_time_s(self) -> float:
-        """Build + solve time [s]."""
-        return self.build_time_s + self.solve_time_s
-
 
 class IkSolver(Protocol):
-    """The one interface of TPIK, HQP and the mink peer: ``solve(hierarchy, kin, dt)``."""
+    """The one interface of TPIK, HQP, the mink peer and every wrapper the loop puts around them.
+
+    Attributes:
+        name: The method's name.
+        reference: The control reference it tracks (:mod:`tpik.reference`); the loop judges its
+            steps against the same one.
+    """
 
     name: str
+    reference: ControlReference
 
     def solve(self, hierarchy: Hierarchy, kin: Kinematics, dt: float) -> StepResult:
         """One control step: joint velocities for the hierarchy at ``kin.q`` over ``dt`` [s]."""
         ...
 
+    def set_time_limit(self, limit_s: float | None, clock: Any = "wall") -> None:
+        """Limit every later ``solve`` to ``limit_s`` [s] on ``clock`` (None: no limit)."""
+        ...
 
-def failed(n: int, message: str, **extras: Any) -> StepResult:
+    def close(self) -> None:
+        """Release what the solver holds (threads, processes); it is not used afterwards."""
+        ...
+
+
+class SolverBase:
+    """The parts of :class:`IkSolver` a solver may leave as they are.
+
+    The default reference, no time budget of its own (a time limit is then enforced around it
+    only), nothing to release.
+    """
+
+    name: str = "solver"
+    reference: ControlReference = DEFAULT_REFERENCE
+
+    def set_time_limit(self, limit_s: float | None, clock: Any = "wall") -> None:
+        """Nothing to do: the solver has no budget of its own."""
+
+    def close(self) -> None:
+        """Nothing to release."""
+
+
+def failed(n: int, message: str, deadline_miss: bool = False, **extras: Any) -> StepResult:
     """A FAILED result with a zero (safe) velocity of size ``n``."""
-    return StepResult(np.zeros(n), SolveStatus.FAILED, message=message, extras=dict(extras))
+    return StepResult(
+        np.zeros(n), SolveStatus.FAILED, message=message, deadline_miss=deadline_miss, extras=dict(extras)
+    )

@@ -56,7 +56,9 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from compare.analysis.metrics import VIOLATION_TOLERANCE, margins
+from compare.analysis.critical_speed_results import CLAIMS_FILE, DETAIL_FILE
+from compare.analysis.metrics import VIOLATION_TOLERANCE, margins, set_task_infos
+from compare.analysis.person_speeds import keyframe_speeds
 
 SETTLE_S = 1.0
 """Time after the first obstacle activation before "the arm stops" is measured [s]."""
@@ -193,8 +195,6 @@ def person_timeline(keyframes: Sequence[Any], time_scale: float = 1.0) -> Person
 
 def context_from_config(config: Any) -> ClaimContext | None:
     """The claim context of a scripted case config (:class:`compare.config.Config`); None otherwise."""
-    from compare.run import set_task_infos
-
     kind = config.scenario.kind
     if kind not in ("case1", "case2"):
         return None
@@ -612,7 +612,6 @@ def claims_report(paths: Sequence[Path], labels: Sequence[str] | None = None) ->
         ValueError: ``labels`` does not match ``paths``.
     """
     from compare.analysis.results import load_summary
-    from compare.campaign.critical_speed import CLAIMS_FILE, DETAIL_FILE, person_speeds
     from compare.config import load_config
 
     if labels and len(labels) != len(paths):
@@ -637,7 +636,7 @@ def claims_report(paths: Sequence[Path], labels: Sequence[str] | None = None) ->
             data[label] = stored
         elif (path / "summary.json").is_file():
             config, _ = load_config(path / "config.toml")
-            torso, hand = person_speeds(config)
+            torso, hand = keyframe_speeds(config)
             scenario = load_summary(path).get("scenario", path.name)
             label = labels[k] if labels else f"{scenario} (torso {torso:.2g} m/s, hand {hand:.2g} m/s)"
             per_method = claims_for_run(path)

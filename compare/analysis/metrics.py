@@ -69,6 +69,7 @@ import numpy as np
 import pandas as pd
 
 from compare.exceptions import CompareError
+from tpik.hierarchy import Hierarchy
 
 GROUPS: tuple[str, ...] = ("joint_limits", "walls", "obstacles")
 """The DESIGN §7 set-task groups, always in ``summary.json`` (``None`` when the run has none).
@@ -132,6 +133,17 @@ class SetTaskInfo:
             safety_upper=bound("safety_upper", math.inf),
             physical_upper=bound("physical_upper", math.inf),
         )
+
+
+def set_task_infos(hierarchy: Hierarchy) -> tuple[SetTaskInfo, ...]:
+    """Group (:attr:`tpik.tasks.SetTask.group`) and thresholds of every set-based task, for the metrics."""
+    infos = []
+    for task in hierarchy.set_tasks:
+        th = task.thresholds
+        infos.append(
+            SetTaskInfo(task.name, task.group, th.physical_lower, th.safety_lower, th.safety_upper, th.physical_upper)
+        )
+    return tuple(infos)
 
 
 @dataclass(frozen=True)

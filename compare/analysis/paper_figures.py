@@ -27,15 +27,16 @@ import numpy as np
 import pandas as pd
 from matplotlib.axes import Axes
 from matplotlib.figure import Figure
+from matplotlib.lines import Line2D
 
 from compare.analysis.claims import activated
-from compare.analysis.plots import (
+from compare.analysis.plot_style import (
     ACTIVE_STYLE,
     PLOTS_DIR,
     SAFETY_STYLE,
-    _figure,
-    _finite,
-    _save,
+    figure,
+    finite,
+    save_figure,
     wall_axis,
 )
 from compare.analysis.results import load_steps, load_summary
@@ -43,6 +44,8 @@ from compare.analysis.results import load_steps, load_summary
 log = logging.getLogger(__name__)
 
 PERSON_STYLE: dict[str, Any] = {"color": "0.5", "alpha": 0.12, "linewidth": 0}
+TRUE_STYLE: dict[str, Any] = {"color": "tab:blue"}
+MEASURED_STYLE: dict[str, Any] = {"color": "tab:green", "linestyle": "--", "linewidth": 0.8}
 
 
 def _band(ax: Axes, t: np.ndarray, mask: np.ndarray, style: dict[str, Any], label: str | None = None) -> None:
@@ -57,7 +60,7 @@ def _person_mask(t: np.ndarray, timeline: Any) -> np.ndarray:
 
 
 def _grid(rows: int, cols: int, height_per_row: float) -> tuple[Any, Any]:
-    fig, axes = _figure(rows, cols, height_in=height_per_row * rows + 0.9, width_in=max(6.0, 3.6 * cols))
+    fig, axes = figure(rows, cols, height_in=height_per_row * rows + 0.9, width_in=max(6.0, 3.6 * cols))
     for ax in axes.flat[1:]:
         ax.sharex(axes.flat[0])
     for r in range(rows):
@@ -79,7 +82,7 @@ def _fig_ee_error(data: list[tuple[str, pd.DataFrame]], ctx: Any) -> Figure:
         ax = axes[0, col]
         t = steps["t"].to_numpy(dtype=float)
         _band(ax, t, _person_mask(t, ctx.person), PERSON_STYLE, "person in" if col == 0 else None)
-        ax.plot(t, _finite(steps["ee_error_m"]), color="tab:blue")
+        ax.plot(t, finite(steps["ee_error_m"]), color="tab:blue")
         ax.set_title(name)
         ax.set_xlabel("t [s]")
         _frame(ax, "EE position error [m]", col)
@@ -93,32 +96,47 @@ def _fig_ee_error(data: list[tuple[str, pd.DataFrame]], ctx: Any) -> Figure:
 def _fig_distances(data: list[tuple[str, pd.DataFrame]], ctx: Any, title: str) -> Figure:
     tasks = ctx.group("obstacles")
     fig, axes = _grid(len(tasks), len(data), 1.9)
+    columns = [f"dist_{kind}:{cp}" for cp in ctx.control_points for kind in ("true", "meas")]
+    peak = max(
+        (
+            float(np.nanmax(v))
+            for _, steps in data
+            for c in columns
+            if c in steps
+            for v in [finite(steps[c])]
+            if np.any(np.isfinite(v))
+        ),
+        default=0.0,
+    )
+    top = min(3.0, max(1.2, 1.05 * peak))  # the paper's 1.2 m, more when a distance is above it
+    drawn = {"true": False, "measured": False}
     for col, (name, steps) in enumerate(data):
         t = steps["t"].to_numpy(dtype=float)
         for row, (task, cp) in enumerate(zip(tasks, ctx.control_points, strict=True)):
             ax = axes[row, col]
             _band(ax, t, _person_mask(t, ctx.person), PERSON_STYLE)
             _band(ax, t, activated(steps, task), ACTIVE_STYLE, "task active (eq. 7)" if row == col == 0 else None)
-            if f"dist_true:{cp}" in steps.columns:
-                first = row == col == 0
-                ax.plot(t, _finite(steps[f"dist_true:{cp}"]), color="tab:blue", label="true" if first else None)
-            if f"dist_meas:{cp}" in steps.columns:
-                ax.plot(
-                    t,
-                    _finite(steps[f"dist_meas:{cp}"]),
-                    color="tab:green",
-                    linestyle="--",
-                    linewidth=0.8,
-                    label="measured" if row == col == 0 else None,
-                )
+            for kind, column, style in (
+                ("true", f"dist_true:{cp}", TRUE_STYLE),
+                ("measured", f"dist_meas:{cp}", MEASURED_STYLE),
+            ):
+                if column in steps.columns:
+                    values = finite(steps[column])
+                    ax.plot(t, values, **style)
+                    drawn[kind] |= bool(np.any(np.isfinite(values)))
             ax.axhline(task.safety_lower, **SAFETY_STYLE)
             _frame(ax, f"{cp} [m]", col)
-            ax.set_ylim(0.0, 1.2)
+            ax.set_ylim(0.0, top)
             if row == 0:
                 ax.set_title(name)
         axes[-1, col].set_xlabel("t [s]")
     fig.suptitle(title)
-    axes[0, 0].legend(fontsize="x-small", loc="upper right")
+    handles, labels = axes[0, 0].get_legend_handles_labels()
+    for kind, style in (("true", TRUE_STYLE), ("measured", MEASURED_STYLE)):
+        if drawn[kind]:  # a legend entry only for a line drawn somewhere
+            handles.append(Line2D([], [], **style))
+            labels.append(kind)
+    axes[0, 0].legend(handles, labels, fontsize="x-small", loc="upper right")
     return fig
 
 
@@ -131,7 +149,7 @@ def _fig_joints(data: list[tuple[str, pd.DataFrame]], ctx: Any, title: str) -> F
             ax = axes[row, col]
             _band(ax, t, _person_mask(t, ctx.person), PERSON_STYLE)
             _band(ax, t, activated(steps, task), ACTIVE_STYLE)
-            ax.plot(t, _finite(steps[f"sigma:{task.name}"]), color="tab:blue")
+            ax.plot(t, finite(steps[f"sigma:{task.name}"]), color="tab:blue")
             ax.axhline(task.safety_lower, **SAFETY_STYLE)
             ax.axhline(task.safety_upper, **SAFETY_STYLE)
             _frame(ax, f"{task.name} [rad]", col)
@@ -152,7 +170,7 @@ def _fig_ee_walls(data: list[tuple[str, pd.DataFrame]], ctx: Any) -> Figure:
         for row, axis in enumerate("xyz"):
             ax = axes[row, col]
             _band(ax, t, _person_mask(t, ctx.person), PERSON_STYLE)
-            ax.plot(t, _finite(steps[f"ee_{axis}"]), color="tab:blue")
+            ax.plot(t, finite(steps[f"ee_{axis}"]), color="tab:blue")
             _frame(ax, f"EE {axis} [m]", col)
             if row == 0:
                 ax.set_title(name)
@@ -176,7 +194,7 @@ def _fig_ee_path(data: list[tuple[str, pd.DataFrame]], ctx: Any, config: Any) ->
     from compare.sensing.person import Person
     from compare.sensing.scene import load_workcell
 
-    fig, axes = _figure(1, len(data), height_in=3.8, width_in=max(6.0, 3.6 * len(data)))
+    fig, axes = figure(1, len(data), height_in=3.8, width_in=max(6.0, 3.6 * len(data)))
     person = Person(
         load_workcell(config.scenario.robot), config.person.keyframes, time_scale=config.scenario.time_scale
     )
@@ -264,4 +282,4 @@ def paper_figures(results_dir: Path) -> dict[str, Figure]:
 def plot_paper_figures(results_dir: Path) -> list[Path]:
     """Write :func:`paper_figures` of a run directory to ``plots/<name>.png``; returns the files."""
     out = Path(results_dir) / PLOTS_DIR
-    return [_save(fig, out / f"{name}.png") for name, fig in paper_figures(results_dir).items()]
+    return [save_figure(fig, out / f"{name}.png") for name, fig in paper_figures(results_dir).items()]

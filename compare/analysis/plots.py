@@ -19,11 +19,8 @@ from typing import Any
 import numpy as np
 import pandas as pd
 from matplotlib.axes import Axes
-from matplotlib.backends.backend_agg import FigureCanvasAgg
-from matplotlib.figure import Figure
 from matplotlib.ticker import FuncFormatter, LogLocator, NullFormatter
 
-from compare.analysis.atomic_files import atomic_write
 from compare.analysis.metrics import (
     GROUPS,
     VIOLATION_TOLERANCE,
@@ -32,39 +29,26 @@ from compare.analysis.metrics import (
     set_tasks_from_summary,
     summary_groups,
 )
+from compare.analysis.paper_figures import plot_paper_figures
+from compare.analysis.plot_style import (
+    ACTIVE_STYLE,
+    OCCLUDED_STYLE,
+    PHYSICAL_STYLE,
+    PLOTS_DIR,
+    SAFETY_STYLE,
+    figure,
+    finite,
+    method_colors,
+    save_figure,
+    wall_axis,
+)
 from compare.analysis.results import RUNS_DIR, collect_sweep, load_steps, load_summary, safe_name, summarize_sweep_rows
 from compare.analysis.statistics import rate_value
 
 log = logging.getLogger(__name__)
 
-PLOTS_DIR = "plots"
-DPI = 110
 GROUP_UNITS = {"joint_limits": "rad", "walls": "m", "obstacles": "m"}
 GROUP_TITLES = {"joint_limits": "joint limits", "walls": "virtual walls", "obstacles": "obstacles"}
-SAFETY_STYLE: dict[str, Any] = {"color": "tab:red", "linestyle": "-", "linewidth": 1.2}
-PHYSICAL_STYLE: dict[str, Any] = {"color": "tab:red", "linestyle": ":", "linewidth": 1.0}
-ACTIVE_STYLE: dict[str, Any] = {"color": "tab:orange", "alpha": 0.15, "linewidth": 0}
-OCCLUDED_STYLE: dict[str, Any] = {"color": "tab:purple", "marker": ".", "markersize": 3, "linestyle": "none"}
-
-
-def _figure(nrows: int = 1, ncols: int = 1, height_in: float = 3.2, width_in: float = 8.0) -> tuple[Figure, Any]:
-    fig = Figure(figsize=(width_in, height_in), layout="constrained")
-    FigureCanvasAgg(fig)
-    axes = fig.subplots(nrows, ncols, squeeze=False)
-    return fig, axes
-
-
-def _save(fig: Figure, path: Path) -> Path:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    atomic_write(path, lambda tmp: fig.savefig(tmp, dpi=DPI, format=path.suffix.lstrip(".") or "png"))
-    return path
-
-
-def _finite(x: pd.Series | np.ndarray) -> np.ndarray:
-    """Float array with ±inf replaced by NaN (gaps in the line instead of broken autoscale)."""
-    arr = np.asarray(x, dtype=float).copy()
-    arr[~np.isfinite(arr)] = np.nan
-    return arr
 
 
 def _shade(ax: Axes, t: np.ndarray, mask: np.ndarray | None, label: str | None = None) -> None:
@@ -117,10 +101,10 @@ def _hline(ax: Axes, y: float, style: dict[str, Any], label: str | None = None) 
 
 def plot_ee_error(steps: pd.DataFrame, method: str, path: Path, tolerance_m: float | None = None) -> Path:
     """EE position error over time (paper Fig. 3), waypoint switches as vertical lines."""
-    fig, axes = _figure()
+    fig, axes = figure()
     ax = axes[0, 0]
     t = steps["t"].to_numpy(dtype=float)
-    ax.plot(t, _finite(steps["ee_error_m"]), color="tab:blue", label="‖p_d − p‖")
+    ax.plot(t, finite(steps["ee_error_m"]), color="tab:blue", label="‖p_d − p‖")
     if "waypoint" in steps.columns:
         wp = steps["waypoint"].to_numpy()
         for i in np.flatnonzero(wp[1:] != wp[:-1]) + 1:
@@ -131,7 +115,7 @@ def plot_ee_error(steps: pd.DataFrame, method: str, path: Path, tolerance_m: flo
     ax.set_ylim(bottom=0.0)
     ax.grid(alpha=0.3)
     _legend_outside(ax)
-    return _save(fig, path)
+    return save_figure(fig, path)
 
 
 def plot_distances(
@@ -151,7 +135,7 @@ def plot_distances(
     cps = [
         cp
         for cp in control_points
-        if any(_has_data(_finite(steps[c])) for c in (f"dist_true:{cp}", f"dist_meas:{cp}") if c in steps.columns)
+        if any(_has_data(finite(steps[c])) for c in (f"dist_true:{cp}", f"dist_meas:{cp}") if c in steps.columns)
     ]
     if not cps and not obstacle_tasks:
         return None
@@ -159,15 +143,15 @@ def plot_distances(
     if not cps:
         return None
     t = steps["t"].to_numpy(dtype=float)
-    fig, axes = _figure(len(cps), 1, height_in=2.2 * len(cps) + 0.6)
+    fig, axes = figure(len(cps), 1, height_in=2.2 * len(cps) + 0.6)
     for ax, cp in zip(axes[:, 0], cps, strict=True):
         for kind, style in (("true", {"color": "tab:blue"}), ("meas", {"color": "tab:green", "linestyle": "--"})):
-            d = _finite(steps[f"dist_{kind}:{cp}"]) if f"dist_{kind}:{cp}" in steps.columns else np.array([np.nan])
+            d = finite(steps[f"dist_{kind}:{cp}"]) if f"dist_{kind}:{cp}" in steps.columns else np.array([np.nan])
             if _has_data(d):
                 ax.plot(t, d, label="true" if kind == "true" else "measured", **style)
         occluded = _occluded(steps, cp)
         if occluded is not None:
-            meas = _finite(steps[f"dist_meas:{cp}"])
+            meas = finite(steps[f"dist_meas:{cp}"])
             ax.plot(t[occluded], meas[occluded], **OCCLUDED_STYLE, label="assumed (occluded)")
         own = [task for task in obstacle_tasks if task.name.endswith(cp)] or list(obstacle_tasks)
         for k, value in enumerate(sorted({task.safety_lower for task in own})):
@@ -190,7 +174,7 @@ def plot_distances(
             list(entries.values()), list(entries), loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize="small"
         )
     axes[-1, 0].set_xlabel("t [s]")
-    return _save(fig, path)
+    return save_figure(fig, path)
 
 
 def plot_joints(steps: pd.DataFrame, method: str, joint_tasks: Sequence[SetTaskInfo], path: Path) -> Path | None:
@@ -199,9 +183,9 @@ def plot_joints(steps: pd.DataFrame, method: str, joint_tasks: Sequence[SetTaskI
     if not tasks:
         return None
     t = steps["t"].to_numpy(dtype=float)
-    fig, axes = _figure(len(tasks), 1, height_in=2.0 * len(tasks) + 0.6)
+    fig, axes = figure(len(tasks), 1, height_in=2.0 * len(tasks) + 0.6)
     for ax, task in zip(axes[:, 0], tasks, strict=True):
-        ax.plot(t, _finite(steps[f"sigma:{task.name}"]), color="tab:blue", label="q")
+        ax.plot(t, finite(steps[f"sigma:{task.name}"]), color="tab:blue", label="q")
         _hline(ax, task.safety_lower, SAFETY_STYLE, "safety limits")
         _hline(ax, task.safety_upper, SAFETY_STYLE)
         _hline(ax, task.physical_lower, PHYSICAL_STYLE, "physical limits")
@@ -212,31 +196,7 @@ def plot_joints(steps: pd.DataFrame, method: str, joint_tasks: Sequence[SetTaskI
     axes[0, 0].set_title(f"{method}: joints with limits")
     _legend_outside(axes[0, 0])
     axes[-1, 0].set_xlabel("t [s]")
-    return _save(fig, path)
-
-
-def wall_axis(steps: pd.DataFrame, task: SetTaskInfo, tol_m: float = 1e-6) -> tuple[int, float, float] | None:
-    """Recognise an axis-aligned wall on the end effector from the data.
-
-    A wall ``σ = s·p_a − d`` (s = ±1, a ∈ {x, y, z}) has ``s·ee_a − σ`` constant over the run.
-
-    Returns:
-        ``(axis index, s, d)``, or None when σ is not such a function of the EE position.
-    """
-    sigma = steps[f"sigma:{task.name}"].to_numpy(dtype=float)
-    for a, axis in enumerate("xyz"):
-        col = f"ee_{axis}"
-        if col not in steps.columns:
-            continue
-        p = steps[col].to_numpy(dtype=float)
-        ok = np.isfinite(p) & np.isfinite(sigma)
-        if not np.any(ok):
-            continue
-        for s in (1.0, -1.0):
-            d = s * p[ok] - sigma[ok]
-            if np.ptp(d) < tol_m:
-                return a, s, float(np.median(d))
-    return None
+    return save_figure(fig, path)
 
 
 def plot_ee_walls(steps: pd.DataFrame, method: str, wall_tasks: Sequence[SetTaskInfo], path: Path) -> Path | None:
@@ -248,7 +208,7 @@ def plot_ee_walls(steps: pd.DataFrame, method: str, wall_tasks: Sequence[SetTask
     if not tasks or not all(f"ee_{a}" in steps.columns for a in "xyz"):
         return None
     t = steps["t"].to_numpy(dtype=float)
-    fig, axes = _figure(3, 1, height_in=7.0)
+    fig, axes = figure(3, 1, height_in=7.0)
     unmatched = []
     placed: list[list[tuple[SetTaskInfo, float, float]]] = [[], [], []]
     for task in tasks:
@@ -259,9 +219,9 @@ def plot_ee_walls(steps: pd.DataFrame, method: str, wall_tasks: Sequence[SetTask
             a, s, d = found
             placed[a].append((task, s, d))
     for a, (ax, axis) in enumerate(zip(axes[:, 0], "xyz", strict=True)):
-        ax.plot(t, _finite(steps[f"ee_{axis}"]), color="tab:blue", label=f"EE {axis}")
+        ax.plot(t, finite(steps[f"ee_{axis}"]), color="tab:blue", label=f"EE {axis}")
         if f"target_{axis}" in steps.columns:
-            ax.plot(t, _finite(steps[f"target_{axis}"]), color="0.5", linestyle="--", linewidth=0.8, label="target")
+            ax.plot(t, finite(steps[f"target_{axis}"]), color="0.5", linestyle="--", linewidth=0.8, label="target")
         for k, (task, s, d) in enumerate(placed[a]):
             # σ = s·p − d  ⇒  the threshold σ* sits at p = (σ* + d)/s.
             _hline(ax, (task.safety_lower + d) / s, SAFETY_STYLE, "wall (safety)" if k == 0 else None)
@@ -275,7 +235,7 @@ def plot_ee_walls(steps: pd.DataFrame, method: str, wall_tasks: Sequence[SetTask
         title += f"\n(not axis-aligned on the EE, not drawn: {', '.join(unmatched)})"
     axes[0, 0].set_title(title)
     axes[-1, 0].set_xlabel("t [s]")
-    return _save(fig, path)
+    return save_figure(fig, path)
 
 
 def plot_iso15066(steps: pd.DataFrame, method: str, control_points: Sequence[str], path: Path) -> Path | None:
@@ -286,15 +246,15 @@ def plot_iso15066(steps: pd.DataFrame, method: str, control_points: Sequence[str
     run has no ``iso_margin_m:*`` column or the person was never within range.
     """
     cps = [cp for cp in control_points if f"iso_margin_m:{cp}" in steps.columns]
-    if not cps or not any(_has_data(_finite(steps[f"iso_margin_m:{cp}"])) for cp in cps):
+    if not cps or not any(_has_data(finite(steps[f"iso_margin_m:{cp}"])) for cp in cps):
         return None
     t = steps["t"].to_numpy(dtype=float)
-    fig, axes = _figure(2, 1, height_in=6.0)
+    fig, axes = figure(2, 1, height_in=6.0)
     top, bottom = axes[0, 0], axes[1, 0]
-    colors = _colors(list(cps))
+    colors = method_colors(list(cps))
     below = np.zeros(len(t), dtype=bool)
     for cp in cps:
-        m = _finite(steps[f"iso_margin_m:{cp}"])
+        m = finite(steps[f"iso_margin_m:{cp}"])
         top.plot(t, m, color=colors[cp], label=cp)
         with np.errstate(invalid="ignore"):
             below |= np.nan_to_num(m, nan=0.0) < 0.0
@@ -302,7 +262,7 @@ def plot_iso15066(steps: pd.DataFrame, method: str, control_points: Sequence[str
             col = f"iso_{kind}:{cp}"
             if col in steps.columns:
                 label = f"{cp} v_h (estimated)" if kind == "vh_mps" else f"{cp} v_r"
-                bottom.plot(t, _finite(steps[col]), color=colors[cp], linestyle=style, label=label)
+                bottom.plot(t, finite(steps[col]), color=colors[cp], linestyle=style, label=label)
     top.axhline(0.0, label="S_p reached", **SAFETY_STYLE)
     if np.any(below):
         top.fill_between(
@@ -315,7 +275,7 @@ def plot_iso15066(steps: pd.DataFrame, method: str, control_points: Sequence[str
     bottom.set_ylim(bottom=0.0)
     bottom.grid(alpha=0.3)
     _legend_outside(bottom)
-    return _save(fig, path)
+    return save_figure(fig, path)
 
 
 def _annotated_point(ax: Axes, x: float, x_hi: float | None, y: float, label: str, color: Any) -> None:
@@ -336,8 +296,8 @@ def plot_comparison(methods: dict[str, dict[str, Any]], path: Path, title: str =
     every = dict.fromkeys([*GROUPS, *(g for m in methods.values() for g in summary_groups(m))])
     groups = [g for g in every if any(group_summary(m, g) is not None for m in methods.values())]
     panels = groups or ["ee_error"]
-    fig, axes = _figure(1, len(panels), height_in=4.0, width_in=max(5.0, 4.2 * len(panels)))
-    colors = _colors(list(methods))
+    fig, axes = figure(1, len(panels), height_in=4.0, width_in=max(5.0, 4.2 * len(panels)))
+    colors = method_colors(list(methods))
     for ax, panel in zip(axes[0], panels, strict=True):
         skipped = []
         for name, m in methods.items():
@@ -363,14 +323,7 @@ def plot_comparison(methods: dict[str, dict[str, Any]], path: Path, title: str =
         ax.grid(alpha=0.3, which="both")
     if title:
         fig.suptitle(title)
-    return _save(fig, path)
-
-
-def _colors(names: list[str]) -> dict[str, Any]:
-    from matplotlib import colormaps
-
-    cmap = colormaps["tab10"]
-    return {name: cmap(i % 10) for i, name in enumerate(names)}
+    return save_figure(fig, path)
 
 
 def _plot_method(steps: pd.DataFrame, name: str, msum: dict[str, Any], out: Path) -> list[Path]:
@@ -429,8 +382,6 @@ def plot_run(results_dir: Path) -> list[Path]:
         path = plot_comparison(methods, out / "comparison.png", title)
         if path is not None:
             paths.append(path)
-        from compare.analysis.paper_figures import plot_paper_figures  # the methods side by side
-
         paths += plot_paper_figures(results_dir)
     return paths
 
@@ -457,10 +408,10 @@ def plot_sweep(sweep_dir: Path) -> list[Path]:
         log.warning("no finished runs in %s: no sweep plots", sweep_dir)
         return paths
     methods = list(dict.fromkeys(ok["method"]))
-    colors = _colors(methods)
+    colors = method_colors(methods)
     aggregates = summarize_sweep_rows(runs)
 
-    fig, axes = _figure(1, 2, height_in=4.2, width_in=11.0)
+    fig, axes = figure(1, 2, height_in=4.2, width_in=11.0)
     left, right = axes[0]
     for name in methods:
         agg = aggregates.get(name) or {}
@@ -496,10 +447,10 @@ def plot_sweep(sweep_dir: Path) -> list[Path]:
     right.legend(fontsize="small")
     scenario = ok["scenario"].dropna().iloc[0] if "scenario" in ok.columns and ok["scenario"].notna().any() else ""
     fig.suptitle(f"sweep {scenario}: {ok['run'].nunique()} runs, cost vs safety")
-    paths.append(_save(fig, out / "sweep_comparison.png"))
+    paths.append(save_figure(fig, out / "sweep_comparison.png"))
 
     if "min_obstacle_distance_m" in ok.columns:
-        fig, axes = _figure(height_in=4.0, width_in=7.0)
+        fig, axes = figure(height_in=4.0, width_in=7.0)
         ax = axes[0, 0]
         drawn = False
         for name in methods:
@@ -518,7 +469,7 @@ def plot_sweep(sweep_dir: Path) -> list[Path]:
         ax.grid(alpha=0.3)
         if drawn or threshold is not None:
             ax.legend(fontsize="small", loc="lower right")
-        paths.append(_save(fig, out / "sweep_min_distance_cdf.png"))
+        paths.append(save_figure(fig, out / "sweep_min_distance_cdf.png"))
     return paths
 
 
@@ -535,7 +486,7 @@ def plot_campaign(sweep_dir: Path) -> list[Path]:
     if ok.empty:
         return []
     methods = list(dict.fromkeys(ok["method"]))
-    colors = _colors(methods)
+    colors = method_colors(methods)
     paths: list[Path] = []
     for draw in (_plot_sweep_iso_cdf, _plot_sweep_solve_vs_violation):
         try:
@@ -562,7 +513,7 @@ def _plot_sweep_iso_cdf(ok: pd.DataFrame, methods: list[str], colors: dict[str, 
     """``sweep_iso_margin_cdf.png``: CDF of each run's minimum ISO/TS 15066 margin, per method."""
     if "iso_min_margin_m" not in ok.columns:
         return None
-    fig, axes = _figure(height_in=4.0, width_in=7.0)
+    fig, axes = figure(height_in=4.0, width_in=7.0)
     ax = axes[0, 0]
     drawn = False
     for name in methods:
@@ -580,7 +531,7 @@ def _plot_sweep_iso_cdf(ok: pd.DataFrame, methods: list[str], colors: dict[str, 
     ax.set_ylim(0.0, 1.02)
     ax.grid(alpha=0.3)
     ax.legend(fontsize="small", loc="lower right")
-    return _save(fig, out / "sweep_iso_margin_cdf.png")
+    return save_figure(fig, out / "sweep_iso_margin_cdf.png")
 
 
 def _plot_sweep_solve_vs_violation(
@@ -593,7 +544,7 @@ def _plot_sweep_solve_vs_violation(
     panels = [g for g in ("joint_limits", "walls") if f"{g}_safety_margin_min" in ok.columns]
     if not panels or "solve_p99_us" not in ok.columns:
         return None
-    fig, axes = _figure(1, len(panels), height_in=4.2, width_in=5.5 * len(panels))
+    fig, axes = figure(1, len(panels), height_in=4.2, width_in=5.5 * len(panels))
     for ax, group in zip(axes[0], panels, strict=True):
         for name in methods:
             rows = ok[ok["method"] == name]
@@ -614,7 +565,7 @@ def _plot_sweep_solve_vs_violation(
         if ax.get_legend_handles_labels()[0]:
             ax.legend(fontsize="small")
     fig.suptitle("solve time vs safety, one point per run")
-    return _save(fig, out / "sweep_solve_vs_violation.png")
+    return save_figure(fig, out / "sweep_solve_vs_violation.png")
 
 
 def _sweep_obstacle_threshold(sweep_dir: Path, ok: pd.DataFrame) -> float | None:

@@ -14,20 +14,26 @@ from pathlib import Path
 
 import numpy as np
 
-from compare.analysis.plots import PHYSICAL_STYLE, PLOTS_DIR, SAFETY_STYLE, _colors, _figure, _save
+from compare.analysis.critical_speed_results import (
+    HAND_RANGE_MPS,
+    PLOT_FILE,
+    TORSO_RANGE_MPS,
+    hand_speed,
+    load_critical,
+    log_map,
+)
+from compare.analysis.plot_style import PHYSICAL_STYLE, PLOTS_DIR, SAFETY_STYLE, figure, method_colors, save_figure
 
 __all__ = ["PLOTS_DIR", "plot_critical_speed"]
 
 
 def plot_critical_speed(out_dir: Path) -> Path:
     """Draw ``out_dir/critical_speed.png`` from ``critical_speed.json`` and its detail file."""
-    from compare.campaign.critical_speed import PLOT_FILE, TORSO_RANGE_MPS, hand_speed, load_critical
-
     out_dir = Path(out_dir)
     result, detail = load_critical(out_dir)
-    fig, axes = _figure(height_in=4.8, width_in=9.0)
+    fig, axes = figure(height_in=4.8, width_in=9.0)
     ax = axes[0, 0]
-    colors = _colors(list(result))
+    colors = method_colors(list(result))
     speeds = detail.get("speeds_mps") or list(TORSO_RANGE_MPS)
     for name, entry in result.items():
         color = colors[name]
@@ -94,7 +100,7 @@ def plot_critical_speed(out_dir: Path) -> Path:
     n_dirs = len(detail.get("directions") or [])
     per = f"{n_dirs} direction{'s' if n_dirs != 1 else ''} per speed"
     ax.set_title(f"{detail.get('scenario', '')}: critical approach speed ({per}, {detail.get('sensing', '?')} sensing)")
-    return _save(fig, out_dir / PLOT_FILE)
+    return save_figure(fig, out_dir / PLOT_FILE)
 
 
 def _speed(v: float | None, speeds: list[float]) -> str:
@@ -104,15 +110,13 @@ def _speed(v: float | None, speeds: list[float]) -> str:
 
 
 def _torso_to_hand(x: np.ndarray) -> np.ndarray:
-    from compare.campaign.critical_speed import HAND_RANGE_MPS, TORSO_RANGE_MPS, _log_map
 
-    return _log_map(np.asarray(x, dtype=float), TORSO_RANGE_MPS, HAND_RANGE_MPS)
+    return log_map(np.asarray(x, dtype=float), TORSO_RANGE_MPS, HAND_RANGE_MPS)
 
 
 def _hand_to_torso(x: np.ndarray) -> np.ndarray:
-    from compare.campaign.critical_speed import HAND_RANGE_MPS, TORSO_RANGE_MPS, _log_map
 
-    return _log_map(np.asarray(x, dtype=float), HAND_RANGE_MPS, TORSO_RANGE_MPS)
+    return log_map(np.asarray(x, dtype=float), HAND_RANGE_MPS, TORSO_RANGE_MPS)
 
 
 def _thresholds(out_dir: Path) -> tuple[float | None, float | None]:

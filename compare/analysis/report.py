@@ -138,12 +138,14 @@ def _negative(m: dict[str, Any], group: str) -> bool:
     return g is not None and g.get("safety_margin_min") is not None and g["safety_margin_min"] < 0
 
 
-def summary_table(summary: dict[str, Any]) -> Table:
+def summary_table(summary: dict[str, Any], narrow: bool = False) -> Table:
     """Terminal table of a run's ``summary.json``: one row per method, failed methods in red.
 
     Margins are the worst safety margins (negative = violated, shown in red with the number of
     violations and their total time); ``n/a`` when the scenario has no task of that group. A
-    set-task group beyond joint limits, walls and obstacles (a new safety task's) gets its own column.
+    set-task group beyond joint limits, walls and obstacles (a new safety task's) gets its own
+    column. ``narrow``: one row per figure and one column per method instead (an 80-column
+    terminal).
     """
     sim_time = fmt_number(summary.get("sim_time_s"))
     title = f"{summary.get('scenario', '?')} (seed {summary.get('seed', '?')}, {sim_time} s)"
@@ -151,8 +153,7 @@ def summary_table(summary: dict[str, Any]) -> Table:
     methods = summary.get("methods") or {}
     groups = _groups(methods)
     headers = _headers(groups)
-    for header, justify in headers:
-        table.add_column(Text(header), justify=justify)  # type: ignore[arg-type]
+    rows: list[list[Text]] = []
     for name, m in methods.items():
         cells = [Text(cell) for cell in _cells(name, m, groups)]  # Text: no rich markup in names or messages
         for col, group in enumerate(groups, start=_FIRST_GROUP_COLUMN):
@@ -160,9 +161,22 @@ def summary_table(summary: dict[str, Any]) -> Table:
                 cells[col].stylize("bold red")
         if m.get("failures") or m.get("fallbacks"):
             cells[-1].stylize("yellow")
-        table.add_row(*cells)
+        rows.append(cells)
     for name, message in (summary.get("errors") or {}).items():
-        table.add_row(Text(name, style="red"), Text(f"failed: {message}", style="red"), *[""] * (len(headers) - 2))
+        rows.append(
+            [Text(name, style="red"), Text(f"failed: {message}", style="red"), *[Text("")] * (len(headers) - 2)]
+        )
+    if narrow:
+        table.add_column(Text(""), justify="left")
+        for row in rows:
+            table.add_column(row[0], justify="right")
+        for k, (header, _) in enumerate(headers[1:], start=1):
+            table.add_row(Text(header), *[row[k] for row in rows])
+        return table
+    for header, justify in headers:
+        table.add_column(Text(header), justify=justify)  # type: ignore[arg-type]
+    for row in rows:
+        table.add_row(*row)
     return table
 
 

@@ -3,8 +3,11 @@
 A run directory holds::
 
     config.toml              copy of the configuration (when given)
+    replay.toml              the concrete scenario that was simulated (random draws resolved),
+                             what ``tpik-compare replay`` rebuilds the scene from
     summary.json             {"scenario", "seed", "sim_time_s", "versions", "config_hash",
                               "config_fingerprint", "methods": {...},
+                              "replay": {"format", "scenario_file"} (with replay.toml),
                               "errors": {...} (only if a method failed)}
     steps/<method>.parquet   per-step table (``steps/<method>.csv`` if Parquet is unavailable)
     plots/*.png              written by :mod:`compare.analysis.plots`
@@ -74,6 +77,9 @@ PLOTS_DIR = "plots"
 RUNS_DIR = "runs"
 CONFIG_FILE = "config.toml"
 REPORT_FILE = "report.md"
+REPLAY_FILE = "replay.toml"
+REPLAY_FORMAT = 1
+"""Version of the replay record (``summary["replay"]["format"]``): raised when a replay needs more."""
 SWEEP_SUMMARY_FILE = "sweep_summary.json"
 SWEEP_RUNS_FILE = "sweep_runs.csv"
 SWEEP_REPORT_FILE = "sweep_report.md"
@@ -100,7 +106,7 @@ def git_commit() -> str | None:
 
 
 def run_versions() -> dict[str, str]:
-    """:func:`compare.bench.timing.versions` plus ``git_commit`` when available."""
+    """:func:`compare.versions.versions` plus ``git_commit`` when available."""
     out = dict(versions())
     commit = git_commit()
     if commit is not None:
@@ -210,9 +216,9 @@ def read_previous(out_dir: Path) -> dict[str, Any] | None:
 
 
 def clear_run_results(out_dir: Path) -> None:
-    """Remove the results of a run directory (``--overwrite``): summary, tables, plots, report, config."""
+    """Remove the results of a run directory (``--overwrite``): summary, tables, plots, report, configs."""
     out_dir = Path(out_dir)
-    for name in (SUMMARY_FILE, CONFIG_FILE, REPORT_FILE):
+    for name in (SUMMARY_FILE, CONFIG_FILE, REPORT_FILE, REPLAY_FILE):
         (out_dir / name).unlink(missing_ok=True)
     for name in (STEPS_DIR, PLOTS_DIR):
         shutil.rmtree(out_dir / name, ignore_errors=True)
@@ -389,6 +395,15 @@ class ResultsWriter:
         self._summary[key] = to_jsonable(value)
         self._write()
 
+    def set_replay(self, scenario_toml: str) -> None:
+        """Record what a replay rebuilds the scene from: ``replay.toml`` and ``summary["replay"]``.
+
+        Args:
+            scenario_toml: The concrete scenario simulated (random draws resolved), as TOML.
+        """
+        write_text_atomic(self.out_dir / REPLAY_FILE, scenario_toml)
+        self.set_run_info("replay", {"format": REPLAY_FORMAT, "scenario_file": REPLAY_FILE})
+
     def add_error(self, name: str, message: str) -> None:
         """Record that method ``name`` failed, keeping every other method's results."""
         self._summary.setdefault("errors", {})[name] = str(message)
@@ -430,6 +445,9 @@ def merge_run_summary(run_dir: Path, incoming: dict[str, Any]) -> dict[str, Any]
     if merged is None:
         merged = incoming
     else:
+        for key, value in incoming.items():  # run-level entries the older summary lacks (e.g. replay)
+            if key not in ("methods", "errors"):
+                merged.setdefault(key, value)
         merged["methods"].update(incoming.get("methods") or {})
         errors = {k: v for k, v in (merged.get("errors") or {}).items() if k not in incoming.get("methods", {})}
         errors.update(incoming.get("errors") or {})

@@ -48,8 +48,8 @@ def _episodes(margin: np.ndarray) -> list[tuple[int, int]]:
 
 def explain_run(run_dir: Path) -> list[dict[str, Any]]:
     """One row per obstacle violation episode of every method of a run (module docstring)."""
-    from compare.campaign.random_scenario import realize
     from compare.config import load_config
+    from compare.scenarios.random_scenario import realize
     from compare.sensing.person import Person
     from compare.sensing.person_track import PersonTrack
     from compare.sensing.scene import load_workcell
@@ -108,10 +108,15 @@ def explain(directory: Path) -> pd.DataFrame:
 def main(argv: list[str] | None = None) -> int:
     """Print the episodes of a run or sweep directory and how well v/K predicts them."""
     args = sys.argv[1:] if argv is None else argv
-    if len(args) != 1:
-        print("usage: python -m compare.analysis.violations RUN_OR_SWEEP_DIR", file=sys.stderr)
+    usage = "usage: python -m compare.analysis.violations RUN_OR_SWEEP_DIR"
+    if len(args) != 1 or args[0] in ("-h", "--help"):
+        print(usage, file=sys.stderr if len(args) != 1 else sys.stdout)
+        return 0 if args and args[0] in ("-h", "--help") else 2
+    directory = Path(args[0])
+    if not (directory / SUMMARY_FILE).is_file() and not (directory / RUNS_DIR).is_dir():
+        print(f"error: {directory} is neither a run (summary.json) nor a sweep (runs/) directory", file=sys.stderr)
         return 2
-    frame = explain(Path(args[0]))
+    frame = explain(directory)
     if frame.empty:
         print("no obstacle violation")
         return 0

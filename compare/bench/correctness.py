@@ -42,6 +42,7 @@ import robots
 from compare.bench.qp_reference import ReferenceEntry
 from compare.bench.qp_states import apply_qp_state
 from compare.bench.solver_cases import case2_hierarchy
+from qp_baseline.backends import SUPPORTED_SOLVERS
 from qp_baseline.lexicographic import level_objectives, level_rows
 from robots import Robot
 from tpik.hierarchy import Hierarchy
@@ -55,7 +56,7 @@ above may shift the optimum of the levels below by a little more than 1e-6 (the 
 conditioning); real errors are far above it (0.11 m/s for the OSQP drop of issue 23, 2.1e-5 m/s
 for the ProxQP one)."""
 
-HQP_BACKENDS = ("hqp-daqp", "hqp-quadprog", "hqp-osqp", "hqp-proxqp", "hqp-clarabel", "hqp-piqp")
+HQP_BACKENDS = tuple(f"hqp-{name}" for name in SUPPORTED_SOLVERS)
 """Default methods of the correctness bench (every supported QP backend)."""
 
 Verdict = Literal["match", "better", "worse"]

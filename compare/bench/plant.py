@@ -47,8 +47,8 @@ def run_plant_bench(config: Config, steps: int = 2000, seed: int = 0) -> BenchRo
         Row ``plant`` / ``<simulation>-<drive>``: median and p95 per period [µs]; ``extra`` holds
         the mean [µs], the control period [s] and the physics sub-steps per period.
     """
-    from compare.campaign.random_scenario import realize
     from compare.loop.simulation import build_simulation
+    from compare.scenarios.random_scenario import realize
 
     robot = config.load_robot()
     realized = realize(config, robot) if config.scenario.kind == "random" else config

@@ -31,7 +31,7 @@ import numpy as np
 import pandas as pd
 
 from qp_baseline.level_qp import LevelQp
-from qp_baseline.lexicographic import ReferenceError, solve_level_qp
+from qp_baseline.lexicographic import ReferenceSolutionError, solve_level_qp
 
 PARQUET_KEYS = ("P", "q", "G", "h", "A", "b", "lb", "ub", "name")
 """Columns of qpbenchmark's Parquet test sets."""
@@ -130,7 +130,7 @@ def export_test_set(problems: Sequence[NamedLevelQp], out_dir: Path, made_with: 
         try:
             x_ref, cert = solve_level_qp(qp.P, qp.q, qp.G, qp.h, np.zeros((0, qp.q.size)), np.zeros(0), qp.lb, qp.ub)
             ref_obj, ref_norm, kkt = qp.objective(x_ref), float(np.linalg.norm(x_ref)), cert.duality_gap
-        except ReferenceError:
+        except ReferenceSolutionError:
             ref_obj = ref_norm = kkt = math.nan
         rows.append(
             {

@@ -1,7 +1,7 @@
 """The avoidable family: random draws kept only where the run is labelled ``avoidable``.
 
 With ``[oracle] avoidable_only = true`` (``configs/random_avoidable.toml``), each run's scenario
-is drawn as in the random family (:func:`compare.campaign.random_scenario.realize`), then its
+is drawn as in the random family (:func:`compare.scenarios.random_scenario.realize`), then its
 verdict is computed (:func:`compare.campaign.verdict.run_verdict`, every witness stopping at its
 first threshold passed); a draw that no witness holds is rejected and the seed is drawn again
 (``draw`` 1, 2, …), up to ``max_draws`` times. The run's ``summary.json["oracle"]`` records
@@ -19,9 +19,9 @@ from pathlib import Path
 from typing import Any
 
 import robots
-from compare.campaign.random_scenario import realize
 from compare.campaign.verdict import run_verdict
 from compare.config import Config
+from compare.scenarios.random_scenario import realize
 
 log = logging.getLogger(__name__)
 

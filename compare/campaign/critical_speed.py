@@ -54,42 +54,30 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-import tomli_w
 
 import robots
+from compare.analysis.critical_speed_results import (
+    CLAIMS_FILE,
+    CRITICAL_SPEED_FILE,
+    DETAIL_FILE,
+    TORSO_RANGE_MPS,
+    hand_speed,
+)
 from compare.analysis.metrics import to_jsonable
+from compare.analysis.person_speeds import resolved_hands
 from compare.analysis.results import is_finished, load_steps, load_summary, run_versions, write_json_atomic
-from compare.config import Config, ConfigError, PersonKeyframe
+from compare.config import Config, ConfigError, PersonKeyframe, dump_config
 from tpik.tasks import ObstacleDistanceTask
 
 log = logging.getLogger(__name__)
 
-TORSO_RANGE_MPS = (0.1, 1.6)
-"""Swept torso (walking) speeds [m/s]: ISO 13855's 1.6 m/s at the top."""
-HAND_RANGE_MPS = (0.1, 2.0)
-"""Hand speeds tied to them [m/s]: ISO 13855's 2.0 m/s at the top."""
 DEFAULT_SPEED_COUNT = 12
-CRITICAL_SPEED_FILE = "critical_speed.json"
-DETAIL_FILE = "critical_speed_detail.json"
-CLAIMS_FILE = "claims_at_critical.json"
-PLOT_FILE = "critical_speed.png"
 MIN_SEGMENT_S = 0.05
 """Shortest re-timed motion segment [s] (keyframe times must increase strictly)."""
 
 
 class CriticalSpeedError(ConfigError):
     """A bad option of ``critical-speed`` (one line naming it; exit code 2 in the CLI)."""
-
-
-def hand_speed(torso_mps: float) -> float:
-    """Hand speed tied to a torso speed [m/s]: the same fraction of both ranges on a log scale."""
-    return float(_log_map(np.asarray(torso_mps, dtype=float), TORSO_RANGE_MPS, HAND_RANGE_MPS))
-
-
-def _log_map(x: np.ndarray, src: tuple[float, float], dst: tuple[float, float]) -> np.ndarray:
-    """Map ``x`` from the range ``src`` to ``dst`` keeping its fraction on a log scale (vectorised)."""
-    frac = np.log(np.clip(x, 1e-9, None) / src[0]) / math.log(src[1] / src[0])
-    return dst[0] * (dst[1] / dst[0]) ** frac
 
 
 def default_speeds(n: int = DEFAULT_SPEED_COUNT) -> list[float]:
@@ -190,34 +178,6 @@ def shift_keyframes(frames: Sequence[PersonKeyframe], shift_s: float) -> list[Pe
     return [frames[0]] + [f.model_copy(update={"t": f.t + shift}) for f in frames[1:]]
 
 
-def resolved_hands(config: Config, robot: robots.Robot) -> list[tuple[np.ndarray, np.ndarray]]:
-    """Right and left hand positions [m] of every keyframe, hanging hands resolved."""
-    from compare.sensing.person import Person
-    from compare.sensing.scene import load_workcell
-
-    person = Person(load_workcell(robot.name), config.person.keyframes, time_scale=1.0)
-    poses = [person.pose_at(f.t) for f in config.person.keyframes]
-    return [(p.hands["r"], p.hands["l"]) for p in poses]
-
-
-def person_speeds(config: Config, robot: robots.Robot | None = None) -> tuple[float, float]:
-    """Fastest torso and hand speeds of a scenario's person over its motion segments [m/s].
-
-    Real time (keyframe times × ``time_scale``); hands resolved (a keyframe without a target
-    has its hanging hand). (0, 0) for a person who never moves.
-    """
-    frames = list(config.person.keyframes)
-    if len(frames) < 2:
-        return 0.0, 0.0
-    hands = resolved_hands(config, robot or config.load_robot())
-    torso = hand = 0.0
-    for k in range(len(frames) - 1):
-        dt = (frames[k + 1].t - frames[k].t) * config.scenario.time_scale
-        torso = max(torso, math.dist(frames[k].position, frames[k + 1].position) / dt)
-        hand = max(hand, *(float(np.linalg.norm(hands[k + 1][s] - hands[k][s])) / dt for s in (0, 1)))
-    return torso, hand
-
-
 def approach_variant(
     config: Config, torso_mps: float, direction: Direction, hands: Sequence[tuple[np.ndarray, np.ndarray]]
 ) -> Config:
@@ -269,11 +229,6 @@ def retreat_speed_bound(kin: robots.Kinematics, frame: str, direction: np.ndarra
     u = np.asarray(direction, dtype=float)
     u = u / np.linalg.norm(u)
     return float(np.abs(u @ kin.position_jacobian(frame)) @ v_max)
-
-
-def config_toml(config: Config) -> str:
-    """A config as TOML text that :func:`compare.config.load_config` reads back to the same config."""
-    return tomli_w.dumps(config.model_dump(mode="python", exclude_none=True))
 
 
 # ---------------------------------------------------------------------------------------- running
@@ -417,7 +372,7 @@ def run_critical_speed(
                 log.warning("run %s failed: %s", run_dir.name, error)
             bar.advance(task)
 
-        LocalExecutor(workers).run([Job(r.config, config_toml(r.config), r.run_dir) for r in todo], done)
+        LocalExecutor(workers).run([Job(r.config, dump_config(r.config), r.run_dir) for r in todo], done)
     wall = time.perf_counter() - start
     return _write_results(config, out_dir, plan, speeds, dirs, robot, failures, wall, len(todo), command)
 
@@ -556,12 +511,3 @@ def _write_claims(out_dir: Path, result: dict[str, Any], plan: Sequence[_Run]) -
             "claims": [c.to_dict() for c in claims],
         }
     write_json_atomic(out_dir / CLAIMS_FILE, to_jsonable(out))
-
-
-def load_critical(out_dir: Path) -> tuple[dict[str, Any], dict[str, Any]]:
-    """``critical_speed.json`` and ``critical_speed_detail.json`` of a directory."""
-    out_dir = Path(out_dir)
-    return (
-        json.loads((out_dir / CRITICAL_SPEED_FILE).read_text(encoding="utf-8")),
-        json.loads((out_dir / DETAIL_FILE).read_text(encoding="utf-8")),
-    )

@@ -83,11 +83,18 @@ class SweepExecutor(abc.ABC):
 def run_job(config: Config, config_text: str, run_dir: Path, overwrite: bool = False) -> str | None:
     """Worker body: one seed, no plots, no progress bar; returns an error message or None."""
     os.environ.setdefault("MUJOCO_GL", "egl")
+    from compare.campaign.realize import realize_with_verdict
     from compare.run import run_scenario
 
     try:
         summary = run_scenario(
-            config, run_dir, config_text=config_text, progress=False, make_plots=False, overwrite=overwrite
+            config,
+            run_dir,
+            config_text=config_text,
+            progress=False,
+            make_plots=False,
+            overwrite=overwrite,
+            prepare=realize_with_verdict,
         )
     except Exception as exc:  # keep the sweep going; the run is retried on the next invocation
         return f"{type(exc).__name__}: {exc}"

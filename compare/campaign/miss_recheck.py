@@ -54,7 +54,7 @@ from compare.analysis.results import (
     load_summary,
 )
 from compare.config import Config, ConfigError, load_config
-from compare.loop.deadline import late_result
+from compare.loop.deadline import DeadlineGuard, MeasuredDeadline, late_result
 from robots import Kinematics, Robot
 from tpik.hierarchy import Hierarchy
 from tpik.step_result import IkSolver, StepResult
@@ -163,7 +163,7 @@ class StepProbe:
         self.name = solver.name
         self.step, self.replays = int(step), int(replays)
         self.forced = frozenset(int(k) for k in forced_misses)
-        self.limit_s = float(getattr(solver, "deadline_s", 0.0) or 0.0)
+        self.limit_s = solver.deadline_s if isinstance(solver, DeadlineGuard) else 0.0
         self.calls = 0
         self.new_misses = 0
         """Late calls of the rerun itself before the probed step (each may have left the recorded trajectory)."""
@@ -182,19 +182,19 @@ class StepProbe:
             result = self._solver.solve(hierarchy, kin, dt)
             if index in self.forced:
                 return late_result(kin.nq, self.limit_s, "no answer (a recorded miss, made again)")
-            if result.extras.get("deadline_miss", False):
+            if result.deadline_miss:
                 self.new_misses += 1
             return result
         # The copies share the robot and the guard's clock: a method's own time budget (the QP
         # methods') runs on that clock, started below before each replay as the guard starts it.
-        clock = getattr(self._solver, "steal_clock", None)
+        clock = self._solver.steal_clock if isinstance(self._solver, MeasuredDeadline) else None
         shared: dict[int, Any] = {id(self._robot): self._robot}
         if clock is not None:
             shared[id(clock)] = clock
         copies = [copy.deepcopy((self._inner, hierarchy), dict(shared)) for _ in range(self.replays)]
         self.q = np.array(kin.q)
         result = self._solver.solve(hierarchy, kin, dt)
-        self.rerun_missed = bool(result.extras.get("deadline_miss", False))
+        self.rerun_missed = bool(result.deadline_miss)
         for solver, tasks in copies:
             fresh = self._robot.kinematics(self.q)
             if clock is not None:
@@ -257,9 +257,9 @@ def recheck_miss(config: Config, miss: Miss, replays: int = DEFAULT_REPLAYS) -> 
         miss: The miss to re-time.
         replays: Copies timed at the step.
     """
-    from compare.campaign.random_scenario import realize
     from compare.campaign.sweep import seeded_config
     from compare.run import run_method
+    from compare.scenarios.random_scenario import realize
 
     run_config = seeded_config(config, miss.seed, [miss.method])
     robot = run_config.load_robot()

@@ -55,7 +55,7 @@ from compare.config import OracleConfig
 from compare.sensing.person_track import PersonTrack, capsule_margins
 from robots import Kinematics
 from tpik.hierarchy import Hierarchy
-from tpik.step_result import SolveStatus, StepResult
+from tpik.step_result import SolverBase, SolveStatus, StepResult
 from tpik.tasks import ObstacleDistanceTask, SetTask
 
 log = logging.getLogger(__name__)
@@ -80,7 +80,7 @@ class _Linearization:
     sigma_jac: np.ndarray  # (M, n)
 
 
-class ClairvoyantOracle:
+class ClairvoyantOracle(SolverBase):
     """The receding-horizon optimiser of the module docstring, behind the loop's solver interface.
 
     Args:

@@ -21,6 +21,7 @@ from typing import Any
 
 from compare.analysis.claims import Claim, claims_for_run
 from compare.analysis.results import CONFIG_FILE, SUMMARY_FILE
+from compare.campaign.realize import realize_with_verdict
 from compare.config import Config, load_config
 from compare.run import run_scenario
 
@@ -59,7 +60,15 @@ def _run(config: Config, text: str, run_dir: Path, progress: bool) -> None:
         done = json.loads(summary.read_text(encoding="utf-8")).get("methods") or {}
         if all(m in done for m in config.methods.names):
             return
-    run_scenario(config, run_dir, config_text=text, progress=progress, make_plots=False, overwrite=True)
+    run_scenario(
+        config,
+        run_dir,
+        config_text=text,
+        progress=progress,
+        make_plots=False,
+        overwrite=True,
+        prepare=realize_with_verdict,
+    )
 
 
 def run_paper_claims(

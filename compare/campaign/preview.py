@@ -47,7 +47,7 @@ import robots
 from compare.sensing.person_track import PersonTrack, capsule_margins
 from robots import Kinematics
 from tpik.hierarchy import Hierarchy
-from tpik.step_result import SolveStatus, StepResult
+from tpik.step_result import SolverBase, SolveStatus, StepResult
 from tpik.tasks import ObstacleDistanceTask, SetTask
 
 log = logging.getLogger(__name__)
@@ -81,7 +81,7 @@ class PreviewSettings:
     solver: str = "daqp"
 
 
-class PreviewPolicy:
+class PreviewPolicy(SolverBase):
     """The policy of the module docstring, behind the loop's solver interface.
 
     Args:

@@ -87,7 +87,7 @@ def run_verdict(
     """The label of a realized scenario and the evidence (module docstring).
 
     Args:
-        config: A realized scenario (random after :func:`compare.campaign.random_scenario.realize`,
+        config: A realized scenario (random after :func:`compare.scenarios.random_scenario.realize`,
             or scripted).
         robot: The arm.
         cache_dir: Where witness runs are cached (None: not cached).

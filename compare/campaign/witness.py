@@ -85,7 +85,7 @@ def run_witness(config: Config, robot: robots.Robot, spec: WitnessSpec, stop_at_
 
     Args:
         config: A realized scenario (scripted, or random after
-            :func:`compare.campaign.random_scenario.realize`).
+            :func:`compare.scenarios.random_scenario.realize`).
         robot: The arm.
         spec: Which witness.
         stop_at_violation: Stop at the first safety threshold passed (by more than the metrics'

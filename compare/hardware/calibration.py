@@ -34,7 +34,7 @@ import numpy as np
 from scipy import ndimage
 
 from compare.hardware.exceptions import HardwareError
-from compare.loop.robot_io import CameraModel
+from compare.sensing.frames import CameraModel
 
 _PIXEL_M = 1e-5
 """Sensor pixel size used to express pixel intrinsics as MuJoCo's metric ``sensorsize``/``intrinsic``."""

@@ -14,7 +14,7 @@ from collections.abc import Sequence
 import numpy as np
 
 from compare.hardware.exceptions import HardwareError
-from compare.loop.robot_io import CameraModel
+from compare.sensing.frames import CameraModel
 
 DEG_PER_RAD = 180.0 / math.pi
 

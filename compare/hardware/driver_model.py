@@ -111,11 +111,6 @@ class DriverTiming:
             return cls("ethernet", 0.0002, 0.0001, status_interval_s)
         raise ValueError(f"connection must be one of {CONNECTIONS}, got {connection!r}")
 
-    @property
-    def mean_call_s(self) -> float:
-        """Mean duration of one API call [s]."""
-        return self.call_base_s + self.call_spread_s
-
 
 @dataclass
 class ServiceTicket:
@@ -381,11 +376,6 @@ class KinovaDriverModel:
         ticket.done.set()
 
     # -- statistics ------------------------------------------------------------------------
-
-    @property
-    def fifo_length(self) -> int:
-        """Points waiting in the trajectory FIFO."""
-        return len(self._fifo)
 
 
 @dataclass(frozen=True)

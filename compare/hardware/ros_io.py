@@ -65,7 +65,8 @@ from compare.hardware.validation import (
     check_service_answer,
     header_stamp_s,
 )
-from compare.loop.robot_io import CameraModel, DepthFrame, JointReading, RobotIO
+from compare.loop.robot_io import JointReading, RobotIO
+from compare.sensing.frames import CameraModel, DepthFrame
 
 log = logging.getLogger(__name__)
 

@@ -364,7 +364,7 @@ def run_hardware(
             raise
         finally:
             io.close()
-            getattr(solver, "close", lambda: None)()
+            solver.close()
 
     steps = out.steps.drop(columns=[c for c in out.steps.columns if c.startswith(("truth:", "dist_true:"))])
     sensing = "depth" if use_depth else "none"

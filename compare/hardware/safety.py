@@ -114,11 +114,6 @@ class Watchdog:
     quiet: bool = False
     _reason: str | None = field(default=None, init=False, repr=False)
 
-    @property
-    def tripped(self) -> bool:
-        """Whether commands are currently being zeroed."""
-        return self._reason is not None
-
     def check(self, now: float, state_t: float | None, depth_t: float | None, command_t: float | None) -> str | None:
         """Why the command must be zero at ``now`` [s], or None; logs every change.
 

@@ -29,9 +29,9 @@ import numpy as np
 from compare.config import Config
 from compare.hardware.exceptions import HardwareError
 from compare.loop.closed_loop import control_points
-from compare.loop.robot_io import CameraModel, DepthFrame
 from compare.sensing.camera import valid_fraction
 from compare.sensing.depth_distance import DepthDistance
+from compare.sensing.frames import CameraModel, DepthFrame
 from compare.sensing.pipeline import DepthSensingSettings
 from compare.sensing.results import DistanceResult, ObstacleReading
 from compare.sensing.scene import control_point_positions

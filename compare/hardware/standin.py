@@ -56,7 +56,6 @@ os.environ.setdefault("MUJOCO_GL", "egl")
 import mujoco  # noqa: E402
 
 import robots  # noqa: E402
-from compare.campaign.random_scenario import realize  # noqa: E402
 from compare.config import Config, ConfigError, load_config  # noqa: E402
 from compare.hardware.conversions import (  # noqa: E402
     deg_s_to_rad_s,
@@ -66,8 +65,9 @@ from compare.hardware.conversions import (  # noqa: E402
 from compare.hardware.driver_model import CONNECTIONS, DriverTiming, KinovaDriverModel, StatePublished  # noqa: E402
 from compare.hardware.ros_env import RosApi, load_ros  # noqa: E402
 from compare.hardware.ros_io import init_node, master_online  # noqa: E402
-from compare.loop.robot_io import CameraModel, DepthFrame  # noqa: E402
 from compare.loop.sim_io import SimRobotIO  # noqa: E402
+from compare.scenarios.random_scenario import realize  # noqa: E402
+from compare.sensing.frames import CameraModel, DepthFrame  # noqa: E402
 
 log = logging.getLogger("compare.hardware.standin")
 

@@ -34,7 +34,7 @@ import numpy as np
 from compare.hardware.conversions import DEPTH_ENCODINGS, decode_depth, joint_indices
 from compare.hardware.exceptions import HardwareError
 from compare.hardware.publisher_watch import second_publisher_cause
-from compare.loop.robot_io import CameraModel
+from compare.sensing.frames import CameraModel
 
 STAMP_JUMP_S = 0.5
 """Largest advance of a header stamp beyond the advance of the arrivals [s]."""

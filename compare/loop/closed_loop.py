@@ -48,6 +48,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import pandas as pd
 
+from compare.loop.deadline import DeadlineGuard
 from compare.loop.fallback import FallbackPolicy, guard
 from compare.loop.recorder import StepRecorder
 from compare.loop.robot_io import RobotIO
@@ -58,13 +59,14 @@ from compare.loop.sensing_gate import (
     SensingGate,
     sensing_problem,
 )
+from compare.loop.settings import LoopSettings
 from compare.loop.waypoints import WaypointSchedule
 from qp_baseline.exceptions import HqpError
 from qp_baseline.time_limits import TimeLimitReached
 from robots import Kinematics, Robot
 from tpik.exceptions import TpikError
 from tpik.hierarchy import Hierarchy
-from tpik.reference import DEFAULT_REFERENCE, ControlReference, unmet_set_rates
+from tpik.reference import ControlReference, unmet_set_rates
 from tpik.step_result import IkSolver, SolveStatus
 from tpik.tasks import ObstacleDistanceTask, PositionTask
 
@@ -73,7 +75,6 @@ __all__ = [
     "WARMUP_SOLVES",
     "DistanceResultLike",
     "LoopOutput",
-    "LoopSettings",
     "ObstacleReadingLike",
     "ObstacleSource",
     "control_points",
@@ -115,36 +116,6 @@ def _solver_errors() -> tuple[type[Exception], ...]:
 
 SOLVER_ERRORS: tuple[type[Exception], ...] = _solver_errors()
 """The solver-domain errors (each package's root error): a FAILED step, not a bug."""
-
-
-@dataclass
-class LoopSettings:
-    """Timing and safety reactions of the loop.
-
-    Attributes:
-        dt: Control period [s].
-        duration_s: Simulated (or wall) time to run [s].
-        sensing_period_s: Period of obstacle updates [s] (1/30 s).
-        fallback: ``zero`` or ``hold_last`` (last safe command, decaying to zero).
-        fallback_decay_s: Decay time of ``hold_last`` [s].
-        max_sensing_age_s: An estimate older than this is stale → zero velocity [s].
-        stop_when_blind: Command zero velocity while sensing is blind or stale.
-        stale_frame_periods: A sensing update whose frame stamp is more than this many sensing
-            periods older than the loop time is stale (frozen or delayed frame) → zero velocity
-            at that update; ``None`` disables the check (then only ``max_sensing_age_s`` applies).
-        deadline_s: A solve longer than this is a deadline miss (``deadline_miss`` column) [s];
-            None = the control period ``dt`` (a solver time limit, when one is set, replaces it).
-    """
-
-    dt: float = 0.01
-    duration_s: float = 10.0
-    sensing_period_s: float = 1.0 / 30.0
-    fallback: str = "zero"
-    fallback_decay_s: float = 0.2
-    max_sensing_age_s: float = 0.2
-    stop_when_blind: bool = True
-    stale_frame_periods: float | None = 1.5
-    deadline_s: float | None = None
 
 
 @dataclass
@@ -235,14 +206,14 @@ def timed_solve(
     try:
         result = solver.solve(hierarchy, kin, dt)
         qdot, status, active, message = result.qdot, result.status, result.active_set, result.message
-        missed = bool(result.extras.get("deadline_miss", False))
+        missed = bool(result.deadline_miss)
     except SOLVER_ERRORS as exc:  # the solver's own domain (no solution, a task it cannot evaluate)
         qdot, status, active, message = np.zeros(kin.nq), SolveStatus.FAILED, (), f"{type(exc).__name__}: {exc}"
         missed = isinstance(exc, TimeLimitReached)  # the solver's own time-limit check: a deadline miss too
     finally:
         # The method's own call when a simulation guard timed it (its steal-counter reads are not the method's).
-        inner_ns = getattr(solver, "last_call_wall_ns", None)
-        elapsed_us = (inner_ns if isinstance(inner_ns, int) else time.perf_counter_ns() - wall0) * 1e-3
+        inner_ns = solver.last_call_wall_ns if isinstance(solver, DeadlineGuard) else None
+        elapsed_us = (inner_ns if inner_ns is not None else time.perf_counter_ns() - wall0) * 1e-3
         if collecting:
             gc.enable()
     return qdot, status, active, message, missed, elapsed_us
@@ -277,10 +248,10 @@ class _Step:
         n_steps = max(1, round(settings.duration_s / settings.dt))
         self.recorder = StepRecorder(n_steps, robot.nq, self.set_tasks, obstacle_tasks, cps)
         self.n_steps = n_steps
-        self.reference: ControlReference = getattr(solver, "reference", DEFAULT_REFERENCE)
+        self.reference: ControlReference = solver.reference
         # A deadline miss: flagged by the solver's time-limit guard (compare.loop.deadline) when it
         # has one, else a solve longer than ``settings.deadline_s`` (default the control period).
-        self.guarded = getattr(solver, "deadline_s", None) is not None
+        self.guarded = isinstance(solver, DeadlineGuard)
         self.deadline_us = 1e6 * (settings.deadline_s if settings.deadline_s is not None else settings.dt)
         self.t0 = io.now()
 

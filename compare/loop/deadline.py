@@ -51,7 +51,20 @@ def late_result(nq: int, limit_s: float, why: str) -> StepResult:
     return failed(nq, f"deadline: {why} within the {1e3 * limit_s:.3g} ms solver time limit", deadline_miss=True)
 
 
-class MeasuredDeadline:
+class DeadlineGuard:
+    """What the loop reads of a time-limit guard around a method (both guards below are one).
+
+    Attributes:
+        deadline_s: The limit [s].
+        last_call_wall_ns: Wall time of the method's own call in the last solve [ns] (the
+            guard's bookkeeping left out), or None when not measured separately.
+    """
+
+    deadline_s: float
+    last_call_wall_ns: int | None = None
+
+
+class MeasuredDeadline(DeadlineGuard):
     """Simulation guard: measure the call, discard an answer later than the limit.
 
     On the CPU clock the hypervisor's steal is taken out of a call that looks late
@@ -87,9 +100,7 @@ class MeasuredDeadline:
         """Steal taken out of those calls [s]."""
         self.last_call_wall_ns: int | None = None
         """Wall time of the method's own call in the last :meth:`solve` [ns] (the guard's reads left out)."""
-        setter = getattr(solver, "set_time_limit", None)
-        if setter is not None:
-            setter(self.deadline_s, self._steal if self._steal is not None else clock)
+        solver.set_time_limit(self.deadline_s, self._steal if self._steal is not None else clock)
 
     def __getattr__(self, name: str) -> Any:
         return getattr(self._inner, name)
@@ -147,7 +158,7 @@ class _Call:
     error: BaseException | None = None
 
 
-class ThreadedDeadline:
+class ThreadedDeadline(DeadlineGuard):
     """Hardware guard: the solve runs in a worker thread; the loop never waits past the limit.
 
     Args:
@@ -161,9 +172,7 @@ class ThreadedDeadline:
         self._inner = solver
         self.name = solver.name
         self.deadline_s = float(limit_s)
-        setter = getattr(solver, "set_time_limit", None)
-        if setter is not None:
-            setter(self.deadline_s, "wall")
+        solver.set_time_limit(self.deadline_s, "wall")
         self._requests: queue.SimpleQueue[_Call | None] = queue.SimpleQueue()
         self._running: _Call | None = None  # a call past its limit that has not returned yet
         # A daemon thread: a backend stalled for good must not keep the process alive at exit.

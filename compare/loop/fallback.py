@@ -15,14 +15,11 @@ from __future__ import annotations
 
 import logging
 import math
-from typing import TYPE_CHECKING
 
 import numpy as np
 
+from compare.loop.settings import LoopSettings
 from tpik.step_result import SolveStatus
-
-if TYPE_CHECKING:
-    from compare.loop.closed_loop import LoopSettings
 
 log = logging.getLogger(__name__)
 

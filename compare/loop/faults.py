@@ -26,7 +26,7 @@ fraction); frozen → the last update before the window, stamp included; delay �
 ``delay_s`` ago.
 
 Expected reactions (measured by :meth:`FaultInjector.summarize`, checked by
-``tests/compare/test_faults.py``):
+``tests/compare/loop/test_faults.py``):
 
 * blind or invalid frames → zero velocity at the sensing update that receives the first one,
   logged (``reason`` column, ``events``);
@@ -56,7 +56,8 @@ import pandas as pd
 
 from compare.config import FaultsConfig, FaultSpec
 from compare.loop.closed_loop import DistanceResultLike, ObstacleSource
-from compare.loop.robot_io import DepthFrame, JointReading, RobotIO
+from compare.loop.robot_io import JointReading, RobotIO
+from compare.sensing.frames import DepthFrame
 from compare.sensing.results import DistanceResult, ObstacleReading
 from robots import Kinematics
 from tpik.hierarchy import Hierarchy

@@ -19,15 +19,13 @@ from __future__ import annotations
 import logging
 import math
 from collections.abc import Mapping, Sequence
-from typing import TYPE_CHECKING, Protocol
+from typing import Protocol
 
 import numpy as np
 
+from compare.loop.settings import LoopSettings
 from robots import Kinematics
 from tpik.tasks import ObstacleDistanceTask
-
-if TYPE_CHECKING:
-    from compare.loop.closed_loop import LoopSettings
 
 log = logging.getLogger(__name__)
 

@@ -15,7 +15,8 @@ import mujoco
 import numpy as np
 
 from compare.loop.joint_drive import DecoupledVelocityDrive, DriveKind
-from compare.loop.robot_io import DepthFrame, JointReading, RobotIO
+from compare.loop.robot_io import JointReading, RobotIO
+from compare.sensing.frames import DepthFrame
 
 
 class SimRobotIO(RobotIO):

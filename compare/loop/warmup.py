@@ -66,7 +66,5 @@ def warm_up_process(config: Config, method: str, robot: Robot, q0: np.ndarray) -
             except SOLVER_ERRORS:
                 break
             done += 1
-    close = getattr(solver, "close", None)
-    if close is not None:
-        close()
+    solver.close()
     return done

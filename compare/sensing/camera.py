@@ -21,8 +21,8 @@ from dataclasses import dataclass
 import mujoco
 import numpy as np
 
-from compare.loop.robot_io import CameraModel, DepthFrame
 from compare.sensing.exceptions import SensingError, UnknownSceneElement
+from compare.sensing.frames import CameraModel, DepthFrame
 
 DEFAULT_RANGE_M = (0.5, 4.5)
 """Kinect v2 valid depth range [m], used when the model has no ``depth_camera_range`` numeric."""
@@ -89,7 +89,7 @@ def camera_model_from_mujoco(
     Intrinsics come from the camera's ``resolution``, ``sensorsize``, ``focal[pixel]`` and
     ``principal[pixel]`` attributes; MuJoCo's principal offset :math:`(p_x, p_y)` [px] moves the
     principal point to :math:`c_x = (W-1)/2 - p_x`, :math:`c_y = (H-1)/2 - p_y` (checked by
-    rendering in ``tests/compare/test_camera.py``). A camera given by ``fovy`` only gets
+    rendering in ``tests/compare/sensing/test_camera.py``). A camera given by ``fovy`` only gets
     :math:`f_x = f_y = (H/2)/\tan(\mathrm{fovy}/2)` and the centred principal point. The valid
     range is the camera's ``depth_camera_range:<camera>`` numeric, else the model's
     ``depth_camera_range``, else 0.5–4.5 m.

@@ -48,10 +48,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from compare.loop.robot_io import CameraModel, DepthFrame
 from compare.sensing._kernels import SUPPORT_DEPTH_M, closest_in_boxes, surveillance_boxes
 from compare.sensing.camera import base_to_sensor, normalized_coordinates, sensor_to_base, valid_fraction
 from compare.sensing.exceptions import SensingError
+from compare.sensing.frames import CameraModel, DepthFrame
 from compare.sensing.results import DistanceResult, ObstacleReading
 
 
@@ -117,11 +117,6 @@ class DepthDistance:
         cam = self.camera
         p = np.ascontiguousarray(np.atleast_2d(np.asarray(p_sensor, dtype=float)))
         return surveillance_boxes(p, self.rho_m, cam.fx, cam.fy, cam.cx, cam.cy, cam.width, cam.height, cam.min_range_m)
-
-    def surveillance_box(self, p_sensor: np.ndarray) -> tuple[int, int, int, int] | None:
-        """Box of one point (see :meth:`surveillance_boxes`); None when out of view."""
-        v0, v1, u0, u1 = (int(v) for v in self.surveillance_boxes(p_sensor)[0])
-        return (v0, v1, u0, u1) if v0 < v1 else None
 
     def compute(
         self,

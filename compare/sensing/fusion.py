@@ -86,11 +86,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from compare.loop.robot_io import CameraModel, DepthFrame
 from compare.sensing._fusion_kernel import not_free_bounds, occluded_search, seen_free
 from compare.sensing.camera import DepthNoise, base_to_sensor, sensor_to_base, valid_fraction
 from compare.sensing.depth_distance import CameraEvaluation, DepthDistance
 from compare.sensing.exceptions import SensingError
+from compare.sensing.frames import CameraModel, DepthFrame
 from compare.sensing.results import DistanceResult, ObstacleReading
 
 

@@ -14,10 +14,10 @@ from typing import Any
 import mujoco
 import numpy as np
 
-from compare.loop.robot_io import DepthFrame
 from compare.sensing.camera import DepthNoise, valid_fraction
 from compare.sensing.depth_distance import DepthDistance
 from compare.sensing.exceptions import SensingError
+from compare.sensing.frames import DepthFrame
 from compare.sensing.fusion import DepthFusion, FusionSettings
 from compare.sensing.geometric_distance import GeometricDistance
 from compare.sensing.renderer import DepthCamera

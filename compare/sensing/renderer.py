@@ -7,7 +7,7 @@ Kinect) and reuses its GL context, scene and buffers between frames.
 MuJoCo 4 renders with a reversed, floating-point depth buffer read as ``mjDEPTH_ZEROFAR``
 (0 = far plane). The buffer value :math:`z \in [0, 1]` maps to the depth along the optical
 axis (eye-space distance, not the Euclidean range of the pixel; checked against a plane in
-``tests/compare/test_camera.py``) as
+``tests/compare/sensing/test_camera.py``) as
 
 .. math:: d = \frac{f\, n}{(f - n)\, z + n}
 
@@ -21,9 +21,9 @@ from __future__ import annotations
 import mujoco
 import numpy as np
 
-from compare.loop.robot_io import CameraModel, DepthFrame
 from compare.sensing.camera import DepthNoise, camera_id, camera_model_from_mujoco
 from compare.sensing.exceptions import SensingError
+from compare.sensing.frames import CameraModel, DepthFrame
 
 STATIC_GROUP = 0
 """Geom group of the static environment (floor, table)."""
@@ -33,6 +33,33 @@ ROBOT_VISUAL_GROUP = 2
 """Geom group of the arm's visual geoms."""
 
 _PLANE_BOX_HALF_THICKNESS_M = 0.005
+
+
+def planes_as_boxes(scene: mujoco.MjvScene, viewer_m: np.ndarray, reach_m: float) -> None:
+    """Draw the plane geoms of ``scene`` as thin boxes: same image, half the llvmpipe render time.
+
+    MuJoCo draws a plane as a finely subdivided grid (for lighting), which costs ~6 ms a frame
+    for the floor under software rendering; a box whose top face is the plane gives the same
+    depth (checked in the tests) with 12 triangles. An infinite plane becomes a box reaching
+    ``reach_m`` beyond the viewer's distance to the plane's origin.
+
+    Args:
+        scene: A scene after ``mjv_updateScene``.
+        viewer_m: Position of the viewer [m]. Shape (3,).
+        reach_m: How far past the viewer an infinite plane must reach [m].
+    """
+    for i in range(scene.ngeom):
+        g = scene.geoms[i]
+        if g.type != mujoco.mjtGeom.mjGEOM_PLANE:
+            continue
+        normal = g.mat[:, 2]
+        if g.size[0] > 0 and g.size[1] > 0:
+            half_x, half_y = float(g.size[0]), float(g.size[1])
+        else:  # infinite plane: cover everything the viewer can see
+            half_x = half_y = float(np.linalg.norm(viewer_m - g.pos)) + reach_m
+        g.type = mujoco.mjtGeom.mjGEOM_BOX
+        g.size[:] = (half_x, half_y, _PLANE_BOX_HALF_THICKNESS_M)
+        g.pos[:] = g.pos - _PLANE_BOX_HALF_THICKNESS_M * normal
 
 
 class DepthCamera:
@@ -161,26 +188,8 @@ class DepthCamera:
         return self.render_depth(data, noisy=False, option=option)
 
     def _planes_as_boxes(self, data: mujoco.MjData) -> None:
-        """Draw plane geoms as thin boxes: same depth image, half the llvmpipe render time.
-
-        MuJoCo draws a plane as a finely subdivided grid (for lighting), which costs ~6 ms a frame
-        for the floor under software rendering; a box whose top face is the plane gives the same
-        depth (checked in the tests) with 12 triangles.
-        """
-        scene = self._scene
-        cam_pos = data.cam_xpos[self._cam_id]
-        for i in range(scene.ngeom):
-            g = scene.geoms[i]
-            if g.type != mujoco.mjtGeom.mjGEOM_PLANE:
-                continue
-            normal = g.mat[:, 2]
-            if g.size[0] > 0 and g.size[1] > 0:
-                half_x, half_y = float(g.size[0]), float(g.size[1])
-            else:  # infinite plane: cover everything the camera can measure
-                half_x = half_y = float(np.linalg.norm(cam_pos - g.pos)) + 2.0 * self.camera.max_range_m
-            g.type = mujoco.mjtGeom.mjGEOM_BOX
-            g.size[:] = (half_x, half_y, _PLANE_BOX_HALF_THICKNESS_M)
-            g.pos[:] = g.pos - _PLANE_BOX_HALF_THICKNESS_M * normal
+        """Draw plane geoms as thin boxes (:func:`planes_as_boxes`) reaching past the camera's range."""
+        planes_as_boxes(self._scene, data.cam_xpos[self._cam_id], 2.0 * self.camera.max_range_m)
 
     def _add_noise(self, depth: np.ndarray) -> None:
         n = self.noise

@@ -73,7 +73,3 @@ class DistanceResult:
     def occluded(self) -> dict[str, bool]:
         """Per control point: the closest point was assumed from hidden space, not measured."""
         return {name: r.occluded for name, r in self.readings.items()}
-
-    def closest_points(self) -> dict[str, np.ndarray | None]:
-        """Closest point per control point in the base frame [m] (``None`` when nothing is in range)."""
-        return {name: r.closest_point for name, r in self.readings.items()}

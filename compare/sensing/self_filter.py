@@ -32,9 +32,9 @@ from __future__ import annotations
 import mujoco
 import numpy as np
 
-from compare.loop.robot_io import CameraModel, DepthFrame
 from compare.sensing.camera import DepthNoise, normalized_coordinates
 from compare.sensing.exceptions import SensingError, UnknownSceneElement
+from compare.sensing.frames import CameraModel, DepthFrame
 from compare.sensing.renderer import ROBOT_VISUAL_GROUP, DepthCamera
 
 _SUPPORTED = (

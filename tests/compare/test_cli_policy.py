@@ -11,11 +11,12 @@ from typer.testing import CliRunner
 
 import compare.run
 from compare.cli import app
+from tpik.step_result import SolverBase
 
 CONFIGS = Path(__file__).resolve().parents[2] / "configs"
 
 
-class _Buggy:
+class _Buggy(SolverBase):
     """A solver whose solve has a bug (TypeError) from the 5th call on."""
 
     def __init__(self, inner) -> None:

@@ -10,9 +10,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from compare.campaign.random_scenario import realize
 from compare.config import load_config
 from compare.run import run_method
+from compare.scenarios.random_scenario import realize
 
 ROOT = Path(__file__).resolve().parents[2]
 TRAJECTORY = ["q_", "qdot_", "status", "dist_true:", "fallback"]

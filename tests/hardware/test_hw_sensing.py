@@ -22,7 +22,7 @@ from compare.hardware.sensing import (
     save_background,
     static_background,
 )
-from compare.loop.robot_io import DepthFrame
+from compare.sensing.frames import DepthFrame
 
 pytestmark = [
     pytest.mark.rendering,

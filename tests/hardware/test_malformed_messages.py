@@ -110,7 +110,7 @@ def ros():
 
 @pytest.fixture(scope="module")
 def camera():
-    from compare.loop.robot_io import CameraModel
+    from compare.sensing.frames import CameraModel
 
     return CameraModel(width=8, height=6, fx=6.0, fy=6.0, cx=3.5, cy=2.5, transform_base_to_camera=np.eye(4))
 
@@ -204,7 +204,7 @@ def _joint_state(ros, breakage: str | None, data: Any, stamp: Any) -> Any:
 def _depth_pair(ros, camera, data: Any, stamp: Any, encoding: str | None = None) -> tuple[Any, Any]:
     """A valid (image, camera info) pair, 16UC1 or 32FC1; in 32FC1 some pixels NaN/inf/negative (no return)."""
     from compare.hardware.standin import depth_messages
-    from compare.loop.robot_io import DepthFrame
+    from compare.sensing.frames import DepthFrame
 
     depth = _rng(data).uniform(0.0, 6.0, (6, 8))
     encoding = encoding or data.draw(st.sampled_from(["16UC1", "32FC1"]), label="encoding")
@@ -362,7 +362,7 @@ def test_random_malformed_messages_are_dropped_with_their_cause_and_never_reach_
             bridge._on_joint_state(_wire(joint_state_message(ros, NAMES, np.zeros(7), stamp)))
         else:
             from compare.hardware.standin import depth_messages
-            from compare.loop.robot_io import DepthFrame
+            from compare.sensing.frames import DepthFrame
 
             img, info = depth_messages(ros, DepthFrame(np.ones((6, 8), np.float32), 0.0, camera), "16UC1", stamp)
             (bridge._on_camera_info if topic == "camera_info" else bridge._on_depth)(

@@ -16,7 +16,7 @@ from compare.hardware.validation import (
     check_service_answer,
     header_stamp_s,
 )
-from compare.loop.robot_io import CameraModel
+from compare.sensing.frames import CameraModel
 
 ARM = tuple(f"joint_{i}" for i in range(1, 8))
 NAMES = [*ARM, "finger_1", "finger_2"]

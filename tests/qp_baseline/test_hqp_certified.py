@@ -21,6 +21,7 @@ import qp_baseline.hqp as hqp_module
 from compare.bench.correctness import compare_levels
 from compare.bench.qp_states import QpState, apply_qp_state
 from compare.bench.solver_cases import case2_hierarchy
+from qp_baseline.backends import BACKENDS
 from qp_baseline.exceptions import NoSolutionFound
 from qp_baseline.hqp import HqpSolver
 from qp_baseline.lexicographic import level_objectives, lexicographic_reference
@@ -86,9 +87,12 @@ def test_backend_traps_are_solved_to_tolerance_or_reported(jaco, trap):
 def _pre_issue_solver(jaco: object, backend: str, monkeypatch: pytest.MonkeyPatch) -> HqpSolver:
     """The cascade as it was before issue 23: no certificate, OSQP's earlier settings and retry."""
     if backend == "osqp":
-        monkeypatch.setitem(hqp_module.RETRY_SETTINGS, "osqp", {"eps_abs": 1e-6, "eps_rel": 0.0, "polish": True})
-        settings = {"eps_abs": 1e-8, "eps_rel": 0.0, "polish": True, "max_iter": 10000}
-        monkeypatch.setitem(hqp_module.SOLVER_DEFAULTS, "osqp", settings)
+        earlier = dataclasses.replace(
+            BACKENDS["osqp"],
+            defaults={"eps_abs": 1e-8, "eps_rel": 0.0, "polish": True, "max_iter": 10000},
+            retry={"eps_abs": 1e-6, "eps_rel": 0.0, "polish": True},
+        )
+        monkeypatch.setitem(BACKENDS, "osqp", earlier)
     monkeypatch.setattr(hqp_module, "RETRY_REGULARIZATION", 1e-6)
     return HqpSolver(jaco, backend, {"certify": False})  # type: ignore[arg-type]
 

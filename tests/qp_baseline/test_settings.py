@@ -6,8 +6,9 @@ import pytest
 import qpsolvers
 
 from compare.methods import available_methods, make_method
+from qp_baseline.backends import BACKENDS, SUPPORTED_SOLVERS
 from qp_baseline.exceptions import HqpError, InvalidSettings, UnknownSolver
-from qp_baseline.hqp import SOLVER_DEFAULTS, SUPPORTED_SOLVERS, HqpSolver, available_qp_solvers
+from qp_baseline.hqp import HqpSolver, available_qp_solvers
 from qp_baseline.mink_peer import MinkSolver
 from tests.qp_baseline.helpers import SOLVERS
 
@@ -16,7 +17,7 @@ def test_available_solvers_are_supported_and_installed():
     names = available_qp_solvers()
     assert "daqp" in names
     assert set(names) <= set(SUPPORTED_SOLVERS) & set(qpsolvers.available_solvers)
-    assert set(SOLVER_DEFAULTS) == set(SUPPORTED_SOLVERS)
+    assert set(BACKENDS) == set(SUPPORTED_SOLVERS)
 
 
 @pytest.mark.parametrize("name", ["nope", "cvxopt", ""])

@@ -19,8 +19,9 @@ import pytest
 import qpsolvers
 import scipy.sparse as spa
 
+from qp_baseline.backends import BACKENDS
 from qp_baseline.exceptions import NoSolutionFound
-from qp_baseline.hqp import RETRY_REGULARIZATION, TOLERANCES, HqpSolver
+from qp_baseline.hqp import RETRY_REGULARIZATION, HqpSolver
 from tests.qp_baseline import proxqp_false_infeasible as proxqp_case
 from tests.qp_baseline.helpers import (
     DT,
@@ -76,7 +77,7 @@ def test_our_osqp_settings_meet_the_constraints_on_the_wall_level_qp(jaco, wall_
 
 
 def test_osqp_defaults_still_violate_constraints_on_the_wall_level_qp(jaco, wall_level_qp):
-    """Why SOLVER_DEFAULTS["osqp"] exists (a check of the backend, not of our code)."""
+    """Why BACKENDS["osqp"].defaults exists (a check of the backend, not of our code)."""
     _needs("osqp")
     P, q, G, h, lb, ub = wall_level_qp
     with warnings.catch_warnings():
@@ -85,7 +86,7 @@ def test_osqp_defaults_still_violate_constraints_on_the_wall_level_qp(jaco, wall
             qpsolvers.Problem(spa.csc_matrix(P), q, spa.csc_matrix(G), h, lb=lb, ub=ub), solver="osqp"
         )
     if not (raw.found and _violation(raw.x, G, h, lb, ub) > 1e-6):
-        pytest.skip("this OSQP version's defaults are accurate here: SOLVER_DEFAULTS['osqp'] may be revisited")
+        pytest.skip("this OSQP version's defaults are accurate here: BACKENDS['osqp'].defaults may be revisited")
     # OSQP says "solved"; its answer breaks the constraints more than the one our settings give.
     ours, _, _ = HqpSolver(jaco, "osqp").solve_qp(P, q, G, h, lb, ub, np.zeros_like(q))
     assert raw.found and _violation(raw.x, G, h, lb, ub) > max(_violation(ours, G, h, lb, ub), 0.0)
@@ -162,7 +163,7 @@ def test_proxqp_recorded_problem_is_solved_with_our_settings(jaco):
 
 
 def test_proxqp_still_reports_the_recorded_false_infeasibility():
-    """Why RETRY_SETTINGS["proxqp"] exists (a check of the backend, not of our code)."""
+    """Why BACKENDS["proxqp"].retry exists (a check of the backend, not of our code)."""
     _needs("proxqp")
     c = proxqp_case
     raw = qpsolvers.solve_problem(qpsolvers.Problem(c.P, c.q, c.G, c.h, lb=c.lb, ub=c.ub), "proxqp", eps_abs=1e-9)
@@ -224,7 +225,7 @@ def test_daqp_still_fails_on_the_near_singular_hessian():
         pytest.skip("this DAQP version solves the near-singular problem")
     # DAQP finds nothing, yet quadprog finds a point meeting every constraint: the failure is false.
     feasible = qpsolvers.solve_problem(qpsolvers.Problem(P, q, G, h, lb=lb, ub=ub), solver="quadprog").x
-    assert feasible is not None and _violation(feasible, G, h, lb, ub) <= TOLERANCES["daqp"]
+    assert feasible is not None and _violation(feasible, G, h, lb, ub) <= BACKENDS["daqp"].tolerance
 
 
 def test_quadprog_semidefinite_hessian_is_retried_with_regularisation(jaco):

@@ -6,12 +6,13 @@ import numpy as np
 import pytest
 
 from tests.tpik.conftest import svd_dls
-from tpik.dls import gram_dls, min_eigenvalue
+from tpik.dls import gram_dls_star, min_eigenvalue
 
 
 @pytest.mark.parametrize("m", [1, 2, 3, 4, 6])
 @pytest.mark.parametrize("kind", ["regular", "ill_conditioned", "rank_deficient"])
 def test_gram_dls_matches_the_svd_formula(m, kind):
+    """With σ* = ‖r‖/‖q̇‖_max (the reference of the level in place of the paper's task error)."""
     rng = np.random.default_rng(m)
     for _ in range(20):
         B = rng.normal(size=(m, 7))
@@ -25,7 +26,7 @@ def test_gram_dls_matches_the_svd_formula(m, kind):
         vnorm = 2.0
         S = B @ B.T
         y = np.zeros(m)
-        lam = gram_dls(S, r, m, vnorm, 1e-6, np.empty((m, m)), y)
+        lam = gram_dls_star(S, r, m, float(np.linalg.norm(r)) / vnorm, 1e-6, np.empty((m, m)), y)
         expected, expected_lam = svd_dls(B, r, vnorm, 1e-6)
         assert lam == pytest.approx(expected_lam, rel=1e-6, abs=1e-9)
         np.testing.assert_allclose(B.T @ y, expected, atol=1e-8)

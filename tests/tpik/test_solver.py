@@ -265,7 +265,7 @@ def test_selection_is_one_setting_independent_of_the_others(jaco, settings, rule
     row = np.eye(jaco.nq)[2]
     h = one_level_each(RowSetTask("s", 0.9, row, _th()), MatrixTask("lower", row[None, :], np.array([-0.02])))
     _, report = TpikSolver(jaco, TpikSettings(**settings)).solve(h, jaco.kinematics(jaco.home), DT)
-    assert TpikSettings(**settings).selection_rule == rule and report.extras["selection"] == rule
+    assert TpikSettings(**settings).selection == rule and report.extras["selection"] == rule
 
 
 @pytest.mark.parametrize("max_exhaustive", [6, 0])

@@ -75,5 +75,14 @@ def test_case2_figures_and_non_case_runs(tmp_path, case1_run):
     figures = paper_figures(run)
     assert set(figures) == {"paper_fig8_ee_walls", "paper_fig9_distances", "paper_fig10_joints"}
     assert len(figures["paper_fig8_ee_walls"].axes) == 9
+    # A distance above the paper's 1.2 m stays in view, and only lines drawn get a legend entry.
+    far = steps.assign(**{"dist_true:link_4": 1.39, "dist_meas:link_4": np.inf, "dist_meas:link_6": np.inf})
+    far = far.assign(**{"dist_meas:link_7": np.inf})
+    for name in ("tpik", "hqp-daqp", "mink"):
+        far.to_parquet(run / "steps" / f"{name}.parquet")
+    fig9 = paper_figures(run)["paper_fig9_distances"]
+    assert all(ax.get_ylim()[1] >= 1.39 for ax in fig9.axes)
+    legend = [t.get_text() for t in fig9.axes[0].get_legend().get_texts()]
+    assert "true" in legend and "measured" not in legend
     (run / "config.toml").write_text((CONFIGS / "random.toml").read_text())
     assert paper_figures(run) == {}

@@ -122,6 +122,12 @@ def test_summary_table_and_markdown_report(plotted_run):
     text = console.export_text()
     for token in ("tpik", "hqp-daqp", "hqp-osqp", "failed: NoSolutionFound", "joint margin [rad]", "-0.050 (2×"):
         assert token in text
+    narrow = Console(width=80, record=True)  # a terminal of 80 columns: one column per method
+    narrow.print(summary_table(summary, narrow=True))
+    lines = narrow.export_text().splitlines()
+    assert max(len(line) for line in lines) <= 80
+    assert any(line.split("│")[1].strip() == "solve median [µs]" for line in lines if line.count("│") > 2)
+    assert "tpik" in lines[2] and "hqp-daqp" in lines[2]
     report = render_report(run, command="tpik-compare run x.toml")
     body = report.read_text()
     assert body.startswith("# Results: synthetic (seed 0)")

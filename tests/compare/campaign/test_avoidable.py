@@ -5,8 +5,8 @@ from __future__ import annotations
 from pathlib import Path
 
 from compare.campaign import avoidable
-from compare.campaign.random_scenario import realize
 from compare.config import load_config
+from compare.scenarios.random_scenario import realize
 
 CONFIGS = Path(__file__).resolve().parents[3] / "configs"
 

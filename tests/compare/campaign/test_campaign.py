@@ -17,11 +17,11 @@ from typer.testing import CliRunner
 
 import robots
 from compare.analysis.results import deterministic_view, load_summary, sweep_run_dir
-from compare.campaign.random_scenario import _wall_box, realize
 from compare.campaign.sweep import run_sweep
 from compare.cli import app
 from compare.config import load_config
 from compare.run import run_method
+from compare.scenarios.random_scenario import _wall_box, realize
 from tests.compare.campaign.worst_seeds import CASES, REFREEZE, frozen_view, realized
 
 CONFIGS = Path(__file__).resolve().parents[3] / "configs"
@@ -202,7 +202,7 @@ def test_the_generator_still_draws_the_frozen_worst_seeds(case):
     frozen, _ = load_config(case.path)
     if frozen_view(realized(case)) != frozen_view(frozen):
         pytest.fail(
-            f"compare/campaign/random_scenario.py no longer draws {case.path.name} for seed {case.seed}: the frozen "
+            f"compare/scenarios/random_scenario.py no longer draws {case.path.name} for seed {case.seed}: the frozen "
             "file still tests the old worst case. If the generator change is intended, re-freeze with "
             f"`{REFREEZE}` and check that the new draws still reach their thresholds."
         )

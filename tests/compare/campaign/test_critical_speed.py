@@ -12,15 +12,12 @@ import pytest
 from scipy.optimize import linprog
 from typer.testing import CliRunner
 
+from compare.analysis.critical_speed_results import HAND_RANGE_MPS, TORSO_RANGE_MPS, hand_speed
+from compare.analysis.person_speeds import keyframe_speeds, resolved_hands
 from compare.campaign.critical_speed import (
-    HAND_RANGE_MPS,
-    TORSO_RANGE_MPS,
     critical,
     default_speeds,
     directions,
-    hand_speed,
-    person_speeds,
-    resolved_hands,
     retime_keyframes,
     retreat_speed_bound,
     rotate_keyframes,
@@ -102,12 +99,12 @@ def test_kinematic_bound_is_the_linear_program_over_the_velocity_box(jaco):
 
 
 @pytest.mark.parametrize("case", ["case1", "case2", "case1_paper", "case2_paper"])
-def test_case_configs_state_the_person_speeds(case, jaco):
+def test_case_configs_state_the_keyframe_speeds(case, jaco):
     text = (CONFIGS / f"{case}.toml").read_text()
     stated = re.search(r"torso ([\d.]+) m/s, hand ([\d.]+) m/s", text)
     assert stated, f"{case}.toml does not state the person's speeds"
     config, _ = load_config(CONFIGS / f"{case}.toml")
-    torso, hand = person_speeds(config, jaco)
+    torso, hand = keyframe_speeds(config, jaco)
     assert float(stated.group(1)) == pytest.approx(torso, abs=0.006)
     assert float(stated.group(2)) == pytest.approx(hand, abs=0.006)
 
@@ -140,7 +137,7 @@ def test_critical_speed_two_speeds_end_to_end(tmp_path, jaco):
         held.append((v, m["obstacles"]["violations"] == 0))
         assert "oracle" in summary and "obstacle_violations" in m
         cfg, _ = load_config(run / "config.toml")
-        torso, hand = person_speeds(cfg, jaco)
+        torso, hand = keyframe_speeds(cfg, jaco)
         assert torso <= v + 1e-9 and hand <= hand_speed(v) + 1e-9
         assert math.isclose(torso, v, rel_tol=1e-6) or math.isclose(hand, hand_speed(v), rel_tol=1e-6)
     assert result["tpik"]["safety_mps"] == critical(held)

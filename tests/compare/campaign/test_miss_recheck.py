@@ -24,13 +24,13 @@ from compare.cli import app
 from compare.config import load_config
 from compare.loop.deadline import MeasuredDeadline
 from compare.run import run_scenario
-from tpik.step_result import SolveStatus, StepResult
+from tpik.step_result import SolverBase, SolveStatus, StepResult
 
 ROOT = Path(__file__).resolve().parents[3]
 LIMIT_S = 0.005
 
 
-class _CountingSolver:
+class _CountingSolver(SolverBase):
     """Spins on the thread's CPU clock for ``busy_s`` per call and counts its calls (its own state)."""
 
     name = "counting"

@@ -13,44 +13,13 @@ from compare.config import WitnessSpec, parse_config
 from compare.sensing.geometric_distance import GeometricDistance
 from compare.sensing.person import Person
 from compare.sensing.scene import load_workcell
+from tests.compare.scenes import CPS, Q0, levels, scene
 
-Q0 = (4.9, 3.78, 3.392, 1.124, 3.156, 2.03, 0.0)  # case 2's start: EE at (0.10, 0.20, 0.45) m
-CPS = ("link_4", "link_6", "link_7")
 ORACLE = WitnessSpec.parse("oracle-1s")
-LEVELS = [
-    {"name": "joint_limits", "tasks": [{"type": "joint_limit", "joints": [2, 4, 6], "safety_margin": 0.1}]},
-    {
-        "name": "walls",
-        "tasks": [{"type": "wall_box", "frame": "end_effector", "lower": [-0.5, -0.5, 0.2], "upper": [0.5, 0.5, 0.9]}],
-    },
-    {
-        "name": "obstacles",
-        "tasks": [
-            {"type": "obstacle_distance", "frames": list(CPS), "safety_distance": 0.35, "physical_distance": 0.1}
-        ],
-    },
-    {"name": "operational", "tasks": [{"type": "position", "frame": "end_effector"}]},
-]
 
 
 def _config(keyframes: list[dict], duration_s: float):
-    return parse_config(
-        {
-            "scenario": {
-                "name": "oracle-test",
-                "kind": "case2",
-                "duration_s": duration_s,
-                "sensing": "geometric",
-                "simulation": "kinematic",
-                "start_q": list(Q0),
-            },
-            "waypoints": {"positions": []},
-            "person": {"keyframes": keyframes},
-            "levels": LEVELS,
-            "methods": {"names": ["tpik"]},
-            "oracle": {"enabled": True},
-        }
-    )
+    return scene(keyframes, duration_s, kind="case2")
 
 
 def _cp(jaco, name: str) -> np.ndarray:
@@ -151,16 +120,16 @@ def test_oracle_settings_are_checked():
     from compare.config import ConfigError
 
     with pytest.raises(ConfigError, match="oracle-0.2s"):
-        parse_config({"levels": LEVELS, "oracle": {"witnesses": ["oracle-0.2s"]}})
+        parse_config({"levels": levels(), "oracle": {"witnesses": ["oracle-0.2s"]}})
     with pytest.raises(ConfigError, match="not 'oracle-<T>s' or 'preview-<tau>s'"):
-        parse_config({"levels": LEVELS, "oracle": {"witnesses": ["greedy"]}})
+        parse_config({"levels": levels(), "oracle": {"witnesses": ["greedy"]}})
     with pytest.raises(ConfigError, match="knot_s"):
-        parse_config({"levels": LEVELS, "oracle": {"witnesses": ["oracle-0.5s"], "knot_s": 0.6}})
+        parse_config({"levels": levels(), "oracle": {"witnesses": ["oracle-0.5s"], "knot_s": 0.6}})
     with pytest.raises(ConfigError, match="listed twice"):
-        parse_config({"levels": LEVELS, "oracle": {"witnesses": ["preview-1s", "preview-1s"]}})
+        parse_config({"levels": levels(), "oracle": {"witnesses": ["preview-1s", "preview-1s"]}})
     with pytest.raises(ConfigError, match="avoidable_only needs enabled"):
-        parse_config({"levels": LEVELS, "oracle": {"avoidable_only": True}})
+        parse_config({"levels": levels(), "oracle": {"avoidable_only": True}})
     with pytest.raises(ConfigError, match="unknown QP solver"):
-        parse_config({"levels": LEVELS, "oracle": {"solver": "nope"}})
+        parse_config({"levels": levels(), "oracle": {"solver": "nope"}})
     with pytest.raises(ConfigError, match="oracle.enabled: the hierarchy has no obstacle_distance task"):
-        parse_config({"levels": [LEVELS[0], LEVELS[3]], "oracle": {"enabled": True}})
+        parse_config({"levels": [levels()[0], levels()[3]], "oracle": {"enabled": True}})

@@ -6,8 +6,8 @@ from pathlib import Path
 
 import pytest
 
-from compare.campaign.random_scenario import realize
 from compare.config import load_config
+from compare.scenarios.random_scenario import realize
 from compare.sensing.person import Person
 from compare.sensing.person_track import PersonTrack
 

@@ -7,48 +7,8 @@ import math
 import numpy as np
 
 from compare.campaign.witness import run_witness
-from compare.config import WitnessSpec, parse_config
-
-Q0 = (4.9, 3.78, 3.392, 1.124, 3.156, 2.03, 0.0)  # case 2's start: EE at (0.10, 0.20, 0.45) m
-CPS = ("link_4", "link_6", "link_7")
-LEVELS = [
-    {"name": "joint_limits", "tasks": [{"type": "joint_limit", "joints": [2, 4, 6], "safety_margin": 0.1}]},
-    {
-        "name": "walls",
-        "tasks": [{"type": "wall_box", "frame": "end_effector", "lower": [-0.5, -0.5, 0.2], "upper": [0.5, 0.5, 0.9]}],
-    },
-    {
-        "name": "obstacles",
-        "tasks": [
-            {"type": "obstacle_distance", "frames": list(CPS), "safety_distance": 0.35, "physical_distance": 0.1}
-        ],
-    },
-    {"name": "operational", "tasks": [{"type": "position", "frame": "end_effector"}]},
-]
-
-
-def _config(frames: list[dict], duration_s: float, simulation: str = "kinematic"):
-    return parse_config(
-        {
-            "scenario": {
-                "name": "preview-test",
-                "kind": "scripted",
-                "duration_s": duration_s,
-                "sensing": "geometric",
-                "simulation": simulation,
-                "start_q": list(Q0),
-            },
-            "waypoints": {"positions": []},
-            "person": {"keyframes": frames},
-            "levels": LEVELS,
-            "methods": {"names": ["tpik"]},
-            "oracle": {"enabled": True},
-        }
-    )
-
-
-def _p7(jaco) -> np.ndarray:
-    return jaco.kinematics(np.array(Q0)).frame_position("link_7")
+from compare.config import WitnessSpec
+from tests.compare.scenes import Q0, control_point, scene
 
 
 def _q(run) -> np.ndarray:
@@ -56,12 +16,12 @@ def _q(run) -> np.ndarray:
 
 
 def test_preview_holds_still_while_the_person_stays_far(jaco):
-    p7 = _p7(jaco)
+    p7 = control_point(jaco)
     frames = [
         {"t": 0.0, "position": [p7[0], p7[1] + 1.6], "yaw": -math.pi / 2},
         {"t": 1.0, "position": [p7[0], p7[1] + 1.4], "yaw": -math.pi / 2},
     ]
-    run = run_witness(_config(frames, 2.0), jaco, WitnessSpec.parse("preview-1s"))
+    run = run_witness(scene(frames, 2.0), jaco, WitnessSpec.parse("preview-1s"))
     assert run.entry["held"] is True
     assert np.max(np.abs(_q(run) - np.array(Q0))) < 1e-6
 
@@ -73,13 +33,13 @@ def test_preview_leaves_before_the_person_arrives_and_keeps_every_limit(jaco):
     On the dynamic plant (decoupled drive), judged by the methods' metrics: obstacle, joint-limit and
     wall safety thresholds all held.
     """
-    p7 = _p7(jaco)
+    p7 = control_point(jaco)
     arrive = (1.6 - 0.5) / 0.8
     frames = [
         {"t": t, "position": [p7[0], p7[1] + y], "yaw": -math.pi / 2, "right_hand": list(p7 + [0.0, y - 0.45, 0.05])}
         for t, y in ((0.0, 1.6), (arrive, 0.5), (arrive + 1.5, 0.5))
     ]
-    config = _config(frames, arrive + 1.5, simulation="dynamic")
+    config = scene(frames, arrive + 1.5, simulation="dynamic")
     ahead = run_witness(config, jaco, WitnessSpec.parse("preview-1s"))
     now = run_witness(config, jaco, WitnessSpec.parse("preview-0s"))
     e = ahead.entry

@@ -10,12 +10,13 @@ import pytest
 import robots
 from compare.campaign.reachability import ReachableCubes, _structure, prove_unavoidable, reach_bound
 from compare.campaign.witness import run_witness
-from compare.config import WitnessSpec, parse_config
+from compare.config import WitnessSpec
 from compare.sensing.person import Person, PersonKeyframe
 from compare.sensing.person_track import PersonTrack, capsule_margins
+from tests.compare.scenes import CPS, scene
+from tests.compare.scenes import Q0 as SCENE_Q0
 
-Q0 = np.array((4.9, 3.78, 3.392, 1.124, 3.156, 2.03, 0.0))  # case 2's start
-CPS = ("link_4", "link_6", "link_7")
+Q0 = np.array(SCENE_Q0)
 
 
 @pytest.mark.parametrize("robot_name", ["jaco2", "panda", "ur5"])
@@ -63,36 +64,6 @@ def test_the_reachable_cubes_contain_every_sampled_motion_within_the_velocity_li
         assert not reach.cubes.all()  # still a bounded set
 
 
-def _config(frames: list[dict], duration_s: float):
-    levels = [
-        {"name": "joint_limits", "tasks": [{"type": "joint_limit", "joints": [2, 4, 6], "safety_margin": 0.1}]},
-        {
-            "name": "obstacles",
-            "tasks": [
-                {"type": "obstacle_distance", "frames": list(CPS), "safety_distance": 0.35, "physical_distance": 0.1}
-            ],
-        },
-        {"name": "operational", "tasks": [{"type": "position", "frame": "end_effector"}]},
-    ]
-    return parse_config(
-        {
-            "scenario": {
-                "name": "certificate-test",
-                "kind": "scripted",
-                "duration_s": duration_s,
-                "sensing": "geometric",
-                "simulation": "kinematic",
-                "start_q": Q0.tolist(),
-            },
-            "waypoints": {"positions": []},
-            "person": {"keyframes": frames},
-            "levels": levels,
-            "methods": {"names": ["tpik"]},
-            "oracle": {"enabled": True},
-        }
-    )
-
-
 def _dash(jaco, arrive_s: float) -> list[dict]:
     """A hand that starts clear of every threshold and dashes at link_7 in ``arrive_s`` seconds."""
     p7 = jaco.kinematics(Q0).frame_position("link_7")
@@ -127,7 +98,7 @@ def _certify(jaco, config, frame: str = "link_7"):
 
 
 def test_a_hand_dashing_in_faster_than_any_escape_is_proven_unavoidable_and_no_witness_holds(jaco):
-    config = _config(_dash(jaco, 0.1), 1.0)
+    config = scene(_dash(jaco, 0.1), 1.0, walls=False)
     assert _start_margin(jaco, config) > 0.0  # every control point starts beyond its threshold
     proof = _certify(jaco, config)
     assert proof is not None and 0.0 < proof.time_s <= 0.1 + 1e-9
@@ -136,6 +107,6 @@ def test_a_hand_dashing_in_faster_than_any_escape_is_proven_unavoidable_and_no_w
 
 
 def test_a_slow_hand_that_a_witness_escapes_is_not_proven(jaco):
-    config = _config(_dash(jaco, 3.0), 4.0)
+    config = scene(_dash(jaco, 3.0), 4.0, walls=False)
     assert run_witness(config, jaco, WitnessSpec.parse("preview-1s")).entry["held"] is True
     assert all(_certify(jaco, config, f) is None for f in CPS)

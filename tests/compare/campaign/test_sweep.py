@@ -26,11 +26,11 @@ from compare.analysis.results import (
     sweep_run_dir,
 )
 from compare.campaign.manifest import make_manifest, run_config_hash
-from compare.campaign.random_scenario import realize
 from compare.campaign.sweep import run_sweep, seeded_config
 from compare.cli import app
 from compare.config import load_config
 from compare.config_hash import config_hash
+from compare.scenarios.random_scenario import realize
 
 ROOT = Path(__file__).resolve().parents[3]
 CONFIGS = ROOT / "configs"

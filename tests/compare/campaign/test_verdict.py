@@ -4,66 +4,32 @@ from __future__ import annotations
 
 import math
 
-import numpy as np
-
 from compare.campaign import verdict
 from compare.campaign.verdict import run_verdict
-from compare.config import parse_config
+from tests.compare.scenes import control_point, scene
 
-Q0 = (4.9, 3.78, 3.392, 1.124, 3.156, 2.03, 0.0)
-CPS = ("link_4", "link_6", "link_7")
-LEVELS = [
-    {"name": "joint_limits", "tasks": [{"type": "joint_limit", "joints": [2, 4, 6], "safety_margin": 0.1}]},
-    {
-        "name": "obstacles",
-        "tasks": [
-            {"type": "obstacle_distance", "frames": list(CPS), "safety_distance": 0.35, "physical_distance": 0.1}
-        ],
-    },
-    {"name": "operational", "tasks": [{"type": "position", "frame": "end_effector"}]},
-]
 WITNESSES = ["preview-1s", "preview-0s", "oracle-1s", "oracle-2s"]
-
-
-def _config(frames: list[dict], duration_s: float, rule: str = "first"):
-    return parse_config(
-        {
-            "scenario": {
-                "name": "verdict-test",
-                "kind": "scripted",
-                "duration_s": duration_s,
-                "sensing": "geometric",
-                "simulation": "kinematic",
-                "start_q": list(Q0),
-            },
-            "waypoints": {"positions": []},
-            "person": {"keyframes": frames},
-            "levels": LEVELS,
-            "methods": {"names": ["tpik"]},
-            "oracle": {"enabled": True, "witnesses": WITNESSES, "witness_rule": rule},
-        }
-    )
 
 
 def _approach(jaco, stop: float, duration_s: float, rule: str = "first"):
     """A person walking up to ``stop`` m in front of link_7, hand raised at it."""
-    p7 = jaco.kinematics(np.array(Q0)).frame_position("link_7")
+    p7 = control_point(jaco)
     frames = [
         {"t": t, "position": [p7[0], p7[1] + y], "yaw": -math.pi / 2, "right_hand": list(p7 + [0.0, y - 0.45, 0.05])}
         for t, y in ((0.0, 1.6), (1.4, stop))
     ]
-    return _config(frames, duration_s, rule)
+    return scene(frames, duration_s, walls=False, oracle={"witnesses": WITNESSES, "witness_rule": rule})
 
 
 def _dash(jaco):
     """A hand that starts clear of every threshold and reaches link_7 in 0.1 s."""
-    p7 = jaco.kinematics(np.array(Q0)).frame_position("link_7")
+    p7 = control_point(jaco)
     torso = [float(p7[0]), float(p7[1] + 0.75)]
     frames = [
         {"t": 0.0, "position": torso, "yaw": -math.pi / 2, "right_hand": (p7 + [0.0, 0.5, 0.0]).tolist()},
         {"t": 0.1, "position": torso, "yaw": -math.pi / 2, "right_hand": p7.tolist()},
     ]
-    return _config(frames, 1.0)
+    return scene(frames, 1.0, walls=False, oracle={"witnesses": WITNESSES})
 
 
 def test_first_rule_stops_at_the_first_witness_that_holds(jaco):

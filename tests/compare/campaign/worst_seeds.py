@@ -3,7 +3,7 @@
 Each case is a seed of ``configs/random.toml`` cut at a time inside its former violation. The
 scenario the generator realised for it (start pose, waypoints, person path, sensor noise) is
 stored as a ``kind = "scripted"`` config, so the regression test keeps simulating the very
-scenario that once failed even if :mod:`compare.campaign.random_scenario` changes; a separate
+scenario that once failed even if :mod:`compare.scenarios.random_scenario` changes; a separate
 test says when the generator no longer reproduces the files. Re-freeze (after checking that the
 new scenarios still reach the thresholds the docstring of the test describes) with::
 
@@ -19,8 +19,8 @@ from typing import Any
 import tomli_w
 
 import robots
-from compare.campaign.random_scenario import realize
 from compare.config import Config, load_config
+from compare.scenarios.random_scenario import realize
 
 ROOT = Path(__file__).resolve().parents[3]
 FAMILY = ROOT / "configs" / "random.toml"

@@ -5,15 +5,17 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from compare.loop.closed_loop import SOLVER_ERRORS, LoopSettings, run_loop, warm_up_solver
-from compare.loop.robot_io import DepthFrame, JointReading, RobotIO
+from compare.loop.closed_loop import SOLVER_ERRORS, run_loop, warm_up_solver
+from compare.loop.robot_io import JointReading, RobotIO
+from compare.loop.settings import LoopSettings
 from compare.loop.waypoints import WaypointSchedule
 from compare.methods import make_method
+from compare.sensing.frames import DepthFrame
 from qp_baseline.exceptions import NoSolutionFound
 from tests.qp_baseline.helpers import joint_limit_level, position_level, wall_behind_ee
 from tpik.exceptions import TargetNotSet
 from tpik.hierarchy import Hierarchy, Level
-from tpik.step_result import StepResult
+from tpik.step_result import SolverBase, StepResult
 from tpik.tasks import PositionTask
 
 DT = 0.01
@@ -48,7 +50,7 @@ class KinematicIO(RobotIO):
         super().stop()
 
 
-class RaisingSolver:
+class RaisingSolver(SolverBase):
     """Wraps a solver; raises ``error`` from the ``at``-th solve on."""
 
     def __init__(self, inner, error: Exception, at: int = 3) -> None:
@@ -173,7 +175,7 @@ def test_the_garbage_collector_never_runs_inside_a_timed_solve_and_is_restored_a
 
     seen: list[bool] = []
 
-    class Probe:
+    class Probe(SolverBase):
         name = "probe"
 
         def __init__(self, fail: bool) -> None:

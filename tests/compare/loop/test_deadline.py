@@ -27,13 +27,15 @@ from compare.loop.deadline import MeasuredDeadline, ThreadedDeadline, guard_solv
 from compare.loop.robot_io import JointReading, RobotIO
 from compare.methods import make_method
 from compare.run import loop_setup, run_method
+from qp_baseline.backends import BACKENDS
 from qp_baseline.hqp import HqpSolver, available_qp_solvers
-from qp_baseline.time_limits import BACKEND_TIME_LIMIT, RESERVE_FRACTION, CallBudget, TimeLimitReached
+from qp_baseline.time_limits import RESERVE_FRACTION, CallBudget, TimeLimitReached
 from tests.qp_baseline.helpers import DT, position_level
 from tpik.hierarchy import Hierarchy
-from tpik.step_result import StepResult
+from tpik.step_result import SolverBase, StepResult
 
 CONFIGS = Path(__file__).resolve().parents[3] / "configs"
+BACKEND_TIME_LIMIT = {name: b.time_limit_key for name, b in BACKENDS.items() if b.time_limit_key is not None}
 
 
 @pytest.fixture(scope="module")
@@ -59,7 +61,7 @@ def _busy(seconds: float) -> None:
         pass
 
 
-class SlowOnCalls:
+class SlowOnCalls(SolverBase):
     """A real method that is slow on chosen calls: busy (CPU) or asleep (wall only)."""
 
     def __init__(self, solver: Any, calls: set[int], seconds: float, busy: bool = True) -> None:
@@ -131,7 +133,7 @@ def test_an_injected_solver_timeout_counts_as_a_deadline_miss(robot):
     assert result["summary"]["deadline_misses"] == 10
 
 
-class _Sleeper:
+class _Sleeper(SolverBase):
     name = "sleeper"
 
     def __init__(self, seconds: float) -> None:
@@ -146,8 +148,8 @@ def test_the_cpu_clock_ignores_time_the_solver_did_not_compute_and_the_wall_cloc
     kin = robot.kinematics(robot.home)
     on_cpu = MeasuredDeadline(_Sleeper(0.02), 0.005, "cpu").solve(None, kin, DT)  # type: ignore[arg-type]
     on_wall = MeasuredDeadline(_Sleeper(0.02), 0.005, "wall").solve(None, kin, DT)  # type: ignore[arg-type]
-    assert on_cpu.ok and np.all(on_cpu.qdot == 1.0) and not on_cpu.extras.get("deadline_miss")
-    assert not on_wall.ok and on_wall.extras["deadline_miss"] and on_wall.extras["took_s"] >= 0.02
+    assert on_cpu.ok and np.all(on_cpu.qdot == 1.0) and not on_cpu.deadline_miss
+    assert not on_wall.ok and on_wall.deadline_miss and on_wall.extras["took_s"] >= 0.02
     assert np.all(on_wall.qdot == 0.0)
 
 
@@ -223,7 +225,7 @@ def test_a_stalled_solve_on_the_wall_clock_never_delays_a_step_beyond_its_limit_
 def test_the_threaded_guard_passes_answers_and_errors_through(robot):
     kin = robot.kinematics(robot.home)
 
-    class Boom:
+    class Boom(SolverBase):
         name = "boom"
 
         def solve(self, hierarchy: Any, kin: Any, dt: float) -> StepResult:
@@ -283,7 +285,7 @@ def test_the_solvers_own_time_limit_check_is_a_failed_deadline_miss(robot):
     """``TimeLimitReached`` (the QP methods' check before a backend call) counts like the guard's miss."""
     hierarchy, kin = _two_levels(robot)
 
-    class OutOfTime:
+    class OutOfTime(SolverBase):
         name = "out-of-time"
 
         def solve(self, hierarchy: Hierarchy, kin: Any, dt: float) -> StepResult:
@@ -349,7 +351,7 @@ def test_hqp_gives_up_a_level_with_no_time_left_and_keeps_the_levels_above(robot
     np.testing.assert_allclose(result.qdot, reference.qdot, atol=1e-9)
     # Behind the guard the whole step is late (6 ms > 5 ms): not used at all.
     late = guard_solver(hqp, _config().solver_limit, 0.01).solve(hierarchy, kin, DT)
-    assert not late.ok and late.extras["deadline_miss"]
+    assert not late.ok and late.deadline_miss
 
 
 def test_mink_gives_its_backend_the_budget(robot, monkeypatch):

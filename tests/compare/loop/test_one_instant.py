@@ -7,28 +7,15 @@ import math
 import numpy as np
 import pytest
 
-from compare.config import parse_config
 from compare.run import run_method
 from compare.sensing.person import Person
 from compare.sensing.person_track import capsule_margins
-
-Q0 = (4.9, 3.78, 3.392, 1.124, 3.156, 2.03, 0.0)  # case 2's start
-CPS = ("link_4", "link_6", "link_7")
+from tests.compare.scenes import CPS, control_point, scene
 
 
 def _config(jaco, simulation: str):
-    p7 = jaco.kinematics(np.array(Q0)).frame_position("link_7")
+    p7 = control_point(jaco)
     torso = [float(p7[0]), float(p7[1] + 0.8)]
-    levels = [
-        {"name": "joint_limits", "tasks": [{"type": "joint_limit", "joints": [2, 4, 6], "safety_margin": 0.1}]},
-        {
-            "name": "obstacles",
-            "tasks": [
-                {"type": "obstacle_distance", "frames": list(CPS), "safety_distance": 0.35, "physical_distance": 0.1}
-            ],
-        },
-        {"name": "operational", "tasks": [{"type": "position", "frame": "end_effector"}]},
-    ]
     # The hand sweeps back and forth past link_7 at ~2 m/s: a one-period offset moves it ~2 cm.
     frames = [{"t": 0.0, "position": torso, "yaw": -math.pi / 2}]
     for k in range(1, 7):
@@ -36,22 +23,7 @@ def _config(jaco, simulation: str):
         frames.append(
             {"t": 0.3 * k, "position": torso, "yaw": -math.pi / 2, "right_hand": (p7 + [side, 0.3, 0.1]).tolist()}
         )
-    return parse_config(
-        {
-            "scenario": {
-                "name": "one-instant",
-                "kind": "scripted",
-                "duration_s": 2.0,
-                "sensing": "geometric",
-                "simulation": simulation,
-                "start_q": list(Q0),
-            },
-            "waypoints": {"positions": []},
-            "person": {"keyframes": frames},
-            "levels": levels,
-            "methods": {"names": ["tpik"]},
-        }
-    )
+    return scene(frames, 2.0, simulation=simulation, walls=False)
 
 
 @pytest.mark.parametrize("simulation", ["dynamic", "kinematic"])

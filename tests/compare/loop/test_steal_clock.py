@@ -19,7 +19,7 @@ from compare.config import SolverLimitConfig
 from compare.loop.deadline import MeasuredDeadline, guard_solver
 from compare.loop.steal_clock import StealClock, parse_steal
 from qp_baseline.time_limits import CallBudget, TimeLimitReached
-from tpik.step_result import SolveStatus, StepResult
+from tpik.step_result import SolverBase, SolveStatus, StepResult
 
 STAT_TEXT = (
     "cpu  100 0 50 900 5 0 3 {total} 0 0\n"
@@ -40,7 +40,7 @@ def _busy(seconds: float) -> None:
         pass
 
 
-class StealingSolver:
+class StealingSolver(SolverBase):
     """Burns ``cpu_s`` of CPU time per call while the fake hypervisor adds ``ticks`` of steal to every CPU."""
 
     name = "stealing"
@@ -112,7 +112,7 @@ def test_a_solve_late_only_by_the_steal_keeps_its_answer_and_is_not_a_miss(stat:
     if not guard.excludes_steal:
         pytest.skip("no sched_getcpu on this platform")
     result = guard.solve(None, _Kin(), 0.01)  # type: ignore[arg-type]
-    assert result.status is SolveStatus.OK and not result.extras.get("deadline_miss")
+    assert result.status is SolveStatus.OK and not result.deadline_miss
     assert result.extras["stolen_s"] == pytest.approx(0.02)
     assert guard.steal_excused == 1 and guard.stolen_s == pytest.approx(0.02)
     assert guard.worst_s < 0.005  # the worst step is judged without the steal
@@ -124,17 +124,17 @@ def test_a_solve_late_by_its_own_work_is_still_a_miss_whatever_was_stolen(stat: 
     if not guard.excludes_steal:
         pytest.skip("no sched_getcpu on this platform")
     result = guard.solve(None, _Kin(), 0.01)  # type: ignore[arg-type]
-    assert result.status is SolveStatus.FAILED and result.extras["deadline_miss"]
+    assert result.status is SolveStatus.FAILED and result.deadline_miss
     assert guard.steal_excused == 0
     assert 0.015 <= result.extras["took_s"] < 0.030  # own time: the tick taken out
 
 
 def test_without_steal_a_late_solve_is_a_miss_and_exclude_steal_false_counts_the_steal(stat: Path) -> None:
     guard = MeasuredDeadline(StealingSolver(stat, cpu_s=0.008, ticks=0), 0.005, "cpu", stat=stat)
-    assert guard.solve(None, _Kin(), 0.01).extras.get("deadline_miss")  # type: ignore[arg-type]
+    assert guard.solve(None, _Kin(), 0.01).deadline_miss  # type: ignore[arg-type]
     plain = MeasuredDeadline(StealingSolver(stat, cpu_s=0.008, ticks=5), 0.005, "cpu", exclude_steal=False, stat=stat)
     assert not plain.excludes_steal
-    assert plain.solve(None, _Kin(), 0.01).extras.get("deadline_miss")  # type: ignore[arg-type]
+    assert plain.solve(None, _Kin(), 0.01).deadline_miss  # type: ignore[arg-type]
     assert plain.steal_excused == 0
 
 

@@ -9,10 +9,11 @@ import pandas as pd
 import pytest
 
 import robots
-from compare.campaign.random_scenario import realize
 from compare.config import load_config, parse_config
 from compare.loop import warmup
 from compare.run import run_method
+from compare.scenarios.random_scenario import realize
+from tpik.step_result import SolverBase
 
 CONFIGS = Path(__file__).resolve().parents[3] / "configs"
 TIMING = ["solve_time_us", "deadline_miss"]
@@ -59,7 +60,7 @@ def test_the_warm_up_solves_with_the_set_tasks_inactive_active_and_past_safety(r
     seen: list[int] = []
     real = warmup.make_method
 
-    class Spy:
+    class Spy(SolverBase):
         def __init__(self, inner):
             self.inner, self.name = inner, inner.name
 

@@ -5,7 +5,6 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from compare.loop.robot_io import DepthFrame
 from compare.sensing import (
     DepthCamera,
     DepthNoise,
@@ -21,6 +20,7 @@ from compare.sensing import (
     valid_fraction,
 )
 from compare.sensing.camera import base_to_sensor, sensor_to_base
+from compare.sensing.frames import DepthFrame
 
 
 @pytest.fixture(scope="module")

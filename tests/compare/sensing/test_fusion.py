@@ -11,7 +11,6 @@ import mujoco
 import numpy as np
 import pytest
 
-from compare.loop.robot_io import CameraModel, DepthFrame
 from compare.sensing import (
     DepthDistance,
     DepthFusion,
@@ -29,6 +28,7 @@ from compare.sensing import (
 )
 from compare.sensing._fusion_kernel import not_free_bounds, occluded_search
 from compare.sensing.camera import base_to_sensor, look_at_rotation, project
+from compare.sensing.frames import CameraModel, DepthFrame
 
 CONFIGS = Path(__file__).resolve().parents[3] / "configs"
 RHO = 0.5

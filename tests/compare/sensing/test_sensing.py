@@ -8,7 +8,6 @@ import mujoco
 import numpy as np
 import pytest
 
-from compare.loop.robot_io import DepthFrame
 from compare.sensing import (
     PERSON_GROUP,
     STATIC_GROUP,
@@ -32,6 +31,7 @@ from compare.sensing import (
     truth_function,
 )
 from compare.sensing.camera import base_to_sensor
+from compare.sensing.frames import DepthFrame
 from tests.conftest import random_configuration
 
 RHO = 0.5
