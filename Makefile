@@ -76,7 +76,7 @@ lint: install
 	$(VENV)/bin/ruff check .
 	$(VENV)/bin/ruff format --check .
 	$(VENV)/bin/mypy
-	$(VENV)/bin/lint-imports  # the layers of docs/design.md: no circle, no upward import ([tool.importlinter] in pyproject.toml)
+	$(VENV)/bin/lint-imports  # the layers of [tool.importlinter] in pyproject.toml: no circle, no upward import
 
 format: install
 	$(VENV)/bin/ruff check --fix .
