@@ -8,6 +8,7 @@ import mujoco
 import numpy as np
 import pytest
 
+from compare.campaign import witness as witness_module
 from compare.campaign.witness import cached_witness, run_witness, witness_key
 from compare.config import WitnessSpec, parse_config
 from compare.sensing.geometric_distance import GeometricDistance
@@ -57,6 +58,23 @@ def test_oracle_holds_still_when_the_person_stops_short(jaco):
     assert np.max(np.abs(q - np.array(Q0))) < 1e-9  # it never moved
     assert run.entry["qp_calls"] == 0
     assert run.entry["min_distance_m"] == pytest.approx(expected, abs=1e-9)
+
+
+def test_a_witness_holds_only_when_joint_limits_and_walls_held_too(jaco, monkeypatch):
+    """The obstacles kept, but a wall passed by more than the metrics' tolerance: not a witness."""
+    p7 = _cp(jaco, "link_7")
+    frames = [{"t": 0.0, "position": [p7[0], p7[1] + 1.6], "yaw": -math.pi / 2}]
+    real = witness_module.compute_summary
+
+    def a_wall_passed(steps, meta):
+        summary = real(steps, meta)
+        summary["walls"] = {**summary["walls"], "violations": 1, "safety_margin_min": -0.0018}
+        return summary
+
+    monkeypatch.setattr(witness_module, "compute_summary", a_wall_passed)
+    entry = run_witness(_config(frames, 0.5), jaco, ORACLE).entry
+    assert entry["obstacles_margin_min"] > 0.0 and entry["walls_margin_min"] == -0.0018
+    assert entry["held"] is False
 
 
 def test_oracle_retreats_from_a_slow_hand_within_every_limit(jaco):
