@@ -5,7 +5,7 @@ Per method, the minimum ground-truth distance of any control point to the person
 (bottom axis, log) and the hand speed tied to it (top axis); the obstacle safety and physical
 thresholds; each method's critical speed in the legend; the kinematic bound (the fastest each
 control point can move along the approach direction within the joint velocity limits) as vertical
-lines; the clairvoyant oracle's curve when it was computed.
+lines; the verdict's curve (its best witness) when it was computed.
 """
 
 from __future__ import annotations
@@ -58,7 +58,7 @@ def plot_critical_speed(out_dir: Path) -> Path:
                 linestyle="--",
                 marker="s",
                 markersize=3,
-                label=f"clairvoyant oracle (critical {_speed(oracle.get('safety_mps'), speeds)})",
+                label=f"verdict's best witness, knows the future (critical {_speed(oracle.get('safety_mps'), speeds)})",
             )
     thresholds = _thresholds(out_dir)
     if thresholds[0] is not None:

@@ -117,3 +117,23 @@ def test_no_oracle_no_aggregate(tmp_path):
     _write_run(tmp_path, 0, None, {"a": {"obstacles": {"violations": 1}}})
     assert oracle_sweep_summary(tmp_path) is None
     assert report_lines({"methods": {}}) == []
+
+
+def test_an_avoidable_family_without_a_rejection_says_so(tmp_path):
+    """Every draw 0 avoidable: the report still states the family and its 0 % rejection rate."""
+    w = {"preview-1s": {"held": True}}
+    for seed in range(2):
+        entry = {"label": "avoidable", "witness": "preview-1s", "min_distance_m": 0.5, "witnesses": w}
+        _write_run(tmp_path, seed, entry | {"draws": 1, "avoidable_draw_found": True}, {"a": {}})
+    out = oracle_sweep_summary(tmp_path)
+    assert out["oracle"]["draws"]["avoidable_family"] is True
+    text = "\n".join(report_lines({"oracle": out["oracle"], "methods": out["methods"], "paired_avoidable": {}}))
+    assert "avoidable family: 2 draws for 2 runs, rejection rate 0.0 %" in text
+    # Not a family: no such line.
+    for run in (tmp_path / "runs").iterdir():
+        run.rename(tmp_path / f"old-{run.name}")
+    for seed in range(2):
+        entry = {"label": "avoidable", "witness": "preview-1s", "min_distance_m": 0.5, "witnesses": w}
+        _write_run(tmp_path, seed, entry, {"a": {}})
+    out = oracle_sweep_summary(tmp_path)
+    assert "avoidable family" not in "\n".join(report_lines({"oracle": out["oracle"], "methods": {}}))
