@@ -11,6 +11,7 @@ import functools
 import logging
 import os
 import sys
+import tomllib
 from collections.abc import Callable
 from pathlib import Path
 from typing import TYPE_CHECKING, Annotated, Any, TypeVar
@@ -166,6 +167,24 @@ OracleOpt = Annotated[
 ]
 
 
+SetOpt = Annotated[
+    list[str] | None,
+    typer.Option(
+        "--set",
+        help="Override any config key (repeatable): KEY=VALUE with a dotted key and a TOML value, e.g."
+        " --set sensor.rho_m=1.0 --set prediction.horizon_s=0.25.",
+    ),
+]
+PredictionOpt = Annotated[
+    str | None,
+    typer.Option(
+        "--prediction",
+        help="Override prediction.mode: off | estimated (the person's motion from the sensing stream, fed to every"
+        " method's obstacle tasks) | truth (the person's true future: the bound).",
+    ),
+]
+
+
 def _select_methods(cfg: Config, methods: list[str] | None) -> Config:
     """``cfg`` with only ``methods`` (and their settings) when given; raises ConfigError."""
     if not methods:
@@ -180,9 +199,23 @@ def _select_methods(cfg: Config, methods: list[str] | None) -> Config:
     return parse_config(data)
 
 
-def _with_oracle(overrides: dict[str, object], oracle: bool | None) -> dict[str, object]:
+def _with_oracle(
+    overrides: dict[str, object], oracle: bool | None, prediction: str | None = None, sets: list[str] | None = None
+) -> dict[str, object]:
+    """``overrides`` with --oracle, --prediction and every --set KEY=VALUE (a bad one: exit 2)."""
     if oracle is not None:
         overrides["oracle.enabled"] = oracle
+    if prediction is not None:
+        overrides["prediction.mode"] = prediction
+    for item in sets or []:
+        key, sep, text = item.partition("=")
+        if not sep or not key.strip() or not text.strip():
+            _fail(f"--set: KEY=VALUE expected, got '{item}'")
+        try:
+            value: object = tomllib.loads(f"v = {text.strip()}")["v"]
+        except tomllib.TOMLDecodeError:
+            value = text.strip()  # a bare word: a string
+        overrides[key.strip()] = value
     return overrides
 
 
@@ -200,6 +233,8 @@ def run(
     quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress bar.")] = False,
     overwrite: OverwriteRunOpt = False,
     oracle: OracleOpt = None,
+    prediction: PredictionOpt = None,
+    sets: SetOpt = None,
 ) -> None:
     """Run one scenario with every selected method; write summary.json, per-step tables, plots.
 
@@ -212,7 +247,7 @@ def run(
     from compare.config import ConfigError, load_config
     from compare.run import run_scenario
 
-    overrides = _with_oracle(_overrides(duration, time_scale, sensing, simulation, drive), oracle)
+    overrides = _with_oracle(_overrides(duration, time_scale, sensing, simulation, drive), oracle, prediction, sets)
     try:
         cfg, text = load_config(config, overrides)
         cfg = _select_methods(cfg, methods)
@@ -281,6 +316,8 @@ def sweep(
         ),
     ] = False,
     oracle: OracleOpt = None,
+    prediction: PredictionOpt = None,
+    sets: SetOpt = None,
     recheck: Annotated[
         bool,
         typer.Option(
@@ -302,7 +339,7 @@ def sweep(
 
     overrides = _overrides(duration, time_scale, sensing or "geometric", simulation, drive, seed)
     try:
-        cfg, text = load_config(config, _with_oracle(overrides, oracle))
+        cfg, text = load_config(config, _with_oracle(overrides, oracle, prediction, sets))
     except ConfigError as exc:
         _fail(str(exc))
         return
@@ -353,13 +390,17 @@ def critical_speed(
     simulation: SimulationOpt = None,
     drive: DriveOpt = None,
     oracle: OracleOpt = None,
+    prediction: PredictionOpt = None,
+    sets: SetOpt = None,
     quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress bar.")] = False,
 ) -> None:
     """Sweep the person's approach speed on a case's geometry: each method's critical speed."""
     from compare.campaign.critical_speed import run_critical_speed
     from compare.config import ConfigError, load_config
 
-    overrides = _with_oracle(_overrides(duration, time_scale, sensing or "geometric", simulation, drive), oracle)
+    overrides = _with_oracle(
+        _overrides(duration, time_scale, sensing or "geometric", simulation, drive), oracle, prediction, sets
+    )
     try:
         values = None if speeds is None else [float(v) for v in speeds.split(",") if v.strip()]
     except ValueError:

@@ -24,6 +24,8 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_valida
 
 import robots
 from compare.exceptions import CompareError
+from compare.sensing.motion_estimate import MotionFilterSettings
+from compare.sensing.prediction import PredictionSettings
 from qp_baseline.exceptions import HqpError
 from tpik.exceptions import TpikError
 from tpik.hierarchy import Hierarchy
@@ -555,6 +557,59 @@ class LoopConfig(_Strict):
     realtime: bool = False
 
 
+class PredictionConfig(_Strict):
+    r"""Anticipating the person inside the shared obstacle tasks (``[prediction]``, :mod:`compare.sensing.prediction`).
+
+    Every method's obstacle tasks receive the same prediction through the one control reference
+    (docs/separating.md, "Anticipating the person").
+
+    Attributes:
+        mode: ``off`` (the paper's tasks), ``estimated`` (the motion of each closest obstacle
+            point, Kalman-filtered from the sensing stream alone) or ``truth`` (the person's true
+            future: the bound of what prediction can do).
+        feedforward: (a) the predicted closing speed f as rate feed-forward,
+            :math:`K(\sigma_s - \sigma) + f`.
+        horizon_s: (b) τ [s]: the task's point is the predicted obstacle point nearest to the
+            control point over [t, t + τ]; 0 = off.
+        growth: (c) every obstacle threshold grows by :math:`f\,(T_r + T_s)` (ISO/TS 15066's human
+            term with the ``[iso15066]`` reaction and stopping times).
+        sample_s: Step of the true future over the horizon (``truth``) [s].
+        acceleration_mps2: The estimate's white-noise acceleration a [m/s²].
+        measurement_noise_m: The estimate's noise of a measured closest point [m].
+        occluded_noise_m: Its noise of a point assumed from occluded space [m].
+
+    The sensing range ``[sensor] rho_m`` bounds what is seen (and so what can be predicted): a
+    larger ρ sees the person earlier and costs more depth pixels per frame.
+    """
+
+    mode: Literal["off", "estimated", "truth"] = "off"
+    feedforward: bool = True
+    horizon_s: float = Field(0.5, ge=0.0, le=3.0)
+    growth: bool = True
+    sample_s: float = Field(0.05, gt=0.0, le=0.5)
+    acceleration_mps2: float = Field(8.0, gt=0.0, le=100.0)
+    measurement_noise_m: float = Field(0.01, gt=0.0, le=0.5)
+    occluded_noise_m: float = Field(0.05, gt=0.0, le=1.0)
+
+    def settings(self, iso: Iso15066Config, range_m: float) -> PredictionSettings | None:
+        """The predictor's settings (None when ``mode = "off"``); ``range_m`` is the sensing range ρ [m]."""
+        if self.mode == "off":
+            return None
+        return PredictionSettings(
+            mode=self.mode,
+            feedforward=self.feedforward,
+            horizon_s=self.horizon_s,
+            growth_time_s=iso.reaction_time_s + iso.stopping_time_s if self.growth else 0.0,
+            sample_s=self.sample_s,
+            range_m=range_m,
+            motion_filter=MotionFilterSettings(
+                acceleration_mps2=self.acceleration_mps2,
+                measurement_m=self.measurement_noise_m,
+                occluded_m=self.occluded_noise_m,
+            ),
+        )
+
+
 class OracleConfig(_Strict):
     r"""The run's verdict (``[oracle]``, :mod:`compare.campaign.verdict`): avoidable, unavoidable or undecided.
 
@@ -838,6 +893,7 @@ class Config(_Strict):
     solver_limit: SolverLimitConfig = Field(default_factory=SolverLimitConfig)
     loop: LoopConfig = Field(default_factory=LoopConfig)
     oracle: OracleConfig = Field(default_factory=OracleConfig)
+    prediction: PredictionConfig = Field(default_factory=PredictionConfig)
 
     def hierarchy_description(self) -> list[dict[str, Any]]:
         """The levels as the plain description :meth:`Hierarchy.from_description` takes."""

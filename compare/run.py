@@ -24,7 +24,7 @@ from compare.loop.closed_loop import LoopOutput, ObstacleSource, control_points,
 from compare.loop.deadline import MeasuredDeadline, guard_solver
 from compare.loop.faults import FaultInjector, unsafe_commands
 from compare.loop.settings import LoopSettings
-from compare.loop.simulation import build_simulation
+from compare.loop.simulation import build_simulation, make_predictor
 from compare.loop.warmup import warm_up_process
 from compare.loop.waypoints import WaypointSchedule
 from compare.methods import make_method
@@ -157,7 +157,19 @@ def run_method(
     cps = control_points(hierarchy, robot)
     monitor = iso15066.SeparationMonitor(obstacles, stale_after_s, cps) if config.iso15066.enabled else None
     try:
-        out = run_loop(io, robot, hierarchy, solver, schedule, settings, monitor or obstacles, sim.truth, callback)
+        predictor = make_predictor(config, sim)
+        out = run_loop(
+            io,
+            robot,
+            hierarchy,
+            solver,
+            schedule,
+            settings,
+            monitor or obstacles,
+            sim.truth,
+            callback,
+            predictor=predictor,
+        )
     finally:
         sim.close()
     if progress is not None and task_id is not None:
@@ -357,5 +369,17 @@ def view_scenario(config: Config, method: str) -> None:
             clock["tick"] = time.perf_counter()
             return viewer.is_running()
 
-        run_loop(sim.io, robot, hierarchy, solver, schedule, settings, sim.obstacles, sim.truth, on_step=sync)
+        predictor = make_predictor(config, sim)
+        run_loop(
+            sim.io,
+            robot,
+            hierarchy,
+            solver,
+            schedule,
+            settings,
+            sim.obstacles,
+            sim.truth,
+            on_step=sync,
+            predictor=predictor,
+        )
     sim.close()

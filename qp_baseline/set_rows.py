@@ -27,7 +27,16 @@ import numba
 import numpy as np
 
 from robots import Kinematics
-from tpik.evaluation import SET_GAIN, SET_JAC, SET_SAFE_HI, SET_SAFE_LO, SET_SIGMA, TaskEvaluation, warm_up
+from tpik.evaluation import (
+    SET_FEEDFORWARD,
+    SET_GAIN,
+    SET_JAC,
+    SET_SAFE_HI,
+    SET_SAFE_LO,
+    SET_SIGMA,
+    TaskEvaluation,
+    warm_up,
+)
 from tpik.exceptions import InvalidTaskState
 from tpik.reference import ControlReference
 from tpik.tasks import SetTask
@@ -46,7 +55,8 @@ def _stack_rows(
 ) -> int:
     r"""Rows :math:`J\dot q \le \dot\sigma_u`, :math:`-J\dot q \le -\dot\sigma_l` of every finite σ, task by task.
 
-    The rates are :func:`tpik.reference.rate_bounds`' (K capped at 1/dt with ``gain_cap``);
+    The rates are :func:`tpik.reference.rate_bounds`' (K capped at 1/dt with ``gain_cap``, plus
+    the task's rate feed-forward);
     ``hold`` relaxes them to :math:`\max(0, \dot\sigma_u)`, :math:`\min(0, \dot\sigma_l)`.
 
     Returns:
@@ -61,8 +71,8 @@ def _stack_rows(
         if gain_cap:
             k_max = 1.0 / dt
             k = k if k < k_max else k_max
-        lo = k * (set_in[s, SET_SAFE_LO] - sigma)
-        hi = k * (set_in[s, SET_SAFE_HI] - sigma)
+        lo = k * (set_in[s, SET_SAFE_LO] - sigma) + set_in[s, SET_FEEDFORWARD]
+        hi = k * (set_in[s, SET_SAFE_HI] - sigma) + set_in[s, SET_FEEDFORWARD]
         if hi < np.inf:  # J q̇ ≤ hi
             G[r] = set_out[s, SET_JAC:]
             h[r] = (hi if hi >= 0.0 else 0.0) if hold else hi

@@ -56,11 +56,12 @@ SET_SIGMA, SET_SIDE, SET_JAC = 0, 1, 2
 EQ_VALUE, EQ_ERROR, EQ_FEEDFORWARD, EQ_JAC = 0, 1, 2, 3
 """Columns of ``eq_out``: σ, σ̃, σ̇_d, then the Jacobian row."""
 
-# Columns of ``set_in``: wall normal and offset, thresholds, obstacle point and whether it is set, gain.
-_N, _D, _ACT_LO, _ACT_HI, _OBS, _HAS = 0, 3, 4, 5, 8, 11
-SET_SAFE_LO, SET_SAFE_HI, SET_GAIN = 6, 7, 12
-"""Columns of ``set_in`` a method reads: σ_{s,l}, σ_{s,u} and the gain K [1/s]."""
-_SET_IN = 13
+# Columns of ``set_in``: wall normal and offset, thresholds, obstacle point and whether it is set,
+# gain, rate feed-forward, obstacle margin growth.
+_N, _D, _ACT_LO, _ACT_HI, _OBS, _HAS, _GROW = 0, 3, 4, 5, 8, 11, 14
+SET_SAFE_LO, SET_SAFE_HI, SET_GAIN, SET_FEEDFORWARD = 6, 7, 12, 13
+"""Columns of ``set_in`` a method reads: σ_{s,l}, σ_{s,u}, the gain K [1/s] and the rate feed-forward f."""
+_SET_IN = 15
 
 EQ_GAIN = 6
 """Column of ``eq_in`` (per equality task: p_d, ṗ_d, gain) holding the gain K [1/s]."""
@@ -102,9 +103,9 @@ def _evaluate_set(
                 d2 = set_in[s, _OBS + 2] - f[0, 2]
                 dist = math.sqrt(d0 * d0 + d1 * d1 + d2 * d2)
                 if dist < 1e-9:
-                    out[SET_SIGMA] = 0.0  # O on P: contact, no usable gradient
+                    out[SET_SIGMA] = -set_in[s, _GROW]  # O on P: contact, no usable gradient
                 else:
-                    out[SET_SIGMA] = dist
+                    out[SET_SIGMA] = dist - set_in[s, _GROW]
                     inv = -1.0 / dist
                     u0, u1, u2 = d0 * inv, d1 * inv, d2 * inv
                     for k in range(set_i[s, 2]):  # partial Jacobian: columns from joint j on are zero
@@ -325,9 +326,12 @@ class TaskEvaluation:
                 continue
             if point is None:
                 set_in[s, _HAS] = 0.0
+                set_in[s, SET_FEEDFORWARD] = set_in[s, _GROW] = 0.0
             else:
                 set_in[s, _OBS : _OBS + 3] = point
                 set_in[s, _HAS] = 1.0
+                set_in[s, SET_FEEDFORWARD] = ob._feedforward  # set with the point (same setter)
+                set_in[s, _GROW] = ob._growth
             seen[k] = point
         if self._positions:
             self._gather_targets()
@@ -361,6 +365,7 @@ class TaskEvaluation:
         out = self.set_out
         for s in self._python_set:
             task = self.set_tasks[s]
+            self.set_in[s, SET_FEEDFORWARD] = task.rate_feedforward
             if self._set_direct[s] and not self.all_jacobians:
                 out[s, SET_SIGMA] = float(task.compute_value(kin))
                 out[s, SET_JAC:] = 0.0  # filled for candidates after the compiled pass
@@ -443,6 +448,7 @@ __all__ = [
     "EQ_GAIN",
     "EQ_JAC",
     "EQ_VALUE",
+    "SET_FEEDFORWARD",
     "SET_GAIN",
     "SET_JAC",
     "SET_LEVEL",

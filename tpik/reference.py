@@ -41,12 +41,20 @@ def effective_gain(gain: float, dt: float, gain_cap: bool = True) -> float:
 
 
 def rate_bounds(
-    sigma: float, safety_lower: float, safety_upper: float, gain: float, dt: float, gain_cap: bool = True
+    sigma: float,
+    safety_lower: float,
+    safety_upper: float,
+    gain: float,
+    dt: float,
+    gain_cap: bool = True,
+    feedforward: float = 0.0,
 ) -> tuple[float, float]:
-    r"""Reference rates of a set-based task: :math:`(K(\sigma_{s,l} - \sigma), K(\sigma_{s,u} - \sigma))`.
+    r"""Reference rates of a set-based task: :math:`(K(\sigma_{s,l} - \sigma) + f, K(\sigma_{s,u} - \sigma) + f)`.
 
-    An infinite threshold gives an infinite rate (no bound on that side); a non-finite σ (e.g.
-    no obstacle in range) gives (−inf, +inf).
+    ``feedforward`` f is the rate the arm must add to cancel what moves σ besides the arm (a
+    predicted approach of the person: :attr:`tpik.tasks.SetTask.rate_feedforward`); 0 for a task
+    only the arm moves. An infinite threshold gives an infinite rate (no bound on that side); a
+    non-finite σ (e.g. no obstacle in range) gives (−inf, +inf).
 
     Returns:
         (lower, upper) rate [task unit/s].
@@ -54,7 +62,7 @@ def rate_bounds(
     if not math.isfinite(sigma):
         return (-math.inf, math.inf)
     k = effective_gain(gain, dt, gain_cap)
-    return (k * (safety_lower - sigma), k * (safety_upper - sigma))
+    return (k * (safety_lower - sigma) + feedforward, k * (safety_upper - sigma) + feedforward)
 
 
 @dataclass(frozen=True)
@@ -82,7 +90,7 @@ class ControlReference:
     def set_rates(self, task: SetTask, sigma: float, dt: float) -> tuple[float, float]:
         r"""Reference rates :math:`(\dot\sigma_l, \dot\sigma_u)` of a set-based task at σ (see :func:`rate_bounds`)."""
         th = task.thresholds
-        return rate_bounds(sigma, th.safety_lower, th.safety_upper, task.gain, dt, self.gain_cap)
+        return rate_bounds(sigma, th.safety_lower, th.safety_upper, task.gain, dt, self.gain_cap, task.rate_feedforward)
 
 
 DEFAULT_REFERENCE = ControlReference()

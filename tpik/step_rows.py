@@ -4,7 +4,7 @@ From the buffers of :class:`tpik.evaluation.TaskEvaluation` this stacks, level b
 rows TPIK can use (DESIGN §3 step 1): every equality row with its CLIK reference
 :math:`x = \dot\sigma_d + K\tilde\sigma` (eq. 2), then every *candidate* set task (σ past an
 activation threshold) with the rate of the safety threshold it crossed,
-:math:`x = K(\sigma_s - \sigma)` (eq. 7), K = min(gain, 1/dt) with the gain cap
+:math:`x = K(\sigma_s - \sigma) + f` (eq. 7, f the task's rate feed-forward), K = min(gain, 1/dt) with the gain cap
 (:func:`tpik.reference.effective_gain`); then it runs :func:`tpik.cascade.search_modes` on them.
 Levels without a row are dropped, as the cascade numbers only the levels that have rows.
 """
@@ -21,6 +21,7 @@ from tpik.evaluation import (
     EQ_FEEDFORWARD,
     EQ_GAIN,
     EQ_JAC,
+    SET_FEEDFORWARD,
     SET_GAIN,
     SET_JAC,
     SET_LEVEL,
@@ -130,7 +131,7 @@ def assemble_rows(
                 sigma = set_out[i_set, SET_SIGMA]
                 target = set_in[i_set, SET_SAFE_HI] if side > 0.0 else set_in[i_set, SET_SAFE_LO]
                 A[r] = set_out[i_set, SET_JAC:]
-                x[r] = _gain(set_in[i_set, SET_GAIN], dt, gain_cap) * (target - sigma)
+                x[r] = _gain(set_in[i_set, SET_GAIN], dt, gain_cap) * (target - sigma) + set_in[i_set, SET_FEEDFORWARD]
                 e[r] = target - sigma
                 row_level[r] = k
                 row_side[r] = side

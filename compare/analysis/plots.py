@@ -42,6 +42,7 @@ from compare.analysis.plot_style import (
     save_figure,
     wall_axis,
 )
+from compare.analysis.plots_prediction import plot_predictions
 from compare.analysis.results import RUNS_DIR, collect_sweep, load_steps, load_summary, safe_name, summarize_sweep_rows
 from compare.analysis.statistics import rate_value
 
@@ -360,7 +361,8 @@ def plot_run(results_dir: Path) -> list[Path]:
     Per method ``<method>_ee_error.png`` (Fig. 3), ``<method>_distances.png`` (Figs. 4/9),
     ``<method>_joints.png`` (Figs. 5/10), ``<method>_ee_walls.png`` (Fig. 8, when the scenario
     has walls), ``<method>_iso15066.png`` (ISO/TS 15066 margin, when the person came within
-    range), and ``comparison.png`` (solve time vs worst safety margin, all methods).
+    range), ``<method>_prediction.png`` (with ``[prediction]``), and ``comparison.png`` (solve time
+    vs worst safety margin, all methods).
     A method whose per-step table is missing only appears in the comparison.
     """
     results_dir = Path(results_dir)
@@ -383,6 +385,7 @@ def plot_run(results_dir: Path) -> list[Path]:
         if path is not None:
             paths.append(path)
         paths += plot_paper_figures(results_dir)
+        paths += plot_predictions(results_dir)
     return paths
 
 

@@ -61,6 +61,7 @@ from compare.loop.sensing_gate import (
 )
 from compare.loop.settings import LoopSettings
 from compare.loop.waypoints import WaypointSchedule
+from compare.sensing.prediction import Predictor
 from qp_baseline.exceptions import HqpError
 from qp_baseline.time_limits import TimeLimitReached
 from robots import Kinematics, Robot
@@ -232,6 +233,7 @@ class _Step:
         settings: LoopSettings,
         obstacles: ObstacleSource | None,
         truth: Callable[[Kinematics], Mapping[str, float]] | None,
+        predictor: Predictor | None = None,
     ) -> None:
         self.io, self.robot, self.hierarchy, self.solver = io, robot, hierarchy, solver
         self.waypoints, self.settings, self.truth = waypoints, settings, truth
@@ -242,11 +244,12 @@ class _Step:
         obstacle_tasks = [t for t in self.set_tasks if isinstance(t, ObstacleDistanceTask)]
         cps = control_points(hierarchy, robot)
         self.events: list[str] = []
-        self.gate = SensingGate(obstacles, obstacle_tasks, cps, settings, self.events)
+        self.gate = SensingGate(obstacles, obstacle_tasks, cps, settings, self.events, predictor)
+        self.predicting = predictor is not None
         self.policy = FallbackPolicy(settings, solver.name, robot.v_max, self.events)
         self.targets = _Targets(ee_position_tasks(hierarchy, robot))
         n_steps = max(1, round(settings.duration_s / settings.dt))
-        self.recorder = StepRecorder(n_steps, robot.nq, self.set_tasks, obstacle_tasks, cps)
+        self.recorder = StepRecorder(n_steps, robot.nq, self.set_tasks, obstacle_tasks, cps, self.predicting)
         self.n_steps = n_steps
         self.reference: ControlReference = solver.reference
         # A deadline miss: flagged by the solver's time-limit guard (compare.loop.deadline) when it
@@ -292,6 +295,8 @@ class _Step:
                 status = SolveStatus.DEGRADED  # a set task's reference rate missed: the same rule for every method
         rec.status(i, status.value)
         rec.distances(i, self.gate.measured, self.gate.source, self.truth(kin) if self.truth is not None else {})
+        if self.predicting:
+            rec.predictions(i, self.gate.predicted)
         return t
 
 
@@ -306,6 +311,7 @@ def run_loop(
     truth: Callable[[Kinematics], Mapping[str, float]] | None = None,
     progress: Callable[[float], None] | None = None,
     on_step: Callable[[], bool] | None = None,
+    predictor: Predictor | None = None,
 ) -> LoopOutput:
     """Run the closed loop for ``settings.duration_s`` and record every step.
 
@@ -320,6 +326,7 @@ def run_loop(
         truth: Ground-truth distance per control point (simulation only), recorded for metrics.
         progress: Called with the elapsed backend time [s] about every 0.5 s.
         on_step: Called after every step (e.g. to sync a viewer); returning False stops the loop.
+        predictor: Prediction of the obstacles' motion handed to the obstacle tasks (``[prediction]``).
 
     Returns:
         :class:`LoopOutput`. A solver error of its own domain (:data:`SOLVER_ERRORS`) is a FAILED
@@ -328,7 +335,7 @@ def run_loop(
     Raises:
         Exception: Any other exception of the solver (a bug): the robot is stopped first.
     """
-    step = _Step(io, robot, hierarchy, solver, waypoints, settings, obstacles, truth)
+    step = _Step(io, robot, hierarchy, solver, waypoints, settings, obstacles, truth, predictor)
     start_wall = time.perf_counter()
     next_progress = 0.0
     try:

@@ -4,7 +4,8 @@ Columns (documented in :mod:`compare.analysis.metrics`): ``t``, EE position and 
 (``ee_*``, ``target_*``, ``ee_error_m``), ``solve_time_us``, ``deadline_miss``, ``waypoint``,
 ``status``, ``reason``, ``fallback``, ``blind``, per set task ``sigma:<task>`` and
 ``active:<task>``, per obstacle task ``truth:<task>``, per control point ``dist_meas:<cp>``,
-``dist_true:<cp>``, ``occluded:<cp>`` and ``camera:<cp>``, and ``q_j`` / ``qdot_j`` per joint
+``dist_true:<cp>``, ``occluded:<cp>`` and ``camera:<cp>`` (with prediction also ``dist_pred:<cp>``
+and ``closing_pred:<cp>``), and ``q_j`` / ``qdot_j`` per joint
 (the sent command). The loop writes row ``i`` in parts, each a method; nothing is allocated per
 step beyond the values themselves (recording is a noticeable share of a fast run).
 """
@@ -32,6 +33,7 @@ class StepRecorder:
         set_tasks: The hierarchy's set-based tasks (σ and activity recorded).
         obstacle_tasks: Its obstacle tasks (true distance of their frame recorded).
         control_points: The control points (measured and true distances recorded).
+        predicted: Record the predicted distance and closing speed of each control point.
     """
 
     def __init__(
@@ -41,6 +43,7 @@ class StepRecorder:
         set_tasks: Sequence[SetTask],
         obstacle_tasks: Sequence[ObstacleDistanceTask],
         control_points: Sequence[str],
+        predicted: bool = False,
     ) -> None:
         self.n = 0
         self.nq = nq
@@ -60,6 +63,9 @@ class StepRecorder:
             cols[f"dist_true:{cp}"] = np.full(n_steps, np.nan)
             cols[f"occluded:{cp}"] = np.zeros(n_steps, dtype=bool)
             cols[f"camera:{cp}"] = np.full(n_steps, "", dtype=object)
+            if predicted:
+                cols[f"dist_pred:{cp}"] = np.full(n_steps, np.nan)
+                cols[f"closing_pred:{cp}"] = np.full(n_steps, np.nan)
         cols["waypoint"] = np.zeros(n_steps, dtype=np.int32)
         cols["status"] = np.empty(n_steps, dtype=object)
         cols["reason"] = np.full(n_steps, "", dtype=object)
@@ -71,6 +77,9 @@ class StepRecorder:
         self._dist = [(cols[f"dist_meas:{cp}"], cols[f"dist_true:{cp}"], cp) for cp in control_points]
         self._source = [(cols[f"occluded:{cp}"], cols[f"camera:{cp}"], cp) for cp in control_points]
         self._truth = [(cols[f"truth:{t.name}"], t.frame) for t in obstacle_tasks]
+        self._predicted = (
+            [(cols[f"dist_pred:{cp}"], cols[f"closing_pred:{cp}"], cp) for cp in control_points] if predicted else []
+        )
         self._ee = (cols["ee_x"], cols["ee_y"], cols["ee_z"])
         self._target = (cols["target_x"], cols["target_y"], cols["target_z"])
         self.sigmas = [math.nan] * len(self._sigma)
@@ -143,6 +152,11 @@ class StepRecorder:
             c_occ[i], c_cam[i] = source[cp]
         for c_truth, frame in self._truth:
             c_truth[i] = true_d.get(frame, math.inf)
+
+    def predictions(self, i: int, predicted: Mapping[str, tuple[float, float]]) -> None:
+        """Row ``i``: predicted distance [m] and closing speed [m/s] per control point."""
+        for c_dist, c_closing, cp in self._predicted:
+            c_dist[i], c_closing[i] = predicted[cp]
 
     def status(self, i: int, status: str) -> None:
         """Row ``i``'s status (``ok`` / ``degraded`` / ``failed``); the row is complete."""

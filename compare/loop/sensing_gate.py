@@ -12,6 +12,10 @@ is caught within half a period plus one control period of being overdue. The old
 as a second guard: no good update for ``max_sensing_age_s`` → blind.
 
 A blind gate makes the loop command zero velocity (``stop_when_blind``, a safe stop).
+
+With a predictor (``[prediction]``, :mod:`compare.sensing.prediction`) every good update also
+goes through it, and each obstacle task receives the predicted point, feed-forward and growth
+instead of the bare closest point.
 """
 
 from __future__ import annotations
@@ -24,6 +28,7 @@ from typing import Protocol
 import numpy as np
 
 from compare.loop.settings import LoopSettings
+from compare.sensing.prediction import Predictor
 from robots import Kinematics
 from tpik.tasks import ObstacleDistanceTask
 
@@ -89,12 +94,15 @@ class SensingGate:
         settings: The loop's rates and limits (``sensing_period_s``, ``stale_frame_periods``,
             ``max_sensing_age_s``).
         events: The run's event log (blind / recovered lines are appended).
+        predictor: Prediction of the obstacles' motion; None = the tasks get the closest points.
 
     Attributes:
         blind: The latest update (or its absence) is not to be trusted: stop.
         reason: Why it is blind ("" when it is not).
         measured: Measured distance per control point of the last good update [m] (inf: none).
         source: Per control point, (reading assumed from hidden space, camera name) of that update.
+        predicted: Per control point, (predicted distance [m], predicted closing speed [m/s]) of
+            that update; (inf, 0) without a predictor or a prediction.
     """
 
     def __init__(
@@ -104,8 +112,10 @@ class SensingGate:
         control_points: Sequence[str],
         settings: LoopSettings,
         events: list[str],
+        predictor: Predictor | None = None,
     ) -> None:
         self.active = obstacles is not None and bool(obstacle_tasks)
+        self._predictor = predictor
         self._obstacles = obstacles
         self._tasks = tuple(obstacle_tasks)
         self._cps = tuple(control_points)
@@ -118,6 +128,7 @@ class SensingGate:
         self.reason = ""
         self.measured: dict[str, float] = dict.fromkeys(self._cps, math.inf)
         self.source: dict[str, tuple[bool, str]] = dict.fromkeys(self._cps, (False, ""))
+        self.predicted: dict[str, tuple[float, float]] = dict.fromkeys(self._cps, (math.inf, 0.0))
         self._next_t = -math.inf
         self._last_good_t = -math.inf
         self._last_stamp = math.nan
@@ -145,13 +156,16 @@ class SensingGate:
         self._problem = sensing_problem(result, t, self._stale_after_s)
         if self._problem is None:
             self._last_good_t = t
-            self._accept(result)
+            self._accept(result, t, kin)
 
-    def _accept(self, result: DistanceResultLike) -> None:
-        """Hand a good update to the obstacle tasks and keep its readings."""
-        for task in self._tasks:
-            r = result.readings.get(task.frame)
-            task.set_obstacle(r.closest_point if r is not None and r.in_range else None)
+    def _accept(self, result: DistanceResultLike, t: float, kin: Kinematics) -> None:
+        """Hand a good update (through the predictor, if any) to the obstacle tasks and keep its readings."""
+        if self._predictor is not None:
+            self._hand_predictions(result, t, kin)
+        else:
+            for task in self._tasks:
+                r = result.readings.get(task.frame)
+                task.set_obstacle(r.closest_point if r is not None and r.in_range else None)
         for cp in self._cps:
             r = result.readings.get(cp)
             usable = r is not None and r.in_range
@@ -160,6 +174,19 @@ class SensingGate:
             self.source[cp] = (
                 (bool(getattr(r, "occluded", False)), getattr(r, "camera", None) or "") if usable else (False, "")
             )
+
+    def _hand_predictions(self, result: DistanceResultLike, t: float, kin: Kinematics) -> None:
+        assert self._predictor is not None
+        predictions = self._predictor.predict(t, result.readings, kin)  # type: ignore[arg-type]
+        for task in self._tasks:
+            p = predictions.get(task.frame)
+            if p is None:
+                task.set_obstacle(None)
+            else:
+                task.set_obstacle(p.point, p.feedforward_mps, p.growth_m)
+        for cp in self._cps:
+            p = predictions.get(cp)
+            self.predicted[cp] = (math.inf, 0.0) if p is None else (p.distance_m, p.closing_mps)
 
     def _judge(self, t: float) -> None:
         """Blind or not at ``t`` [s]; a change (or a new kind of problem) is logged."""

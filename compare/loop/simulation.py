@@ -19,6 +19,7 @@ from compare.loop.sim_io import SimRobotIO
 from compare.sensing.fusion import FusionSettings
 from compare.sensing.geometric_distance import GeometricDistance
 from compare.sensing.person import Person
+from compare.sensing.person_track import PersonTrack
 from compare.sensing.pipeline import (
     DepthPipeline,
     DepthRig,
@@ -26,6 +27,7 @@ from compare.sensing.pipeline import (
     GeometricObstacleSource,
     truth_function,
 )
+from compare.sensing.prediction import EstimatedPrediction, Predictor, TruePrediction
 from compare.sensing.rig import load_rig_workcell
 from compare.sensing.scene import load_workcell
 
@@ -111,3 +113,20 @@ def depth_source(pipeline: DepthPipeline | DepthRig, io: RobotIO, frames: tuple[
     if isinstance(pipeline, DepthRig):
         return pipeline.source(io.read_depth_frames, frames)
     return pipeline.source(io.read_depth, frames)
+
+
+def make_predictor(config: Config, sim: Simulation) -> Predictor | None:
+    """The ``[prediction]`` of ``config`` for the run ``sim`` (None when ``mode = "off"``).
+
+    ``truth`` looks the person up on a track sampled at the control period over the run and its
+    longest horizon; its clock is the simulation's.
+    """
+    settings = config.prediction.settings(config.iso15066, config.sensor.rho_m)
+    if settings is None:
+        return None
+    if settings.mode == "estimated":
+        return EstimatedPrediction(settings, sim.control_points)
+    sc = config.scenario
+    track = PersonTrack.from_person(sim.person, sc.sim_time_s + settings.horizon_s + 1.0, sc.dt)
+    io = sim.io
+    return TruePrediction(settings, sim.control_points, track, lambda _t: io.now())

@@ -25,13 +25,17 @@ from tpik.tasks import ObstacleDistanceTask
 SOLVERS = ("tpik", "hqp-daqp", "mink", "mink-hard")
 
 
-def _hierarchy(jaco, kin, gain: float) -> Hierarchy:
-    """Case 2's levels; obstacles in the activation band of link 6 and 7; EE task 1 mm off."""
+def _hierarchy(jaco, kin, gain: float, feedforward: float = 0.0, growth: float = 0.0) -> Hierarchy:
+    """Case 2's levels; obstacles in the activation band of link 6 and 7 (σ = 0.37 m); EE task 1 mm off.
+
+    With a prediction the obstacle is ``growth`` farther and closes in at ``feedforward``.
+    """
     obstacles = obstacle_level(gain=2.0)
     for task in obstacles.tasks:
         assert isinstance(task, ObstacleDistanceTask)
         if task.frame != "link_4":
-            task.set_obstacle(kin.frame_position(task.frame) + 0.37 * np.array([0.0, 0.6, 0.8]))
+            point = kin.frame_position(task.frame) + (0.37 + growth) * np.array([0.0, 0.6, 0.8])
+            task.set_obstacle(point, feedforward, growth)
     target = kin.frame_position("end_effector") + np.array([0.001, 0.0, 0.0])
     return Hierarchy(
         [joint_limit_level(jaco, gain=2.0), wall_box_level(gain=2.0), obstacles, position_level(target, gain=gain)]
@@ -54,12 +58,17 @@ def _python_reference(hierarchy: Hierarchy, kin, gain_cap: bool):  # type: ignor
 EE = "position_end_effector"
 
 
+PREDICTIONS = [(0.0, 0.0), (0.3, 0.0), (0.0, 0.13), (0.3, 0.13)]
+"""(feed-forward f [m/s], growth g [m]) of the obstacle tasks: none, each alone, both."""
+
+
+@pytest.mark.parametrize(("feedforward", "growth"), PREDICTIONS)
 @pytest.mark.parametrize(("gain_cap", "expected_mps"), [(True, 0.1), (False, 0.5)])
-def test_tpik_rows_carry_the_reference(jaco, gain_cap, expected_mps):
+def test_tpik_rows_carry_the_reference(jaco, gain_cap, expected_mps, feedforward, growth):
     """TPIK's compiled rows (shared evaluation, eq. 2 and eq. 7) hold ControlReference's numbers."""
     solver = make_method("tpik", jaco, {"gain_cap": gain_cap})
     kin = jaco.kinematics(jaco.home)
-    hierarchy = _hierarchy(jaco, kin, gain=500.0)
+    hierarchy = _hierarchy(jaco, kin, gain=500.0, feedforward=feedforward, growth=growth)
     solver.solve(hierarchy, kin, DT)
     ev = solver._plan.evaluation  # type: ignore[attr-defined]
     _, x, _, _, side, cand, _ = assemble_rows(
@@ -75,16 +84,17 @@ def test_tpik_rows_carry_the_reference(jaco, gain_cap, expected_mps):
         lo, hi = rates[name]
         assert xr == pytest.approx(hi if sd > 0.0 else lo, rel=1e-12)
     lo, hi = rates["obstacle_link_6"]
-    assert lo == pytest.approx(2.0 * (0.35 - 0.37), rel=1e-9) and hi == math.inf
+    assert lo == pytest.approx(2.0 * (0.35 - 0.37) + feedforward, rel=1e-9) and hi == math.inf
 
 
+@pytest.mark.parametrize(("feedforward", "growth"), PREDICTIONS)
 @pytest.mark.parametrize("gain_cap", [True, False])
 @pytest.mark.parametrize("name", SOLVERS[1:])
-def test_qp_rows_carry_the_reference(jaco, name, gain_cap):
+def test_qp_rows_carry_the_reference(jaco, name, gain_cap, feedforward, growth):
     """HQP's and mink's set rows (and HQP's EE reference) hold ControlReference's numbers."""
     solver = make_method(name, jaco, {"gain_cap": gain_cap})
     kin = jaco.kinematics(jaco.home)
-    hierarchy = _hierarchy(jaco, kin, gain=500.0)
+    hierarchy = _hierarchy(jaco, kin, gain=500.0, feedforward=feedforward, growth=growth)
     solver.solve(hierarchy, kin, DT)
     kin = jaco.kinematics(jaco.home)
     equality, rates = _python_reference(hierarchy, kin, gain_cap)
@@ -100,6 +110,26 @@ def test_qp_rows_carry_the_reference(jaco, name, gain_cap):
         assert h == pytest.approx(want, rel=1e-9, abs=1e-12), task.name
     if name.startswith("hqp-"):
         np.testing.assert_allclose(solver._levels[-1].r, equality[EE], rtol=1e-12)  # type: ignore[attr-defined]
+    lo, _ = rates["obstacle_link_6"]
+    assert lo == pytest.approx(2.0 * (0.35 - 0.37) + feedforward, rel=1e-9)
+
+
+@pytest.mark.parametrize("name", SOLVERS)
+def test_every_method_cancels_a_predicted_approach(jaco, name):
+    """An obstacle task at its safety threshold with a predicted approach f: every method retreats at f.
+
+    Without the feed-forward the reference rate at σ = σ_s is 0 (the arm holds still while the
+    person closes in); with it, J q̇ = f: the control point moves away as fast as the person comes.
+    """
+    kin = jaco.kinematics(jaco.home)
+    f = 0.2
+    obstacles = obstacle_level(gain=2.0)
+    task = next(t for t in obstacles.tasks if isinstance(t, ObstacleDistanceTask) and t.frame == "link_7")
+    task.set_obstacle(kin.frame_position("link_7") + 0.35 * np.array([0.0, 0.6, 0.8]), f, 0.0)
+    hierarchy = Hierarchy([obstacles])
+    result = make_method(name, jaco).solve(hierarchy, kin, DT)
+    rate = float(task.compute_jacobian(kin)[0] @ result.qdot)
+    assert rate == pytest.approx(f, abs=2e-3)
 
 
 @pytest.mark.parametrize("name", SOLVERS)

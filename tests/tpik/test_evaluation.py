@@ -14,6 +14,7 @@ from tpik.evaluation import (
     EQ_FEEDFORWARD,
     EQ_JAC,
     EQ_VALUE,
+    SET_FEEDFORWARD,
     SET_JAC,
     SET_SIDE,
     SET_SIGMA,
@@ -76,9 +77,12 @@ def test_buffers_equal_compute_state(jaco, jacobians):
         kin = jaco.kinematics(random_configuration(jaco, rng))
         near, on = tasks[4], tasks[6]
         assert isinstance(near, ObstacleDistanceTask) and isinstance(on, ObstacleDistanceTask)
-        near.set_obstacle(kin.frame_position("link_6") + rng.normal(size=3) * 0.3)
+        # A predicted approach: feed-forward f and growth g (σ = ‖O − P‖ − g) every other step.
+        f, g = (rng.uniform(0.0, 1.5), rng.uniform(0.0, 0.4)) if rng.random() < 0.5 else (0.0, 0.0)
+        near.set_obstacle(kin.frame_position("link_6") + rng.normal(size=3) * 0.3, f, g)
         on.set_obstacle(kin.frame_position("link_4"))  # O on P: σ = 0, J = 0
         ev.evaluate(kin)
+        assert ev.set_in[4, SET_FEEDFORWARD] == f and near.rate_feedforward == f
         for s, task in enumerate(ev.set_tasks):
             state = task.compute_state(kin)
             sigma = float(state.value[0])

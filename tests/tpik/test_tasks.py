@@ -7,7 +7,7 @@ import math
 import numpy as np
 import pytest
 
-from tpik.exceptions import TargetNotSet, TaskDefinitionError, ThresholdOrderError
+from tpik.exceptions import InvalidTaskState, TargetNotSet, TaskDefinitionError, ThresholdOrderError
 from tpik.tasks import (
     Activation,
     JointLimitTask,
@@ -132,3 +132,36 @@ def test_value_and_jacobian_alone_equal_the_pair(jaco):
             sigma, jac = task.compute_value_and_jacobian(kin)
             assert task.compute_value(kin) == pytest.approx(sigma, abs=1e-15)
             np.testing.assert_array_equal(task.compute_jacobian(kin), jac)
+
+
+def test_obstacle_growth_moves_every_threshold_out_and_keeps_the_jacobian(jaco):
+    """σ = ‖O − P‖ − g: the task crosses σ_s exactly when the distance crosses σ_s + g; J unchanged."""
+    from tests.test_jacobians import assert_jacobian_matches_finite_differences
+
+    th = Thresholds(0.1, 0.35, math.inf, math.inf, 0.05)
+    kin = jaco.kinematics(jaco.home)
+    point = kin.frame_position("link_6") + np.array([0.0, 0.3, 0.4])  # 0.5 m away
+    plain = ObstacleDistanceTask("plain", "link_6", th)
+    grown = ObstacleDistanceTask("grown", "link_6", th)
+    plain.set_obstacle(point)
+    grown.set_obstacle(point, rate_feedforward=0.7, margin_growth=0.2)
+    s_plain, j_plain = plain.compute_value_and_jacobian(kin)
+    s_grown, j_grown = grown.compute_value_and_jacobian(kin)
+    assert s_plain == pytest.approx(0.5) and s_grown == pytest.approx(0.3)
+    assert grown.compute_value(kin) == pytest.approx(0.3)
+    np.testing.assert_array_equal(j_plain, j_grown)
+    assert grown.activation_state(grown.compute_state(kin)) is Activation.LOWER  # 0.3 <= 0.35 + 0.05
+    assert plain.activation_state(plain.compute_state(kin)) is Activation.INACTIVE
+    # The feed-forward enters the reference rate: K(σ_s − σ) + f.
+    lo, hi = grown.velocity_bounds(grown.compute_state(kin), 0.01)
+    assert lo == pytest.approx(1.0 * (0.35 - 0.3) + 0.7) and hi == math.inf
+    assert_jacobian_matches_finite_differences(grown, jaco)
+    grown.set_obstacle(None)  # no obstacle: no prediction left behind
+    assert grown.rate_feedforward == 0.0 and grown.margin_growth == 0.0
+
+
+@pytest.mark.parametrize(("feedforward", "growth"), [(math.nan, 0.0), (0.0, -0.1), (0.0, math.inf)])
+def test_obstacle_prediction_must_be_finite(feedforward, growth):
+    task = ObstacleDistanceTask("o", "link_6", Thresholds(0.1, 0.35, math.inf, math.inf, 0.05))
+    with pytest.raises(InvalidTaskState, match="rate_feedforward"):
+        task.set_obstacle(np.zeros(3), feedforward, growth)

@@ -7,6 +7,7 @@ import math
 import numpy as np
 
 from robots import Kinematics, Robot
+from tpik.exceptions import InvalidTaskState
 from tpik.tasks._targets import as_finite_vector
 from tpik.tasks.registry import GAIN_KEY, GROUP_KEY, TaskKey, TaskSpec
 from tpik.tasks.task import SetTask, Task, Thresholds
@@ -16,13 +17,18 @@ class ObstacleDistanceTask(SetTask):
     r"""Keep a control point P away from its closest obstacle point O.
 
     .. math::
-        \sigma = \|O - P\|,\qquad
+        \sigma = \|O - P\| - g,\qquad
         J = -\frac{(O - P)^T}{\|O - P\|}\, J^{1..j}_{pos}
 
     where :math:`J^{1..j}_{pos}` is the partial position Jacobian of the control point
     (columns ``j..n`` zero, paper sec. III). O is supplied from outside (depth sensing or
     geometry) with :meth:`set_obstacle`; O is taken as fixed over the step. With no obstacle
     (``None``) σ = +inf and J = 0: the task stays inactive.
+
+    A prediction of the obstacle's motion enters through two numbers given with O (both 0
+    without prediction, the paper's task): the margin growth g ≥ 0 [m] (σ ≥ σ_s holds exactly
+    when ‖O − P‖ ≥ σ_s + g: every threshold grows by g) and the rate feed-forward f
+    (:attr:`rate_feedforward`, the predicted closing speed [m/s], added to the reference rate).
 
     Args:
         name: Task name.
@@ -48,10 +54,37 @@ class ObstacleDistanceTask(SetTask):
         self.frame = frame
         self.joint = joint
         self._obstacle: np.ndarray | None = None
+        self._feedforward = 0.0
+        self._growth = 0.0
 
-    def set_obstacle(self, point: np.ndarray | None) -> None:
-        """Set the closest obstacle point O [m] in the base frame (copied), or None."""
-        self._obstacle = None if point is None else as_finite_vector(self.name, "obstacle", point, 3)
+    def set_obstacle(self, point: np.ndarray | None, rate_feedforward: float = 0.0, margin_growth: float = 0.0) -> None:
+        """Set the closest obstacle point O [m] in the base frame (copied), or None.
+
+        Args:
+            point: O [m], or None (no obstacle: f and g are reset to 0).
+            rate_feedforward: f [m/s], finite.
+            margin_growth: g [m], finite and ≥ 0.
+        """
+        if point is None:
+            self._obstacle, self._feedforward, self._growth = None, 0.0, 0.0
+            return
+        f, g = float(rate_feedforward), float(margin_growth)
+        if not (math.isfinite(f) and math.isfinite(g) and g >= 0.0):
+            raise InvalidTaskState(
+                f"task '{self.name}': rate_feedforward must be finite and margin_growth finite and >= 0, got {f}, {g}"
+            )
+        self._obstacle = as_finite_vector(self.name, "obstacle", point, 3)
+        self._feedforward, self._growth = f, g
+
+    @property
+    def rate_feedforward(self) -> float:
+        """f: the predicted closing speed of the obstacle, added to the reference rate [m/s]."""
+        return self._feedforward
+
+    @property
+    def margin_growth(self) -> float:
+        """g: how far every threshold is moved out by the prediction [m]."""
+        return self._growth
 
     @property
     def obstacle(self) -> np.ndarray | None:
@@ -59,24 +92,24 @@ class ObstacleDistanceTask(SetTask):
         return None if self._obstacle is None else self._obstacle.copy()
 
     def compute_value(self, kin: Kinematics) -> float:
-        """σ = ‖O − P‖ [m]; +inf without obstacle."""
+        """σ = ‖O − P‖ − g [m]; +inf without obstacle."""
         if self._obstacle is None:
             return math.inf
         diff = self._obstacle - kin.frame_position(self.frame)
         dist = math.sqrt(diff.dot(diff))
-        return 0.0 if dist < 1e-9 else dist  # as compute_value_and_jacobian
+        return (0.0 if dist < 1e-9 else dist) - self._growth  # as compute_value_and_jacobian
 
     def compute_value_and_jacobian(self, kin: Kinematics) -> tuple[float, np.ndarray]:
-        """σ = ‖O − P‖ and the paper's partial-Jacobian row; (inf, 0) without obstacle."""
+        """σ = ‖O − P‖ − g and the paper's partial-Jacobian row; (inf, 0) without obstacle."""
         if self._obstacle is None:
             return math.inf, np.zeros((1, kin.nq))
         diff = self._obstacle - kin.frame_position(self.frame)
         dist = math.sqrt(diff.dot(diff))
         if dist < 1e-9:
             # O on P: the direction is undefined; report contact with no usable gradient.
-            return 0.0, np.zeros((1, kin.nq))
+            return -self._growth, np.zeros((1, kin.nq))
         diff *= -1.0 / dist
-        return dist, diff.dot(kin.partial_position_jacobian(self.frame, self.joint))[None, :]
+        return dist - self._growth, diff.dot(kin.partial_position_jacobian(self.frame, self.joint))[None, :]
 
 
 OBSTACLE_DISTANCE_KEYS: tuple[TaskKey, ...] = (

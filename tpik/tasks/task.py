@@ -267,15 +267,28 @@ class SetTask(Task):
         r"""Bounds on σ̇ that keep σ inside the safety set one step ahead (used by HQP and mink).
 
         .. math::
-            K(\sigma_{s,l} - \sigma) \le \dot\sigma \le K(\sigma_{s,u} - \sigma),
+            K(\sigma_{s,l} - \sigma) + f \le \dot\sigma \le K(\sigma_{s,u} - \sigma) + f,
             \quad K = \min(\text{gain}, 1/dt)
 
         The one control reference of :mod:`tpik.reference`: capping K at 1/dt (``gain_cap``)
-        makes the explicit Euler step land at most on the threshold. A non-finite σ gives
+        makes the explicit Euler step land at most on the threshold; f is
+        :attr:`rate_feedforward`. A non-finite σ gives
         (−inf, +inf).
         """
         th = self.thresholds
-        return rate_bounds(float(state.value[0]), th.safety_lower, th.safety_upper, self.gain, dt, gain_cap)
+        return rate_bounds(
+            float(state.value[0]), th.safety_lower, th.safety_upper, self.gain, dt, gain_cap, self.rate_feedforward
+        )
+
+    @property
+    def rate_feedforward(self) -> float:
+        r"""f: the rate of σ the arm must add to cancel what moves σ besides the arm [σ unit/s].
+
+        Added to both reference rates (:func:`tpik.reference.rate_bounds`). 0 here: only the arm
+        moves σ. :class:`~tpik.tasks.ObstacleDistanceTask` gives the predicted approach of the
+        obstacle.
+        """
+        return 0.0
 
     def margins(self, sigma: float) -> tuple[float, float]:
         """Signed margins (safety, physical) of σ: > 0 inside the set, < 0 violated."""
