@@ -1,13 +1,13 @@
 """One record per QP backend: what the HQP cascade, the mink peer and the benches need to know of it.
 
 Everything backend-specific lives here (settings, retry, tolerance, the final min-norm level, warm
-start, matrix format, its quirks, its time-limit argument); the solvers read the record by the
-backend's name and hold no table or branch of their own.
+start, matrix format, its quirks and the glue they need, its time-limit argument); the solvers read
+the record by the backend's name and hold no table or branch of their own.
 """
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -20,7 +20,7 @@ class QpBackend:
         name: qpsolvers' name.
         defaults: Settings every solve starts from; user settings override them key by key.
         retry: Settings of the one retry after a failed or rejected answer (the Hessian then
-            gets :data:`qp_baseline.hqp.RETRY_REGULARIZATION` more on its diagonal).
+            gets :data:`qp_baseline.hqp_attempts.RETRY_REGULARIZATION` more on its diagonal).
         tolerance: Accepted constraint violation of an answer [rad/s or m/s].
         min_norm_level: Whether the cascade's final min-norm level is solved by default
             (inexact backends need it).
@@ -29,9 +29,10 @@ class QpBackend:
         warns_on_failure: qpsolvers warns when it fails (silenced: failures are reported in the step).
         prints: The C library prints to stdout whatever ``verbose`` says (silenced).
         time_limit_key: The backend's own wall-clock time-limit argument, or None.
-        initial_guess_by_name: ``initial_guess`` may be given as the name of the backend's enum.
-        ignores_unknown_settings: The backend accepts unknown setting names silently (they are
-            checked against its settings object instead).
+        enum_settings: Settings whose value may be given as the name of a member of the
+            backend's enum: setting name → a function giving the members by name.
+        setting_names: For a backend that accepts unknown setting names silently, a function
+            giving the names it knows (unknown ones are rejected against them); None otherwise.
     """
 
     name: str
@@ -44,8 +45,23 @@ class QpBackend:
     warns_on_failure: bool = False
     prints: bool = False
     time_limit_key: str | None = None
-    initial_guess_by_name: bool = False
-    ignores_unknown_settings: bool = False
+    enum_settings: Mapping[str, Callable[[], Mapping[str, Any]]] = field(default_factory=dict)
+    setting_names: Callable[[], frozenset[str]] | None = None
+
+
+def _proxqp_initial_guesses() -> Mapping[str, Any]:
+    """ProxQP's ``InitialGuess`` members by name."""
+    from proxsuite import proxqp
+
+    members: Mapping[str, Any] = proxqp.InitialGuess.__members__
+    return members
+
+
+def _piqp_setting_names() -> frozenset[str]:
+    """The names of PIQP's settings (it ignores unknown names silently)."""
+    import piqp
+
+    return frozenset(a for a in dir(piqp.DenseSolver().settings) if not a.startswith("_"))
 
 
 BACKENDS: dict[str, QpBackend] = {
@@ -98,7 +114,7 @@ BACKENDS: dict[str, QpBackend] = {
             "primal_infeasibility_solving": True,
         },
         min_norm_level=True,
-        initial_guess_by_name=True,
+        enum_settings={"initial_guess": _proxqp_initial_guesses},
     ),
     "clarabel": QpBackend(
         "clarabel",
@@ -114,7 +130,7 @@ BACKENDS: dict[str, QpBackend] = {
         defaults={"eps_abs": 1e-9, "eps_rel": 0.0},
         retry={"eps_abs": 1e-7, "eps_rel": 0.0, "max_iter": 1000},
         min_norm_level=True,
-        ignores_unknown_settings=True,
+        setting_names=_piqp_setting_names,
     ),
 }
 """The backends the project is tested with, in the order they are listed to users. Warm start is

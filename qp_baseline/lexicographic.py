@@ -47,6 +47,7 @@ import qpsolvers
 from qp_baseline.certificate import Certificate, Tolerances, certify
 from qp_baseline.exceptions import HqpError
 from qp_baseline.polish import polish
+from qp_baseline.qp_problem import DenseProblem, without_empty_rows
 from robots import Kinematics, Robot
 from tpik.hierarchy import Hierarchy
 from tpik.tasks import SetTask
@@ -198,34 +199,46 @@ def solve_level_qp(
     ub: np.ndarray,
     tolerances: Tolerances = REFERENCE_TOLERANCES,
 ) -> tuple[np.ndarray, Certificate]:
+    """:func:`solve_reference_qp` of the QP given by its arrays.
+
+    Raises:
+        ReferenceSolutionError: Neither the polished nor the raw answer meets ``tolerances``.
+    """
+    return solve_reference_qp(DenseProblem(P, c, G, h, A, b, lb, ub), tolerances)
+
+
+def solve_reference_qp(
+    problem: DenseProblem, tolerances: Tolerances = REFERENCE_TOLERANCES
+) -> tuple[np.ndarray, Certificate]:
     """Solve one QP to the reference's accuracy: Clarabel, then active-set polish, then certify.
 
     Raises:
         ReferenceSolutionError: Neither the polished nor the raw answer meets ``tolerances``.
     """
-    problem = qpsolvers.Problem(
-        P, c, G if h.size else None, h if h.size else None, A if b.size else None, b if b.size else None, lb, ub
-    )
+    as_given = without_empty_rows(problem)
     best: Certificate | None = None
     certified: tuple[np.ndarray, Certificate] | None = None
     for solver, settings in FIRST_PASSES:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
             try:
-                sol = qpsolvers.solve_problem(problem, solver=solver, **settings)
+                sol = qpsolvers.solve_problem(as_given, solver=solver, **settings)
             except Exception:  # noqa: BLE001 - a backend error only means: try the next first pass
                 continue
         if sol.x is None or not np.isfinite(sol.x).all():
             continue
-        candidates = [(sol.x, sol.y, sol.z, sol.z_box)]
-        polished = polish(P, c, G, h, lb, ub, sol.x.copy(), sol.z, sol.z_box, A, b)
+        candidates = [sol]
+        polished = polish(problem, sol.x.copy(), sol.z, sol.z_box)
         if polished is not None:
             candidates.insert(0, polished)
-        for x, y, z, z_box in candidates:
-            cert = certify(P, c, G, h, x, A=A, b=b, lb=lb, ub=ub, y=y, z=z, z_box=z_box, tolerances=tolerances)
+        for answer in candidates:
+            x = answer.x
+            if x is None:
+                continue
+            cert = certify(problem, x, y=answer.y, z=answer.z, z_box=answer.z_box, tolerances=tolerances)
             if cert.passed and not _kkt_ok(cert, tolerances):
                 # The bound holds but the multipliers' own residuals are off: recover them for x.
-                cert = certify(P, c, G, h, x, A=A, b=b, lb=lb, ub=ub, tolerances=tolerances)
+                cert = certify(problem, x, tolerances=tolerances)
             if cert.passed and _kkt_ok(cert, tolerances):
                 return x, cert
             if cert.passed and certified is None:
@@ -248,8 +261,8 @@ def _task_level_qp(
     lb: np.ndarray,
     ub: np.ndarray,
     regularization: float,
-) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    r"""(P, c, G, h, A, b, lb, ub) of one task level in x = [q̇; w] (module docstring).
+) -> DenseProblem:
+    r"""The QP of one task level in x = [q̇; w] (module docstring).
 
     :math:`\min \|J\dot q - r\|^2 + \epsilon\|\dot q\|^2 + \|w\|^2` under the earlier levels'
     fixed rows, this level's rows with slack w ≥ 0, the earlier equality rows ``A q̇ = b`` and the box.
@@ -270,7 +283,7 @@ def _task_level_qp(
     # A finite slack bound every backend accepts: above the largest violation the box allows.
     reach = lv.G @ (0.5 * (ub + lb)) + np.abs(lv.G) @ (0.5 * (ub - lb)) - lv.h
     x_ub = np.concatenate([ub, np.maximum(reach, 0.0) + 1.0])
-    return P, c, G, h, A_x, b, x_lb, x_ub
+    return DenseProblem(P, c, G, h, A_x, b, x_lb, x_ub)
 
 
 def solve_reference(
@@ -305,7 +318,7 @@ def solve_reference(
             slacks.append(np.zeros(0))
             continue
         A, b = _independent_rows(eq_J, eq_J @ qdot)
-        x, cert = solve_level_qp(*_task_level_qp(lv, fixed_G, fixed_h, A, b, lb, ub, regularization), tolerances)
+        x, cert = solve_reference_qp(_task_level_qp(lv, fixed_G, fixed_h, A, b, lb, ub, regularization), tolerances)
         qdot = np.clip(x[:n], lb, ub)
         w = np.maximum(lv.G @ qdot - lv.h, 0.0)
         slacks.append(w)

@@ -74,9 +74,9 @@ import mujoco
 import numpy as np
 import qpsolvers
 
+from qp_baseline.backend_call import available_qp_solvers, backend_iterations, backend_kwargs, probe_settings
 from qp_baseline.backends import BACKENDS
 from qp_baseline.exceptions import InvalidSettings, UnknownSolver
-from qp_baseline.hqp import available_qp_solvers, backend_iterations, backend_kwargs, probe_settings
 from qp_baseline.mink_kinematics import MinkKinematics
 from qp_baseline.set_rows import SetRowBuilder, SetRows
 from qp_baseline.time_limits import TimeLimited

@@ -14,46 +14,36 @@ the polished answer (:func:`qp_baseline.certificate.certify`) and keeps it only 
 from __future__ import annotations
 
 import numpy as np
+import qpsolvers
+
+from qp_baseline.qp_problem import DenseProblem
 
 
 def polish(
-    P: np.ndarray,
-    q: np.ndarray,
-    G: np.ndarray,
-    h: np.ndarray,
-    lb: np.ndarray,
-    ub: np.ndarray,
+    problem: DenseProblem,
     x: np.ndarray,
     z: np.ndarray | None = None,
     z_box: np.ndarray | None = None,
-    A: np.ndarray | None = None,
-    b: np.ndarray | None = None,
     active: float = 1e-9,
     max_rounds: int = 25,
-) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None:
+) -> qpsolvers.Solution | None:
     """Polish ``x`` (module docstring).
 
     Args:
-        P: Cost matrix. Shape (n, n).
-        q: Cost vector. Shape (n,).
-        G: Inequality matrix. Shape (m, n).
-        h: Inequality bounds. Shape (m,).
-        lb: Lower bounds (finite entries taken as rows). Shape (n,).
-        ub: Upper bounds, likewise. Shape (n,).
+        problem: The QP; finite entries of its box are taken as rows.
         x: Approximate answer. Shape (n,).
         z: Its row multipliers (None: unknown). Shape (m,).
         z_box: Its box multipliers, qpsolvers' sign convention (None: unknown). Shape (n,).
-        A: Equality matrix, or None. Shape (p, n).
-        b: Equality right-hand side, or None. Shape (p,).
         active: A row within this of binding starts active.
         max_rounds: Largest number of KKT solves.
 
     Returns:
-        ``(x, y, z, z_box)`` of the last round, or None when it is not finite.
+        The last round's answer and multipliers ``x, y, z, z_box`` (``found`` set), or None when
+        it is not finite. Nothing says it is optimal: the caller certifies it.
     """
+    P, q, G, h, lb, ub = problem.P, problem.q, problem.G, problem.h, problem.lb, problem.ub
+    A_, b_ = problem.A, problem.b
     n = x.shape[0]
-    A_ = np.zeros((0, n)) if A is None else A
-    b_ = np.zeros(0) if b is None else b
     lo_rows, hi_rows = np.flatnonzero(np.isfinite(lb)), np.flatnonzero(np.isfinite(ub))
     Gb = np.vstack([G, np.eye(n)[hi_rows], -np.eye(n)[lo_rows]])
     hb = np.concatenate([h, ub[hi_rows], -lb[lo_rows]])
@@ -77,7 +67,7 @@ def polish(
     z_box_out = np.zeros(n)
     z_box_out[hi_rows] += mult[m : m + hi_rows.size]
     z_box_out[lo_rows] -= mult[m + hi_rows.size :]
-    return x, y, mult[:m], z_box_out
+    return qpsolvers.Solution(problem, found=True, x=x, y=y, z=mult[:m], z_box=z_box_out)
 
 
 def _row_multipliers(

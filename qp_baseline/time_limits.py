@@ -3,7 +3,8 @@
 A method's solve may take at most a budget (``[solver_limit]`` of the scenario, the same for
 every method). A QP-based method checks it before each backend call and hands the backend what
 is left, where the backend has a time limit of its own. The names and units, checked against
-each backend's documentation and the installed versions (qpsolvers 4.13 passes them through):
+each backend's documentation and the installed versions (qpsolvers 4.13 passes them through), are
+the records' ``time_limit_key`` (:data:`qp_baseline.backends.BACKENDS`):
 
 ========== ================ ===========================================================
 backend    setting          notes
@@ -36,8 +37,6 @@ from typing import Any, Protocol
 from qp_baseline.backends import BACKENDS
 from qp_baseline.exceptions import HqpError
 from tpik.step_result import SolverBase
-
-"""Backend → name of its time-limit setting [s] (module docstring)."""
 
 CLOCKS: dict[str, Callable[[], float]] = {"wall": time.perf_counter, "cpu": time.thread_time}
 """Clocks a budget can be measured on [s]."""

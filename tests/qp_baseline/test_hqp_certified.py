@@ -16,13 +16,14 @@ from typing import Any
 
 import numpy as np
 import pytest
+import qpsolvers
 
-import qp_baseline.hqp as hqp_module
+import qp_baseline.hqp_attempts as hqp_attempts
 from compare.bench.correctness import compare_levels
 from compare.bench.qp_states import QpState, apply_qp_state
 from compare.bench.solver_cases import case2_hierarchy
 from qp_baseline.backends import BACKENDS
-from qp_baseline.exceptions import NoSolutionFound
+from qp_baseline.exceptions import InvalidSettings, NoSolutionFound
 from qp_baseline.hqp import HqpSolver
 from qp_baseline.lexicographic import level_objectives, lexicographic_reference
 from tests.qp_baseline.helpers import DT, SOLVERS
@@ -93,7 +94,7 @@ def _pre_issue_solver(jaco: object, backend: str, monkeypatch: pytest.MonkeyPatc
             retry={"eps_abs": 1e-6, "eps_rel": 0.0, "polish": True},
         )
         monkeypatch.setitem(BACKENDS, "osqp", earlier)
-    monkeypatch.setattr(hqp_module, "RETRY_REGULARIZATION", 1e-6)
+    monkeypatch.setattr(hqp_attempts, "RETRY_REGULARIZATION", 1e-6)
     return HqpSolver(jaco, backend, {"certify": False})  # type: ignore[arg-type]
 
 
@@ -123,20 +124,20 @@ def _all_levels_binding(jaco: object) -> tuple[Hierarchy, object]:
 
 
 def _level_of(args: tuple[object, ...], kwargs: dict[str, object]) -> object:
-    return kwargs.get("level", args[8] if len(args) > 8 else 0)
+    return kwargs.get("level", args[2] if len(args) > 2 else 0)
 
 
 def test_a_dropped_level_is_degraded_and_counted_with_the_levels_below(jaco, monkeypatch):
     hierarchy, kin = _all_levels_binding(jaco)
     hqp = HqpSolver(jaco, "daqp", {"unconstrained_first": False})
-    real = hqp.solve_qp
+    real = hqp.solve_problem
 
     def fail_at_level_two(*args, **kwargs):
         if _level_of(args, kwargs) == 2:
             raise NoSolutionFound(2, None, "fake failure")
         return real(*args, **kwargs)
 
-    monkeypatch.setattr(hqp, "solve_qp", fail_at_level_two)
+    monkeypatch.setattr(hqp, "solve_problem", fail_at_level_two)
     result = hqp.solve(hierarchy, kin, DT)
     assert result.status.value == "degraded"
     assert result.extras["levels_dropped"] == 2  # obstacles and operational
@@ -149,13 +150,13 @@ def test_an_uncertified_answer_is_kept_degraded_and_failed_at_level_zero(jaco, m
     hqp = HqpSolver(jaco, "daqp", {"unconstrained_first": False})
     certified = hqp.solve(hierarchy, kin, DT)
     assert certified.status.value == "ok" and certified.extras["qp_calls"] >= 4
-    real = hqp.solve_qp
+    real = hqp.solve_problem
 
     def doubt_one_level(*args, **kwargs):
         answer = real(*args, **kwargs)
         return dataclasses.replace(answer, certified=False) if _level_of(args, kwargs) == level else answer
 
-    monkeypatch.setattr(hqp, "solve_qp", doubt_one_level)
+    monkeypatch.setattr(hqp, "solve_problem", doubt_one_level)
     result = hqp.solve(hierarchy, kin, DT)
     assert result.status.value == status, result.message
     assert "not certified" in result.message
@@ -177,15 +178,15 @@ def test_the_level_log_holds_the_problems_the_backend_solved(jaco, solver):
         assert record.x is not None and record.certificate is not None and record.certificate.passed
         assert record.certificate.primal_residual <= hqp.tolerance
         # The logged problem is the one solved: re-solved exactly, the same objective.
-        exact = hqp_module.qpsolvers.solve_problem(record.problem(), solver="clarabel", tol_gap_abs=1e-11)
+        exact = qpsolvers.solve_problem(record.problem(), solver="clarabel", tol_gap_abs=1e-11)
         assert record.objective(record.x) == pytest.approx(record.objective(exact.x), abs=1e-6)
     assert set(result.extras["certificates"]) <= {"joint_limits", "walls", "obstacles", "operational", "min_norm"}
 
 
 def test_certificate_settings_are_validated(jaco):
-    with pytest.raises(hqp_module.InvalidSettings, match="objective_tolerance"):
+    with pytest.raises(InvalidSettings, match="objective_tolerance"):
         HqpSolver(jaco, "daqp", {"objective_tolerance": -1.0})
-    with pytest.raises(hqp_module.InvalidSettings, match="certify"):
+    with pytest.raises(InvalidSettings, match="certify"):
         HqpSolver(jaco, "daqp", {"certify": "yes"})
 
 
@@ -201,9 +202,9 @@ def test_warm_start_hands_each_level_its_previous_answer_in_this_steps_variables
     starts: list[np.ndarray | None] = []
     real = hqp._call_backend
 
-    def capture(P, q, G, h, lb, ub, initvals, kwargs):
+    def capture(problem, initvals, kwargs):
         starts.append(None if initvals is None else initvals.copy())
-        return real(P, q, G, h, lb, ub, initvals, kwargs)
+        return real(problem, initvals, kwargs)
 
     monkeypatch.setattr(hqp, "_call_backend", capture)
     hqp.qp_log = []

@@ -10,6 +10,7 @@ import pytest
 from qp_baseline.hqp import HqpSolver
 from tests.qp_baseline.helpers import DT, SOLVERS, joint_limit_level, position_level
 from tpik.hierarchy import Hierarchy, Level
+from tpik.limits import compose_box
 from tpik.tasks import ObstacleDistanceTask, Thresholds, VirtualWallTask
 
 
@@ -30,7 +31,7 @@ def test_infeasible_obstacle_request_gets_the_minimal_slack(jaco, solver):
     # Minimal slack: lo − max over the hard box of J q̇ (the QP's best effort).
     state = task.compute_state(kin)
     lo, _ = task.velocity_bounds(state, DT)
-    lb, ub = hqp._box(kin.q, DT)
+    lb, ub = compose_box(hqp.limits, kin.q, DT)
     expected = lo - _max_over_box(state.jacobian[0], lb, ub)
     assert expected > 1.0
     assert result.extras["slacks"]["safety"]["obstacle"] == pytest.approx(expected, abs=max(1e-6, 10 * hqp.tolerance))

@@ -98,7 +98,7 @@ def test_qp_rows_carry_the_reference(jaco, name, gain_cap, feedforward, growth):
     solver.solve(hierarchy, kin, DT)
     kin = jaco.kinematics(jaco.home)
     equality, rates = _python_reference(hierarchy, kin, gain_cap)
-    builder = solver._rows  # type: ignore[attr-defined]
+    builder = solver._layout.rows if name.startswith("hqp-") else solver._rows  # type: ignore[attr-defined]
     rows = builder.build(kin, DT)
     hold = builder.hold_at_zero
     assert len(rows.h) >= 2 * 3 + 6  # both limits of 3 joints, 6 walls, obstacles in range
@@ -109,7 +109,7 @@ def test_qp_rows_carry_the_reference(jaco, name, gain_cap, feedforward, growth):
         want = (max(hi, 0.0) if hold else hi) if upper else (-min(lo, 0.0) if hold else -lo)
         assert h == pytest.approx(want, rel=1e-9, abs=1e-12), task.name
     if name.startswith("hqp-"):
-        np.testing.assert_allclose(solver._levels[-1].r, equality[EE], rtol=1e-12)  # type: ignore[attr-defined]
+        np.testing.assert_allclose(solver._layout.levels[-1].r, equality[EE], rtol=1e-12)  # type: ignore[attr-defined]
     lo, _ = rates["obstacle_link_6"]
     assert lo == pytest.approx(2.0 * (0.35 - 0.37) + feedforward, rel=1e-9)
 

@@ -55,9 +55,9 @@ def wall_level_qp(jaco):
     captured = []
     real = hqp._call_backend
 
-    def capture(P, q_, G, h, lb, ub, initvals, kwargs):
-        captured.append((P.copy(), q_.copy(), G.copy(), h.copy(), lb.copy(), ub.copy()))
-        return real(P, q_, G, h, lb, ub, initvals, kwargs)
+    def capture(problem, initvals, kwargs):
+        captured.append(tuple(a.copy() for a in (problem.P, problem.q, problem.G, problem.h, problem.lb, problem.ub)))
+        return real(problem, initvals, kwargs)
 
     hqp._call_backend = capture  # type: ignore[method-assign]
     result = hqp.solve(hierarchy, jaco.kinematics(q), DT)
@@ -115,11 +115,12 @@ def _recording(hqp: HqpSolver, answer: object) -> list[dict[str, object]]:
     calls: list[dict[str, object]] = []
     real = hqp._call_backend
 
-    def call(P, q, G, h, lb, ub, initvals, kwargs):
+    def call(problem, initvals, kwargs):
+        P = problem.P
         calls.append({"P": P.copy(), "initvals": None if initvals is None else initvals.copy(), "kwargs": kwargs})
         if answer(P, kwargs):
             return _Fake(None, found=False)  # what the buggy backend reports
-        return real(P, q, G, h, lb, ub, initvals, kwargs)
+        return real(problem, initvals, kwargs)
 
     hqp._call_backend = call  # type: ignore[method-assign]
     return calls
@@ -269,7 +270,8 @@ def test_every_bad_answer_ends_in_a_safe_zero_velocity(jaco, monkeypatch, behavi
     hqp = HqpSolver(jaco, "daqp", {"unconstrained_first": False})
     calls = {"n": 0}
 
-    def fake(P, q, G, h, lb, ub, initvals, kwargs):
+    def fake(problem, initvals, kwargs):
+        q, lb, ub = problem.q, problem.lb, problem.ub
         calls["n"] += 1
         if behaviour == "raises":
             raise RuntimeError("backend exploded")
