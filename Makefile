@@ -93,7 +93,7 @@ docs: install
 	$(PY) -m compare.config_doc
 
 bench: install
-	$(PY) -m compare.bench
+	$(VENV)/bin/tpik-compare bench
 
 clean:
 	rm -rf $(VENV) results .pytest_cache .ruff_cache .mypy_cache

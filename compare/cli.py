@@ -677,11 +677,21 @@ def bench(
     only: Annotated[
         str | None, typer.Option(help="solvers | sensing | plant | loop | correctness (default all).")
     ] = None,
-    methods: MethodsOpt = None,
+    methods: Annotated[
+        list[str] | None,
+        typer.Option(
+            "--methods",
+            "-m",
+            help="Solvers: a method of the case-2 table (repeatable; default tpik tpik-paper tpik-ss hqp-daqp mink).",
+        ),
+    ] = None,
     config: Annotated[
         Path | None,
         typer.Option("--config", help="Scenario TOML: its robot, levels (case-2 hierarchy) and method settings."),
     ] = None,
+    max_candidates: Annotated[
+        int, typer.Option(min=-1, max=12, help="Solvers: largest |C| of the TPIK-vs-candidates table; -1 skips it.")
+    ] = 8,
     rounds: Annotated[int, typer.Option(min=1, help="Correctness: timed passes over the reference states.")] = 3,
     tolerance: Annotated[
         float, typer.Option(min=1e-12, help="Correctness: level error within which a level matches the reference.")
@@ -733,44 +743,27 @@ def bench(
     throughput ceiling (compare/bench/plant.py). --only loop times the closed loop's parts on
     whole runs, one method at a time: where a campaign step goes (compare/bench/loop_parts.py).
     """
-    from compare.bench.__main__ import GROUPS
-    from compare.bench.__main__ import main as bench_main
+    from compare.bench.suite import BenchOptions, run_bench
 
-    if only is not None and only not in GROUPS:
-        _fail(f"--only must be {', '.join(GROUPS[:-1])} or {GROUPS[-1]}, got '{only}'")
-    if not export_method.startswith("hqp-"):
-        _fail(f"--export-method must be an hqp-<backend> method, got '{export_method}'")
-    argv: list[str] = ["--repeats", str(repeats), "--rounds", str(rounds), "--tolerance", str(tolerance)]
-    argv += ["--export-method", export_method]
-    if json_out is not None:
-        argv += ["--json", str(json_out)]
-    if only is not None:
-        argv += ["--only", only]
-    if methods:
-        argv += ["--methods", *methods]
-    if config is not None:
-        argv += ["--config", str(config)]
-    if backends:
-        bad = [b for b in backends if not b.startswith("hqp-")]
-        if bad:
-            _fail(f"--backends takes hqp-<backend> methods only, got {', '.join(bad)}")
-        argv += ["--backends", *backends]
-    if loop_methods:
-        argv += ["--loop-methods", *loop_methods]
-    if loop_seeds:
-        argv += ["--loop-seeds", *map(str, loop_seeds)]
-    for flag, value in (
-        ("--plot", plot_out),
-        ("--csv", csv_out),
-        ("--export-qps", export_qps),
-        ("--sweep", sweep_dir),
-        ("--family", family),
-    ):
-        if value is not None:
-            argv += [flag, str(value)]
-    code = bench_main(argv)
-    if code:
-        raise typer.Exit(code)
+    given = {"methods": methods, "backends": backends, "loop_methods": loop_methods, "loop_seeds": loop_seeds}
+    lists: dict[str, Any] = {name: tuple(value) for name, value in given.items() if value}  # absent: the default
+    options = BenchOptions(
+        only=only,
+        repeats=repeats,
+        json_out=json_out,
+        config=config,
+        max_candidates=max_candidates,
+        family=family,
+        sweep=sweep_dir,
+        rounds=rounds,
+        tolerance=tolerance,
+        plot=plot_out,
+        csv=csv_out,
+        export_qps=export_qps,
+        export_method=export_method,
+        **lists,
+    )
+    run_bench(options)
 
 
 @app.command()

@@ -863,14 +863,15 @@ class HardwareConfig(_Strict):
 
 
 class ExtensionsConfig(_Strict):
-    """Python modules imported before the hierarchy is built, e.g. new task types (docs/extending.md).
+    """Python modules imported before the hierarchy is built, e.g. new task types or metrics (docs/extending.md).
 
     Attributes:
         modules: Module names importable from ``sys.path`` (``my_package.my_tasks``) or ``.py``
             files; a relative file path is relative to the config file (to the working directory
             when the config does not come from a file). Each module registers its task types with
-            :func:`tpik.register_task` when imported; every process that builds the hierarchy
-            (sweep workers included) imports them.
+            :func:`tpik.register_task` and its metrics with
+            :func:`compare.analysis.metrics.register_metric` when imported; every process that
+            builds the hierarchy (sweep workers included) and a sweep's own process import them.
     """
 
     modules: list[str] = Field(default_factory=list)

@@ -1,9 +1,13 @@
-"""docs/extending.md, done: a new set-based task in one file plus one registration, from TOML.
+"""docs/extending.md, done: a new set-based task, and a new metric, in one file each, from TOML.
 
 ``docs/examples/elbow_height.py`` defines and registers ``elbow_height``; the scenario
 ``docs/examples/elbow_height.toml`` imports it (``[extensions]``) and runs TPIK, HQP and mink
 on it. The task's σ is recomputed here from the recorded joint positions with the model's
 forward kinematics (pinocchio), independently of the task class.
+
+``docs/examples/ee_path_length.py`` registers the metric ``ee_path_length_m``; a sweep whose
+config imports it has it in every run's summary (checked against the forward kinematics of the
+recorded joints), in ``sweep_runs.csv``, ``sweep_summary.json``, the run table and the sweep report.
 """
 
 from __future__ import annotations
@@ -14,11 +18,15 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 import pytest
+from rich.console import Console
 from typer.testing import CliRunner
 
+import compare.config
 import robots
-from compare.analysis.report import render_report
-from compare.analysis.results import flatten_method
+from compare.analysis.metrics import registered_metrics, unregister_metric
+from compare.analysis.report import summary_table
+from compare.analysis.results import flatten_method, load_summary, sweep_run_dir
+from compare.campaign.sweep import run_sweep
 from compare.cli import app
 from compare.config import import_extensions, load_config
 from compare.run import run_scenario
@@ -26,7 +34,9 @@ from tests.test_jacobians import assert_jacobian_matches_finite_differences
 from tpik import TaskDefinitionError, build_tasks
 
 EXAMPLES = Path(__file__).resolve().parents[1] / "docs" / "examples"
+CONFIGS = Path(__file__).resolve().parents[1] / "configs"
 TOML = EXAMPLES / "elbow_height.toml"
+METRIC = "ee_path_length_m"
 METHODS = ("tpik", "hqp-daqp", "mink")
 MIN_HEIGHT_M = 0.6  # as in the TOML
 START_Q = [4.71, 2.24, 0.0, 0.75, 4.62, 4.48, 4.88]  # home with joint 2 lowered: elbow at 0.53 m
@@ -92,10 +102,12 @@ def test_a_start_below_the_threshold_is_counted_as_its_violation(tmp_path, metho
     assert group["safety_margin_min"] == pytest.approx(z.min() - MIN_HEIGHT_M, abs=1e-9)
     assert group["safety_margin_min"] == pytest.approx(z0 - MIN_HEIGHT_M, abs=2e-3)  # worst at the start
     assert z[-1] > z0 + 0.05  # brought back up toward the threshold
-    # A sweep row and the run report carry the group too.
+    # A sweep row and the run table carry the group too.
     row = flatten_method(m)
     assert row["elbow_height_violations"] == group["violations"] and row["elbow_height_present"]
-    assert "elbow_height margin" in render_report(out).read_text()
+    console = Console(width=250, record=True)
+    console.print(summary_table(summary))
+    assert "elbow_height margin" in console.export_text()
 
 
 def test_the_example_task_jacobian_matches_finite_differences(jaco_model):
@@ -115,6 +127,53 @@ def test_the_example_task_errors_name_the_key(jaco_model):
 
 def test_the_page_shows_the_example_files_as_they_are():
     page = (EXAMPLES.parent / "extending.md").read_text(encoding="utf-8")
-    for name, fence in (("elbow_height.py", "python"), ("elbow_height.toml", "toml")):
+    for name, fence in (("elbow_height.py", "python"), ("elbow_height.toml", "toml"), ("ee_path_length.py", "python")):
         source = (EXAMPLES / name).read_text(encoding="utf-8").rstrip()
         assert f"```{fence}\n{source}\n```" in page, f"docs/extending.md does not show {name} as it is"
+
+
+@pytest.fixture
+def path_metric(monkeypatch: pytest.MonkeyPatch):
+    """The example metric's module imported as an extension, and forgotten afterwards (the registry is global)."""
+    monkeypatch.setattr(compare.config, "_EXTENSIONS", {})
+    yield str(EXAMPLES / "ee_path_length.py")
+    unregister_metric(METRIC)
+
+
+def _fk_path_length(steps: pd.DataFrame, robot: robots.Robot) -> float:
+    q = steps[[f"q_{i}" for i in range(1, robot.nq + 1)]].to_numpy()
+    p = np.array([robot.frame_position(qi, robot.ee_frame) for qi in q])
+    return float(np.linalg.norm(np.diff(p, axis=0), axis=1).sum())
+
+
+@pytest.mark.slow
+def test_a_new_metric_reaches_the_summary_the_sweep_and_the_reports(tmp_path, path_metric, jaco_model):
+    overrides = {
+        "scenario.duration_s": 3.0,
+        "scenario.simulation": "kinematic",
+        "scenario.sensing": "geometric",
+        "extensions.modules": [path_metric],
+        "methods.names": ["tpik", "hqp-daqp"],
+    }
+    config, text = load_config(CONFIGS / "random.toml", overrides)
+    sweep = run_sweep(config, text, tmp_path, n=2, workers=1, progress=False)
+    assert METRIC in {m.name for m in registered_metrics()}  # imported by the sweep, from [extensions]
+    lengths: dict[str, list[float]] = {"tpik": [], "hqp-daqp": []}
+    for k in range(2):
+        run_dir = sweep_run_dir(tmp_path, k)
+        summary = load_summary(run_dir)
+        for method, values in lengths.items():
+            steps = pd.read_parquet(run_dir / summary["methods"][method]["steps_file"])
+            value = summary["methods"][method][METRIC]
+            assert value == pytest.approx(_fk_path_length(steps, jaco_model), rel=1e-9)
+            assert value > 0.05  # the arm moved toward its waypoints
+            values.append(value)
+    console = Console(width=250, record=True)
+    console.print(summary_table(summary))
+    assert "EE path [m]" in console.export_text()
+    rows = pd.read_csv(tmp_path / "sweep_runs.csv")
+    assert sorted(rows[METRIC]) == pytest.approx(sorted(lengths["tpik"] + lengths["hqp-daqp"]))
+    for method, values in lengths.items():
+        assert sweep["methods"][method][METRIC] == pytest.approx({"median": np.median(values), "max": max(values)})
+    report = (tmp_path / "sweep_report.md").read_text(encoding="utf-8")
+    assert "## Other metrics per method" in report and "EE path [m], median of runs" in report

@@ -26,8 +26,6 @@ column                     unit     meaning
 ``solve_time_us``          µs       wall time of the solver call
 ``status``                 str      ``ok`` | ``degraded`` | ``failed``
 ``fallback``               bool     the loop replaced the solver output by the safe fallback
-``deadline_miss``          bool     the solve took longer than its deadline (the control period,
-                                    or the solver time limit when one is set)
 ``blind``                  bool     sensing reported a blind or stale frame
 ``deadline_miss``          bool     the solve missed its deadline: no answer within the solver
                                     time limit (``compare.loop.deadline``; the step is FAILED and
@@ -44,9 +42,13 @@ column                     unit     meaning
 ``iso_vr_mps:F``           m/s      speed of ``F`` toward the person
 ========================== ======== ===========================================================
 
-``compare.run.run_method`` adds per method ``faults`` (per fault kind: injected steps,
-reaction, latencies; :meth:`compare.loop.faults.FaultInjector.summarize`), ``unsafe_commands``
-and ``iso15066`` (:func:`compare.analysis.iso15066.summarize`) to the summary.
+Each metric is a :class:`~compare.analysis.metric.Metric` registered here, in the order of
+``summary.json``: what it computes from the table, its columns of ``sweep_runs.csv``, its
+aggregates in ``sweep_summary.json`` and its columns in the run table and the sweep report.
+``compare.run.run_method`` writes ``faults`` (per fault kind: injected steps, reaction,
+latencies; :meth:`compare.loop.faults.FaultInjector.summarize`), ``unsafe_commands``, ``iso15066``
+(:func:`compare.analysis.iso15066.summarize`), ``solve_worst_us`` and ``deadline_steal_excused``
+itself; they are registered without ``compute``, for their sweep columns and aggregates.
 
 Margins are signed, in the task's unit, positive inside the allowed set:
 
@@ -60,15 +62,28 @@ range, or a row the loop could not fill) contributes nothing.
 from __future__ import annotations
 
 import math
-from collections.abc import Iterable
-from dataclasses import dataclass
-from pathlib import Path
+from collections.abc import Callable, Iterable, Sequence
 from typing import Any
 
 import numpy as np
 import pandas as pd
 
-from compare.exceptions import CompareError
+from compare.analysis.metric import (
+    Column,
+    Entry,
+    Metric,
+    MetricsError,
+    RunMeta,
+    RunSteps,
+    SetTaskInfo,
+    SweepRuns,
+    fmt_number,
+    fmt_percent,
+    no_columns,
+    rate_with_ci,
+    to_jsonable,
+)
+from compare.analysis.statistics import bootstrap_median_ci
 from tpik.hierarchy import Hierarchy
 
 GROUPS: tuple[str, ...] = ("joint_limits", "walls", "obstacles")
@@ -78,61 +93,11 @@ Every group, these and any other a set task names (:attr:`tpik.tasks.SetTask.gro
 new safety task's), is also under ``"groups"``: ``summary["groups"][<group>]`` (:func:`task_groups`).
 """
 
+GROUP_HEADERS = {"joint_limits": "joint margin [rad]", "walls": "wall margin [m]", "obstacles": "obstacle margin [m]"}
+"""Run-table headers of the DESIGN §7 groups (another group: ``<group> margin``)."""
 
-class MetricsError(CompareError, ValueError):
-    """The per-step table does not match the run description (missing columns, empty table)."""
-
-
-@dataclass(frozen=True)
-class SetTaskInfo:
-    """Name, group and thresholds of one scalar set-based task.
-
-    Attributes:
-        name: Task name (the ``sigma:<name>`` / ``active:<name>`` columns).
-        group: The task's metrics group (:attr:`tpik.tasks.SetTask.group`): ``joint_limits``,
-            ``walls``, ``obstacles`` or any other; each group is summarised under its name.
-        physical_lower: σ_m, physical lower threshold (−inf if none) [task unit].
-        safety_lower: σ_{s,l}, safety lower threshold (−inf if none) [task unit].
-        safety_upper: σ_{s,u}, safety upper threshold (+inf if none) [task unit].
-        physical_upper: σ_M, physical upper threshold (+inf if none) [task unit].
-    """
-
-    name: str
-    group: str
-    physical_lower: float
-    safety_lower: float
-    safety_upper: float
-    physical_upper: float
-
-    def to_dict(self) -> dict[str, Any]:
-        """JSON-ready dict; infinite thresholds become ``None`` (no bound on that side)."""
-        return to_jsonable(
-            {
-                "name": self.name,
-                "group": self.group,
-                "physical_lower": self.physical_lower,
-                "safety_lower": self.safety_lower,
-                "safety_upper": self.safety_upper,
-                "physical_upper": self.physical_upper,
-            }
-        )
-
-    @classmethod
-    def from_dict(cls, data: dict[str, Any]) -> SetTaskInfo:
-        """Inverse of :meth:`to_dict` (``None`` lower/upper → −inf/+inf)."""
-
-        def bound(key: str, default: float) -> float:
-            value = data.get(key)
-            return default if value is None else float(value)
-
-        return cls(
-            name=str(data["name"]),
-            group=str(data["group"]),
-            physical_lower=bound("physical_lower", -math.inf),
-            safety_lower=bound("safety_lower", -math.inf),
-            safety_upper=bound("safety_upper", math.inf),
-            physical_upper=bound("physical_upper", math.inf),
-        )
+STATUSES = ("ok", "degraded", "failed")
+"""Step statuses, the same for every method (DESIGN §3)."""
 
 
 def set_task_infos(hierarchy: Hierarchy) -> tuple[SetTaskInfo, ...]:
@@ -144,61 +109,6 @@ def set_task_infos(hierarchy: Hierarchy) -> tuple[SetTaskInfo, ...]:
             SetTaskInfo(task.name, task.group, th.physical_lower, th.safety_lower, th.safety_upper, th.physical_upper)
         )
     return tuple(infos)
-
-
-@dataclass(frozen=True)
-class RunMeta:
-    """What the metrics need to know about a run besides its per-step table.
-
-    Attributes:
-        scenario: Scenario name.
-        seed: Random seed of the scenario.
-        method: Method key (``tpik``, ``hqp-daqp``, ``mink``, ...).
-        dt: Control period [s].
-        sim_time_s: Simulated time covered [s].
-        wall_time_s: Wall-clock time of the loop [s].
-        sensing: ``depth`` or ``geometric``.
-        set_tasks: Every scalar set-based task of the hierarchy.
-        control_points: Frames of the obstacle control points (``dist_*:<frame>`` columns;
-            ``compare.loop.closed_loop.control_points``); none = no distances reported.
-        warmup_steps: Untimed solves made before the first control step (not in the table,
-            hence not in the solve-time percentiles).
-    """
-
-    scenario: str
-    seed: int
-    method: str
-    dt: float
-    sim_time_s: float
-    wall_time_s: float
-    sensing: str
-    set_tasks: tuple[SetTaskInfo, ...]
-    control_points: tuple[str, ...] = ()
-    warmup_steps: int = 0
-
-
-def to_jsonable(obj: Any) -> Any:
-    """Convert ``obj`` to plain JSON types: numpy scalars/arrays → Python, NaN/±inf → ``None``.
-
-    Dict keys become strings, tuples become lists, paths become strings.
-    """
-    if isinstance(obj, dict):
-        return {str(k): to_jsonable(v) for k, v in obj.items()}
-    if isinstance(obj, list | tuple):
-        return [to_jsonable(v) for v in obj]
-    if isinstance(obj, np.ndarray):
-        return [to_jsonable(v) for v in obj.tolist()]
-    if isinstance(obj, np.generic):
-        obj = obj.item()
-    if isinstance(obj, bool) or obj is None or isinstance(obj, str):
-        return obj
-    if isinstance(obj, int):
-        return int(obj)
-    if isinstance(obj, float):
-        return obj if math.isfinite(obj) else None
-    if isinstance(obj, Path):
-        return str(obj)
-    return str(obj)
 
 
 def margins(sigma: np.ndarray, lower: float, upper: float) -> np.ndarray:
@@ -233,12 +143,12 @@ def task_groups(set_tasks: Iterable[SetTaskInfo]) -> tuple[str, ...]:
     return GROUPS + tuple(dict.fromkeys(extra))
 
 
-def summary_groups(method_summary: dict[str, Any]) -> tuple[str, ...]:
+def summary_groups(method_summary: Entry) -> tuple[str, ...]:
     """The set-task groups of a method summary (the keys of its ``groups``; :data:`GROUPS` if absent)."""
     return tuple(method_summary.get("groups") or GROUPS)
 
 
-def group_summary(method_summary: dict[str, Any], group: str) -> dict[str, Any] | None:
+def group_summary(method_summary: Entry, group: str) -> dict[str, Any] | None:
     """The metrics of one group in a method summary (``None`` when the run has no task of it)."""
     groups = method_summary.get("groups")
     value = groups.get(group) if isinstance(groups, dict) else method_summary.get(group)
@@ -251,23 +161,21 @@ def _nanmin(x: np.ndarray) -> float | None:
     return float(x.min()) if x.size else None
 
 
-def _column(steps: pd.DataFrame, name: str, default: float = math.nan) -> np.ndarray:
-    if name in steps.columns:
-        return steps[name].to_numpy(dtype=float, na_value=np.nan)
-    return np.full(len(steps), default)
+def _min_finite(values: Iterable[Any]) -> float | None:
+    finite = [float(v) for v in values if v is not None and math.isfinite(float(v))]
+    return min(finite) if finite else None
 
 
-def _bool_column(steps: pd.DataFrame, name: str) -> np.ndarray:
-    if name not in steps.columns:
-        return np.zeros(len(steps), dtype=bool)
-    return steps[name].astype("boolean").fillna(False).to_numpy(dtype=bool)
+def _max_finite(values: Iterable[Any]) -> float | None:
+    finite = [float(v) for v in values if v is not None and math.isfinite(float(v))]
+    return max(finite) if finite else None
 
 
-def task_sigma_for_safety(steps: pd.DataFrame, task: SetTaskInfo) -> np.ndarray:
+def task_sigma_for_safety(run: RunSteps, task: SetTaskInfo) -> np.ndarray:
     """σ used for the safety metrics: ``truth:N`` when recorded (obstacle tasks), else ``sigma:N``."""
-    if f"truth:{task.name}" in steps.columns:
-        return _column(steps, f"truth:{task.name}")
-    return _column(steps, f"sigma:{task.name}")
+    if run.has(f"truth:{task.name}"):
+        return run.column(f"truth:{task.name}")
+    return run.column(f"sigma:{task.name}")
 
 
 VIOLATION_TOLERANCE = 1e-3
@@ -379,10 +287,609 @@ def peak_joint_acceleration(steps: pd.DataFrame) -> float | None:
     return float(acc.max()) if acc.size else None
 
 
+# ------------------------------------------------------------------ what several metrics share
+
+
+def _set_task_results(run: RunSteps) -> tuple[dict[str, dict[str, Any]], dict[str, dict[str, Any] | None]]:
+    """Per task (with its violation masks) and per group (:func:`task_groups`): the margin metrics."""
+    tasks = run.meta.set_tasks
+    per_task = {task.name: _task_metrics(task_sigma_for_safety(run, task), task, run.dt) for task in tasks}
+    groups = {
+        group: _group_metrics(per_task, [t for t in tasks if t.group == group], run.dt) for group in task_groups(tasks)
+    }
+    return per_task, groups
+
+
+def _groups(run: RunSteps) -> dict[str, dict[str, Any] | None]:
+    return run.shared(_set_task_results)[1]
+
+
+def _status(run: RunSteps) -> pd.Series:
+    return run.steps["status"].astype("string").fillna("")
+
+
+def _active(run: RunSteps) -> np.ndarray:
+    """Set tasks in the active set per step (the ``active:N`` columns recorded). Shape (T, k)."""
+    cols = [f"active:{task.name}" for task in run.meta.set_tasks if run.has(f"active:{task.name}")]
+    active = np.zeros((len(run), len(cols)), dtype=bool)
+    for k, col in enumerate(cols):
+        active[:, k] = run.flag(col)
+    return active
+
+
+def _toggles(run: RunSteps) -> int:
+    active = run.shared(_active)
+    return int(np.count_nonzero(active[1:] != active[:-1])) if len(run) > 1 else 0
+
+
+def _waypoints(run: RunSteps) -> tuple[list[int], list[float | None]]:
+    waypoint = run.steps["waypoint"].to_numpy(dtype=int) if run.has("waypoint") else np.zeros(len(run), int)
+    t = run.steps["t"].to_numpy(dtype=float)
+    return waypoint_times(t, waypoint, run.column("ee_error_m"), run.waypoint_tolerance_m)
+
+
+def _finite_ee_error(run: RunSteps) -> np.ndarray:
+    e = run.column("ee_error_m")
+    return e[np.isfinite(e)]
+
+
+def _ee_error(run: RunSteps) -> dict[str, float | None]:
+    """The EE error [m] at the last step where it is finite, and its mean."""
+    e = run.shared(_finite_ee_error)
+    return {"final": float(e[-1]) if e.size else None, "mean": float(e.mean()) if e.size else None}
+
+
+def _solve_time_us(run: RunSteps) -> dict[str, float | None]:
+    return _percentiles_us(run.column("solve_time_us"))
+
+
+def _by_active_count(run: RunSteps) -> dict[str, Any]:
+    """Solve-time median and p99 [µs] per number of active set tasks."""
+    solve_us = run.column("solve_time_us")
+    n_active = run.shared(_active).sum(axis=1).astype(int)
+    out: dict[str, Any] = {}
+    for k in np.unique(n_active):
+        sel = solve_us[(n_active == k) & np.isfinite(solve_us)]
+        if sel.size:
+            out[str(int(k))] = {
+                "steps": int(sel.size),
+                "median": float(np.median(sel)),
+                "p99": float(np.percentile(sel, 99)),
+            }
+    return out
+
+
+def _time_below_physical_s(run: RunSteps) -> float:
+    """Time with any set task past its physical threshold (exact: no tolerance) [s]."""
+    below = np.zeros(len(run), dtype=bool)
+    for task in run.meta.set_tasks:
+        physical = margins(task_sigma_for_safety(run, task), task.physical_lower, task.physical_upper)
+        with np.errstate(invalid="ignore"):
+            below |= np.nan_to_num(physical, nan=0.0) < 0.0
+    return float(np.count_nonzero(below) * run.dt)
+
+
+def _per_rate(run: RunSteps, value: float) -> float | None:
+    sim_time_s = float(run.meta.sim_time_s)
+    return value / sim_time_s if sim_time_s > 0 else None
+
+
+# ------------------------------------------------------------------------------- columns
+
+
+def _margin_cell(entry: Entry, group: str) -> str:
+    g = group_summary(entry, group)
+    if g is None:
+        return "n/a"
+    cell = fmt_number(g.get("safety_margin_min"), "+.3f")
+    if g.get("violations"):
+        cell += f" ({g['violations']}× {g.get('violation_time_s', 0.0):.2f} s)"
+    return cell
+
+
+def _margin_style(entry: Entry, group: str) -> str | None:
+    g = group_summary(entry, group)
+    negative = g is not None and g.get("safety_margin_min") is not None and g["safety_margin_min"] < 0
+    return "bold red" if negative else None
+
+
+def _margin_column(group: str) -> Column:
+    return Column(
+        GROUP_HEADERS.get(group, f"{group} margin"),
+        lambda e: _margin_cell(e, group),
+        lambda e: _margin_style(e, group),
+    )
+
+
+def _other_groups(entries: Sequence[Entry]) -> list[str]:
+    """The set-task groups beyond :data:`GROUPS` of some method summary (a new safety task's)."""
+    found = [g for m in entries for g in summary_groups(m)]
+    return [g for g in dict.fromkeys(found) if g not in GROUPS]
+
+
+def misses_cell(m: Entry) -> str:
+    """Deadline misses, with the solves kept once the hypervisor's steal was taken out ("+ k steal").
+
+    After ``tpik-compare recheck-misses``: how many misses were re-timed and how many of them
+    the method's own cost at that state reproduced (:mod:`compare.campaign.miss_recheck`).
+    """
+    excused = m.get("deadline_steal_excused")
+    if isinstance(excused, dict):
+        excused = excused.get("steps")
+    text = str(m.get("deadline_misses", "–"))
+    if isinstance(excused, int) and excused > 0:
+        text += f" (+{excused} steal)"
+    recheck = m.get("deadline_recheck")  # tpik-compare recheck-misses (compare.campaign.miss_recheck)
+    if isinstance(recheck, dict) and recheck.get("rechecked"):
+        text += f"; re-timed {recheck['rechecked']}: {recheck.get('reproduced', 0)} reproduced"
+    return text
+
+
+def _status_counts(entry: Entry) -> str:
+    st = entry.get("status_steps") or {}
+    return " / ".join(str(st.get(k, "–")) for k in STATUSES)
+
+
+def _failed_share(entry: Entry) -> str:
+    steps = entry.get("steps") or 0
+    failed = (entry.get("status_steps") or {}).get("failed", 0)
+    return _status_counts(entry) + (f" ({100.0 * failed / steps:.2f} %)" if steps else "")
+
+
+def _solve_median_ci(entry: Entry) -> str:
+    solve = entry.get("solve_time_us") or {}
+    ci = solve.get("median_of_medians_ci95")
+    return fmt_number(solve.get("median_of_medians"), ".0f") + (f" [{ci[0]:.0f}, {ci[1]:.0f}]" if ci else "")
+
+
+def _sub(entry: Entry, key: str, sub: str) -> Any:
+    return (entry.get(key) or {}).get(sub)
+
+
+# ---------------------------------------------------------------------------- aggregates
+
+
+def _violated(runs: SweepRuns, group: str) -> pd.Series:
+    return runs.positive(f"{group}_violations")
+
+
+def _sweep_groups(runs: SweepRuns) -> list[str]:
+    """:data:`GROUPS`, then any other set-task group with columns in the sweep's rows."""
+    found = [c.removesuffix("_present") for c in runs.rows.columns if c.endswith("_present")]
+    return list(dict.fromkeys([*GROUPS, *found]))
+
+
+def _flatten_groups(entry: Entry) -> dict[str, Any]:
+    row: dict[str, Any] = {}
+    for group in summary_groups(entry):
+        g = group_summary(entry, group)
+        row[f"{group}_present"] = g is not None
+        g = g or {}
+        row[f"{group}_safety_margin_min"] = g.get("safety_margin_min")
+        row[f"{group}_physical_margin_min"] = g.get("physical_margin_min")
+        row[f"{group}_violations"] = int(g.get("violations") or 0)
+        row[f"{group}_violation_time_s"] = float(g.get("violation_time_s") or 0.0)
+    return row
+
+
+def _aggregate_groups(runs: SweepRuns) -> dict[str, Any]:
+    """Shares of runs with a violation per kind, and the worst margins of every group."""
+    groups = _sweep_groups(runs)
+    limits_or_walls = _violated(runs, "joint_limits") | _violated(runs, "walls")
+    obstacles = _violated(runs, "obstacles")
+    other = pd.Series(False, index=runs.rows.index)
+    for group in groups[len(GROUPS) :]:  # a new safety task's group
+        other |= _violated(runs, group)
+    return {
+        "share_runs_limit_or_wall_violation": runs.share(limits_or_walls),
+        "share_runs_obstacle_violation": runs.share(obstacles),
+        "share_runs_any_violation": runs.share(limits_or_walls | obstacles | other),
+        "worst_safety_margin": {g: runs.stat(f"{g}_safety_margin_min", "min") for g in groups},
+        "worst_physical_margin": {g: runs.stat(f"{g}_physical_margin_min", "min") for g in groups},
+        "share_runs_joint_limit_violation": runs.share(_violated(runs, "joint_limits")),
+        "share_runs_wall_violation": runs.share(_violated(runs, "walls")),
+    }
+
+
+def _sweep_group_columns(entries: Sequence[Entry]) -> list[Column]:
+    others = list(dict.fromkeys(g for m in entries for g in (m.get("worst_safety_margin") or {}) if g not in GROUPS))
+
+    def worst(group: str) -> Column:
+        header = {"joint_limits": "worst joint margin [rad]", "walls": "worst wall margin [m]"}.get(
+            group, f"worst {group} margin"
+        )
+        return Column(header, lambda e: fmt_number(_sub(e, "worst_safety_margin", group), "+.4f"), section="safety")
+
+    return [
+        Column(
+            "joint-limit or wall violation",
+            lambda e: rate_with_ci(e.get("share_runs_limit_or_wall_violation")),
+            section="safety",
+        ),
+        Column("obstacle violation", lambda e: rate_with_ci(e.get("share_runs_obstacle_violation")), section="safety"),
+        worst("joint_limits"),
+        worst("walls"),
+        *[worst(g) for g in others],
+    ]
+
+
+def _flatten_solve_time(entry: Entry) -> dict[str, Any]:
+    return {f"solve_{k}_us": _sub(entry, "solve_time_us", k) for k in ("median", "p95", "p99", "max")}
+
+
+def _aggregate_solve_time(runs: SweepRuns) -> dict[str, Any]:
+    return {
+        "solve_time_us": {
+            "median_of_medians": runs.stat("solve_median_us", "median"),
+            "median_of_medians_ci95": bootstrap_median_ci(runs.finite("solve_median_us")),
+            "p99_of_medians": runs.stat("solve_median_us", "p99"),
+            "median_of_p99": runs.stat("solve_p99_us", "median"),
+            "max": runs.stat("solve_max_us", "max"),
+            # The worst steady-state step on the time limit's clock (CPU by default; every timed
+            # step is after the warm-up): what the deadline misses are counted on.
+            "max_on_limit_clock": runs.stat("solve_worst_us", "max"),
+        },
+        "solve_time_percentiles_us": {
+            "p50_of_run_p99": runs.stat("solve_p99_us", "median"),
+            "p95_of_run_p99": runs.stat("solve_p99_us", "p95"),
+            "max_of_run_p99": runs.stat("solve_p99_us", "max"),
+            "p95_of_run_medians": runs.stat("solve_median_us", "p95"),
+        },
+    }
+
+
+def _flatten_min_distance(entry: Entry) -> dict[str, Any]:
+    dist = entry.get("min_obstacle_distance_m") or []
+    cps = entry.get("control_points") or [f"cp{i}" for i in range(len(dist))]
+    row: dict[str, Any] = {"min_obstacle_distance_m": _min_finite(dist)}
+    for cp, d in zip(cps, dist, strict=False):
+        row[f"min_obstacle_distance_m:{cp}"] = d
+    return row
+
+
+def _flatten_iso(entry: Entry) -> dict[str, Any]:
+    iso = entry.get("iso15066") or {}
+    return {
+        "iso_min_margin_m": iso.get("min_margin_m"),
+        "iso_time_below_zero_s": iso.get("time_below_zero_s"),
+        "iso_human_speed_max_mps": iso.get("human_speed_max_mps"),
+    }
+
+
+def _flatten_faults(entry: Entry) -> dict[str, Any]:
+    faults = entry.get("faults") or {}
+    kinds = [f for f in faults.values() if isinstance(f, dict)]
+    return {
+        "fault_injected_steps": int(sum((f.get("injected_steps") or 0) for f in faults.values())),
+        "fault_unreacted": int(sum(f.get("reaction") == "none" for f in faults.values())),
+        "fault_reaction_latency_s_max": _max_finite(f.get("reaction_latency_s_max") for f in kinds),
+    }
+
+
+def _aggregate_status(runs: SweepRuns) -> dict[str, Any]:
+    steps = runs.total("steps")
+    status_steps = {k: runs.total(f"status_steps_{k}") for k in STATUSES}
+    return {
+        "status_steps": status_steps,
+        "share_steps_failed": status_steps["failed"] / steps if steps else None,
+        "share_steps_degraded": status_steps["degraded"] / steps if steps else None,
+    }
+
+
+def _total(name: str) -> Callable[[SweepRuns], dict[str, Any]]:
+    """Aggregate: the integer sum of the column ``name`` over the runs, under ``name``."""
+    return lambda runs: {name: runs.total(name)}
+
+
+# ------------------------------------------------------------------------- the built-ins
+
+_EXTRA = no_columns
+"""``flatten`` of an entry kept in ``summary.json`` only."""
+
+BUILTIN_METRICS: tuple[Metric, ...] = (
+    Metric(
+        "solve_time_us",
+        "µs",
+        _solve_time_us,
+        flatten=_flatten_solve_time,
+        aggregate=_aggregate_solve_time,
+        run_columns=(
+            Column("solve median [µs]", lambda e: fmt_number(_sub(e, "solve_time_us", "median"), ".1f")),
+            Column("solve p99 [µs]", lambda e: fmt_number(_sub(e, "solve_time_us", "p99"), ".1f")),
+        ),
+        sweep_columns=(
+            Column("solve median [µs] (bootstrap 95 %)", _solve_median_ci, section="cost"),
+            Column(
+                "median of run p99 [µs]",
+                lambda e: fmt_number(_sub(e, "solve_time_us", "median_of_p99"), ".0f"),
+                section="cost",
+            ),
+            Column(
+                "p95 of run p99 [µs]",
+                lambda e: fmt_number(_sub(e, "solve_time_percentiles_us", "p95_of_run_p99"), ".0f"),
+                section="cost",
+            ),
+            Column(
+                "worst step after warm-up [µs] (wall / limit clock)",
+                lambda e: (
+                    fmt_number(_sub(e, "solve_time_us", "max"), ".0f")
+                    + " / "
+                    + fmt_number(_sub(e, "solve_time_us", "max_on_limit_clock"), ".0f")
+                ),
+                section="cost",
+            ),
+        ),
+    ),
+    Metric(
+        "realtime_factor",
+        "",
+        lambda run: run.meta.sim_time_s / run.meta.wall_time_s if run.meta.wall_time_s > 0 else None,
+        aggregate=("median", "min"),
+        run_columns=(Column("realtime ×", lambda e: fmt_number(e.get("realtime_factor"), ".2f")),),
+        sweep_columns=(
+            Column(
+                "realtime × (median)", lambda e: fmt_number(_sub(e, "realtime_factor", "median"), ".1f"), section="cost"
+            ),
+        ),
+    ),
+    *(
+        Metric(group, "", lambda run, g=group: _groups(run)[g], flatten=_EXTRA, run_columns=(_margin_column(group),))
+        for group in GROUPS
+    ),
+    Metric(
+        "groups",
+        "",
+        _groups,
+        flatten=_flatten_groups,
+        aggregate=_aggregate_groups,
+        run_columns=lambda entries: [_margin_column(g) for g in _other_groups(entries)],
+        sweep_columns=_sweep_group_columns,
+    ),
+    Metric(
+        "min_obstacle_distance_m",
+        "m",
+        lambda run: [_nanmin(run.column(f"dist_true:{cp}")) for cp in run.meta.control_points],
+        flatten=_flatten_min_distance,
+        aggregate=lambda runs: {"min_obstacle_distance_m": runs.stat("min_obstacle_distance_m", "min")},
+        run_columns=(
+            Column(
+                "min obstacle dist. [m]",
+                lambda e: fmt_number(_min_finite(e.get("min_obstacle_distance_m") or []), ".3f"),
+            ),
+        ),
+    ),
+    Metric(
+        "ee_error_m",
+        "m",
+        _ee_error,
+        flatten=lambda entry: {
+            "ee_error_final_m": _sub(entry, "ee_error_m", "final"),
+            "ee_error_mean_m": _sub(entry, "ee_error_m", "mean"),
+        },
+        aggregate=lambda runs: {
+            "ee_error_final_m": {
+                "median": runs.stat("ee_error_final_m", "median"),
+                "max": runs.stat("ee_error_final_m", "max"),
+            }
+        },
+        run_columns=(Column("EE final error [m]", lambda e: fmt_number(_sub(e, "ee_error_m", "final"), ".4f")),),
+    ),
+    Metric(
+        "failures",
+        "",
+        lambda run: int((run.shared(_status) == "failed").sum()),
+        aggregate=lambda runs: {
+            "failures": runs.total("failures"),
+            "share_runs_with_failures": runs.share(runs.positive("failures")),
+        },
+    ),
+    Metric(
+        "fallbacks",
+        "",
+        lambda run: int(np.count_nonzero(run.flag("fallback"))),
+        aggregate=lambda runs: {
+            "fallbacks": runs.total("fallbacks"),
+            "share_runs_with_fallbacks": runs.share(runs.positive("fallbacks")),
+        },
+        sweep_columns=(
+            Column(
+                "runs with failures / fallbacks",
+                lambda e: " / ".join(fmt_percent(e.get(f"share_runs_with_{k}")) for k in ("failures", "fallbacks")),
+                section="safety",
+            ),
+            Column(
+                "failures / fallbacks (steps)",
+                lambda e: f"{e.get('failures', 0)} / {e.get('fallbacks', 0)}",
+                section="safety",
+            ),
+        ),
+    ),
+    Metric(
+        "activation_toggles_per_s",
+        "1/s",
+        lambda run: _per_rate(run, run.shared(_toggles)),
+        aggregate=lambda runs: {"activation_toggles_per_s_median": runs.stat("activation_toggles_per_s", "median")},
+    ),
+    # One accounting for every method (DESIGN §3, §7).
+    Metric(
+        "status_steps",
+        "",
+        lambda run: {key: int((run.shared(_status) == key).sum()) for key in STATUSES},
+        flatten=lambda entry: {f"status_steps_{k}": _sub(entry, "status_steps", k) for k in STATUSES},
+        aggregate=_aggregate_status,
+        run_columns=(
+            Column(
+                "degraded / failed / fallback steps",
+                lambda e: (
+                    f"{(e.get('status_steps') or {}).get('degraded', '–')} / "
+                    f"{e.get('failures', 0)} / {e.get('fallbacks', 0)}"
+                ),
+                lambda e: "yellow" if e.get("failures") or e.get("fallbacks") else None,
+            ),
+        ),
+        sweep_columns=(
+            Column("steps", lambda e: str(e.get("steps") or 0), section="accounting"),
+            Column("ok / degraded / failed (failed share)", _failed_share, section="accounting"),
+        ),
+    ),
+    Metric(
+        "fallback_steps",
+        "",
+        lambda run: int(np.count_nonzero(run.flag("fallback"))),
+        aggregate=_total("fallback_steps"),
+        sweep_columns=(Column("fallback steps", lambda e: str(e.get("fallback_steps", "–")), section="accounting"),),
+    ),
+    Metric(
+        "time_below_physical_s",
+        "s",
+        _time_below_physical_s,
+        aggregate=lambda runs: {
+            "time_below_physical_s": float(runs.stat("time_below_physical_s", "sum") or 0.0),
+            "share_runs_below_physical": runs.share(runs.positive("time_below_physical_s")),
+        },
+        sweep_columns=(
+            Column(
+                "time below a physical threshold [s]",
+                lambda e: fmt_number(e.get("time_below_physical_s"), ".2f"),
+                section="accounting",
+            ),
+            Column(
+                "runs below a physical threshold",
+                lambda e: rate_with_ci(e.get("share_runs_below_physical")),
+                section="accounting",
+            ),
+        ),
+    ),
+    Metric(
+        "deadline_misses",
+        "",
+        lambda run: int(np.count_nonzero(run.flag("deadline_miss"))),
+        aggregate=_total("deadline_misses"),
+        sweep_columns=(Column("deadline misses", misses_cell, section="accounting"),),
+    ),
+    Metric(
+        "warmup_steps",
+        "",
+        lambda run: int(run.meta.warmup_steps),
+        aggregate=_total("warmup_steps"),
+        sweep_columns=(Column("warm-up solves", lambda e: str(e.get("warmup_steps", "–")), section="accounting"),),
+    ),
+    # Extras (beyond DESIGN §7).
+    Metric("steps", "", len, aggregate=_total("steps")),
+    Metric("dt", "s", lambda run: run.dt, flatten=_EXTRA),
+    Metric("sim_time_s", "s", lambda run: float(run.meta.sim_time_s)),
+    Metric("wall_time_s", "s", lambda run: float(run.meta.wall_time_s)),
+    Metric("sensing", "", lambda run: run.meta.sensing, flatten=_EXTRA),
+    Metric("degraded_steps", "", lambda run: int((run.shared(_status) == "degraded").sum()), flatten=_EXTRA),
+    Metric("blind_steps", "", lambda run: int(np.count_nonzero(run.flag("blind")))),
+    Metric("activation_toggles", "", lambda run: run.shared(_toggles), flatten=_EXTRA),
+    Metric("waypoint_tolerance_m", "m", lambda run: run.waypoint_tolerance_m, flatten=_EXTRA),
+    Metric("waypoints_reached", "", lambda run: sum(x is not None for x in run.shared(_waypoints)[1])),
+    Metric("time_to_waypoint_s", "s", lambda run: run.shared(_waypoints)[1], flatten=_EXTRA),
+    Metric("waypoint_sequence", "", lambda run: run.shared(_waypoints)[0], flatten=_EXTRA),
+    Metric("peak_joint_acceleration_rad_s2", "rad/s²", lambda run: peak_joint_acceleration(run.steps)),
+    Metric("solve_time_us_by_active_count", "µs", _by_active_count, flatten=_EXTRA),
+    Metric("control_points", "", lambda run: list(run.meta.control_points), flatten=_EXTRA),
+    Metric(
+        "set_task_metrics",
+        "",
+        lambda run: {
+            name: {k: v for k, v in m.items() if not k.startswith("_")}
+            for name, m in run.shared(_set_task_results)[0].items()
+        },
+        flatten=_EXTRA,
+    ),
+    Metric("set_tasks", "", lambda run: [task.to_dict() for task in run.meta.set_tasks], flatten=_EXTRA),
+    # Written by the run (compare.run.run_method), not computed from the table.
+    Metric(
+        "solve_worst_us",
+        "µs",
+        None,
+        flatten=lambda entry: {"solve_worst_us": _sub(entry, "solve_worst_us", "us")},
+    ),
+    Metric(
+        "deadline_steal_excused",
+        "",
+        None,
+        flatten=lambda entry: {"deadline_steal_excused": _sub(entry, "deadline_steal_excused", "steps")},
+        # Late on the raw CPU clock only because the hypervisor took the CPU (kept, not missed).
+        aggregate=_total("deadline_steal_excused"),
+    ),
+    Metric(
+        "unsafe_commands",
+        "",
+        None,
+        aggregate=_total("unsafe_commands"),
+        sweep_columns=(Column("unsafe commands", lambda e: str(e.get("unsafe_commands", 0)), section="safety"),),
+    ),
+    Metric(
+        "iso15066",
+        "m",
+        None,
+        flatten=_flatten_iso,
+        aggregate=lambda runs: {
+            "iso15066": {
+                "min_margin_m": runs.stat("iso_min_margin_m", "min"),
+                "median_min_margin_m": runs.stat("iso_min_margin_m", "median"),
+                "share_runs_below_zero": runs.share(runs.positive("iso_time_below_zero_s")),
+                "time_below_zero_s_total": runs.stat("iso_time_below_zero_s", "sum"),
+            }
+        },
+        sweep_columns=(
+            Column(
+                "ISO min margin [m]", lambda e: fmt_number(_sub(e, "iso15066", "min_margin_m"), "+.3f"), section="cost"
+            ),
+            Column(
+                "runs below S_p", lambda e: fmt_percent(_sub(e, "iso15066", "share_runs_below_zero")), section="cost"
+            ),
+        ),
+    ),
+    Metric("faults", "", None, flatten=_flatten_faults),
+)
+"""The metrics of every run, in the order of ``summary.json``."""
+
+
+_REGISTRY: dict[str, Metric] = {}
+
+
+def register_metric(metric: Metric, *, replace: bool = False) -> Metric:
+    """Add ``metric`` to every summary, sweep and report made afterwards in this process.
+
+    Args:
+        metric: The metric (:class:`~compare.analysis.metric.Metric`).
+        replace: Allow replacing a registered metric of the same name.
+
+    Returns:
+        ``metric``.
+
+    Raises:
+        MetricsError: The name is taken (and ``replace`` is false).
+    """
+    if metric.name in _REGISTRY and not replace:
+        raise MetricsError(f"metric '{metric.name}' is already registered (pass replace=True to replace it)")
+    _REGISTRY[metric.name] = metric
+    return metric
+
+
+def unregister_metric(name: str) -> None:
+    """Remove the metric ``name`` (nothing when there is none)."""
+    _REGISTRY.pop(name, None)
+
+
+def registered_metrics() -> tuple[Metric, ...]:
+    """Every registered metric, the built-ins first, in registration order."""
+    return tuple(_REGISTRY.values())
+
+
+for _metric in BUILTIN_METRICS:
+    register_metric(_metric)
+
+
 def compute_summary(steps: pd.DataFrame, meta: RunMeta, waypoint_tolerance_m: float = 0.02) -> dict[str, Any]:
     """Metrics of one run for ``summary.json["methods"][meta.method]`` (DESIGN §6–7).
 
-    Rows whose ``t`` is NaN (steps the loop could not fill) are dropped first.
+    Every registered metric with a ``compute`` (:func:`registered_metrics`), in registration
+    order. Rows whose ``t`` is NaN (steps the loop could not fill) are dropped first.
 
     Args:
         steps: Per-step table (columns in the module docstring).
@@ -413,110 +920,34 @@ def compute_summary(steps: pd.DataFrame, meta: RunMeta, waypoint_tolerance_m: fl
     missing = [c for c in required if c not in steps.columns]
     if missing:
         raise MetricsError(f"per-step table of method '{meta.method}' lacks column(s): {', '.join(missing)}")
-    steps = steps[steps["t"].notna()].reset_index(drop=True)
-    dt = float(meta.dt)
-    t = steps["t"].to_numpy(dtype=float)
-
-    per_task_raw = {task.name: _task_metrics(task_sigma_for_safety(steps, task), task, dt) for task in meta.set_tasks}
-    groups: dict[str, Any] = {}
-    for group in task_groups(meta.set_tasks):
-        groups[group] = _group_metrics(per_task_raw, [task for task in meta.set_tasks if task.group == group], dt)
-    per_task = {name: {k: v for k, v in m.items() if not k.startswith("_")} for name, m in per_task_raw.items()}
-    below_physical = np.zeros(len(steps), dtype=bool)
-    for task in meta.set_tasks:
-        physical = margins(task_sigma_for_safety(steps, task), task.physical_lower, task.physical_upper)
-        with np.errstate(invalid="ignore"):
-            below_physical |= np.nan_to_num(physical, nan=0.0) < 0.0
-
-    min_dist: list[float | None] = [_nanmin(_column(steps, f"dist_true:{cp}")) for cp in meta.control_points]
-
-    ee_error = _column(steps, "ee_error_m")
-    finite_err = ee_error[np.isfinite(ee_error)]
-    status = steps["status"].astype("string").fillna("")
-    fallback = _bool_column(steps, "fallback")
-
-    active_cols = [f"active:{task.name}" for task in meta.set_tasks if f"active:{task.name}" in steps.columns]
-    active = np.zeros((len(steps), len(active_cols)), dtype=bool)
-    for k, col in enumerate(active_cols):
-        active[:, k] = _bool_column(steps, col)
-    toggles = int(np.count_nonzero(active[1:] != active[:-1])) if len(steps) > 1 else 0
-    sim_time_s = float(meta.sim_time_s)
-
-    solve_us = _column(steps, "solve_time_us")
-    by_active: dict[str, Any] = {}
-    n_active = active.sum(axis=1).astype(int)
-    for k in np.unique(n_active):
-        sel = solve_us[(n_active == k) & np.isfinite(solve_us)]
-        if sel.size:
-            by_active[str(int(k))] = {
-                "steps": int(sel.size),
-                "median": float(np.median(sel)),
-                "p99": float(np.percentile(sel, 99)),
-            }
-
-    waypoint = steps["waypoint"].to_numpy(dtype=int) if "waypoint" in steps.columns else np.zeros(len(steps), int)
-    wp_indices, wp_times = waypoint_times(t, waypoint, ee_error, waypoint_tolerance_m)
-
-    summary: dict[str, Any] = {
-        "solve_time_us": _percentiles_us(solve_us),
-        "realtime_factor": sim_time_s / meta.wall_time_s if meta.wall_time_s > 0 else None,
-        "joint_limits": groups["joint_limits"],
-        "walls": groups["walls"],
-        "obstacles": groups["obstacles"],
-        "min_obstacle_distance_m": min_dist,
-        "ee_error_m": {
-            "final": float(finite_err[-1]) if finite_err.size else None,
-            "mean": float(finite_err.mean()) if finite_err.size else None,
-        },
-        "failures": int((status == "failed").sum()),
-        "fallbacks": int(np.count_nonzero(fallback)),
-        "activation_toggles_per_s": toggles / sim_time_s if sim_time_s > 0 else None,
-        # One accounting for every method (DESIGN §3, §7).
-        "status_steps": {key: int((status == key).sum()) for key in ("ok", "degraded", "failed")},
-        "fallback_steps": int(np.count_nonzero(fallback)),
-        "time_below_physical_s": float(np.count_nonzero(below_physical) * dt),
-        "deadline_misses": int(np.count_nonzero(_bool_column(steps, "deadline_miss"))),
-        "warmup_steps": int(meta.warmup_steps),
-        # Extras.
-        "steps": len(steps),
-        "dt": dt,
-        "sim_time_s": sim_time_s,
-        "wall_time_s": float(meta.wall_time_s),
-        "sensing": meta.sensing,
-        "degraded_steps": int((status == "degraded").sum()),
-        "blind_steps": int(np.count_nonzero(_bool_column(steps, "blind"))),
-        "activation_toggles": toggles,
-        "waypoint_tolerance_m": float(waypoint_tolerance_m),
-        "waypoints_reached": sum(x is not None for x in wp_times),
-        "time_to_waypoint_s": wp_times,
-        "waypoint_sequence": wp_indices,
-        "peak_joint_acceleration_rad_s2": peak_joint_acceleration(steps),
-        "solve_time_us_by_active_count": by_active,
-        "control_points": list(meta.control_points),
-        "set_task_metrics": per_task,
-        "set_tasks": [task.to_dict() for task in meta.set_tasks],
-        "groups": groups,
-    }
-    return to_jsonable(summary)
+    run = RunSteps(steps, meta, waypoint_tolerance_m)
+    return to_jsonable({m.name: m.compute(run) for m in registered_metrics() if m.compute is not None})
 
 
-def set_tasks_from_summary(method_summary: dict[str, Any]) -> tuple[SetTaskInfo, ...]:
+def set_tasks_from_summary(method_summary: Entry) -> tuple[SetTaskInfo, ...]:
     """The :class:`SetTaskInfo` stored under ``set_tasks`` of a method summary (empty if absent)."""
     return tuple(SetTaskInfo.from_dict(d) for d in method_summary.get("set_tasks") or [])
 
 
 __all__ = [
+    "BUILTIN_METRICS",
     "GROUPS",
+    "VIOLATION_TOLERANCE",
     "MetricsError",
     "RunMeta",
     "SetTaskInfo",
     "compute_summary",
     "group_summary",
     "margins",
+    "misses_cell",
+    "register_metric",
+    "registered_metrics",
     "rising_edges",
+    "set_task_infos",
     "set_tasks_from_summary",
     "summary_groups",
     "task_groups",
     "to_jsonable",
+    "unregister_metric",
     "waypoint_times",
 ]

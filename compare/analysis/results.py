@@ -11,7 +11,6 @@ A run directory holds::
                               "errors": {...} (only if a method failed)}
     steps/<method>.parquet   per-step table (``steps/<method>.csv`` if Parquet is unavailable)
     plots/*.png              written by :mod:`compare.analysis.plots`
-    report.md                written by :mod:`compare.analysis.report`
 
 Every file is written atomically (:mod:`compare.analysis.atomic_files`): a killed process leaves
 the old file or the new one. A method's per-step table is written before the ``summary.json``
@@ -45,7 +44,6 @@ import fcntl
 import functools
 import json
 import logging
-import math
 import os
 import shutil
 import subprocess
@@ -64,9 +62,10 @@ from compare.analysis.atomic_files import (
     write_text_atomic,
 )
 from compare.analysis.exceptions import DirectoryBusy, ResultsConflict
-from compare.analysis.metrics import GROUPS, group_summary, summary_groups, to_jsonable
+from compare.analysis.metric import SweepRuns, to_jsonable
+from compare.analysis.metrics import registered_metrics
 from compare.analysis.preflight import check_output_dir
-from compare.analysis.statistics import bootstrap_median_ci, mcnemar, rate
+from compare.analysis.statistics import mcnemar
 from compare.versions import versions
 
 log = logging.getLogger(__name__)
@@ -76,7 +75,6 @@ STEPS_DIR = "steps"
 PLOTS_DIR = "plots"
 RUNS_DIR = "runs"
 CONFIG_FILE = "config.toml"
-REPORT_FILE = "report.md"
 REPLAY_FILE = "replay.toml"
 REPLAY_FORMAT = 1
 """Version of the replay record (``summary["replay"]["format"]``): raised when a replay needs more."""
@@ -216,9 +214,9 @@ def read_previous(out_dir: Path) -> dict[str, Any] | None:
 
 
 def clear_run_results(out_dir: Path) -> None:
-    """Remove the results of a run directory (``--overwrite``): summary, tables, plots, report, configs."""
+    """Remove the results of a run directory (``--overwrite``): summary, tables, plots, configs."""
     out_dir = Path(out_dir)
-    for name in (SUMMARY_FILE, CONFIG_FILE, REPORT_FILE, REPLAY_FILE):
+    for name in (SUMMARY_FILE, CONFIG_FILE, REPLAY_FILE):
         (out_dir / name).unlink(missing_ok=True)
     for name in (STEPS_DIR, PLOTS_DIR):
         shutil.rmtree(out_dir / name, ignore_errors=True)
@@ -519,82 +517,17 @@ def is_finished(run_dir: Path, methods: Iterable[str] | None = None) -> bool:
     return all(m in done for m in methods)
 
 
-def _min_or_none(values: Iterable[Any]) -> float | None:
-    finite = [float(v) for v in values if v is not None and math.isfinite(float(v))]
-    return min(finite) if finite else None
-
-
-def flatten_method(summary: dict[str, Any]) -> dict[str, Any]:
+def flatten_method(summary: Mapping[str, Any]) -> dict[str, Any]:
     """Key metrics of one method summary as a flat dict (one row of ``sweep_runs.csv``).
 
+    The columns of every registered metric (:meth:`~compare.analysis.metric.Metric.columns`).
     Missing values are ``None``; a group the scenario does not have gives ``None`` margins and
     ``0`` violations.
     """
-    solve = summary.get("solve_time_us") or {}
-    ee = summary.get("ee_error_m") or {}
-    dist = summary.get("min_obstacle_distance_m") or []
-    cps = summary.get("control_points") or [f"cp{i}" for i in range(len(dist))]
-    row: dict[str, Any] = {
-        "solve_median_us": solve.get("median"),
-        "solve_p95_us": solve.get("p95"),
-        "solve_p99_us": solve.get("p99"),
-        "solve_max_us": solve.get("max"),
-        "solve_worst_us": (summary.get("solve_worst_us") or {}).get("us"),
-        "realtime_factor": summary.get("realtime_factor"),
-    }
-    for group in summary_groups(summary):
-        g = group_summary(summary, group)
-        row[f"{group}_present"] = g is not None
-        g = g or {}
-        row[f"{group}_safety_margin_min"] = g.get("safety_margin_min")
-        row[f"{group}_physical_margin_min"] = g.get("physical_margin_min")
-        row[f"{group}_violations"] = int(g.get("violations") or 0)
-        row[f"{group}_violation_time_s"] = float(g.get("violation_time_s") or 0.0)
-    row["min_obstacle_distance_m"] = _min_or_none(dist)
-    for cp, d in zip(cps, dist, strict=False):
-        row[f"min_obstacle_distance_m:{cp}"] = d
-    row.update(
-        {
-            "ee_error_final_m": ee.get("final"),
-            "ee_error_mean_m": ee.get("mean"),
-            "failures": summary.get("failures"),
-            "fallbacks": summary.get("fallbacks"),
-            "steps": summary.get("steps"),
-            **{f"status_steps_{k}": (summary.get("status_steps") or {}).get(k) for k in ("ok", "degraded", "failed")},
-            "fallback_steps": summary.get("fallback_steps"),
-            "time_below_physical_s": summary.get("time_below_physical_s"),
-            "deadline_misses": summary.get("deadline_misses"),
-            "deadline_steal_excused": (summary.get("deadline_steal_excused") or {}).get("steps"),
-            "warmup_steps": summary.get("warmup_steps"),
-            "activation_toggles_per_s": summary.get("activation_toggles_per_s"),
-            "blind_steps": summary.get("blind_steps"),
-            "waypoints_reached": summary.get("waypoints_reached"),
-            "peak_joint_acceleration_rad_s2": summary.get("peak_joint_acceleration_rad_s2"),
-        }
-    )
-    # Reliability campaigns (issue 9): ISO/TS 15066 margin, injected faults, command guard, cost.
-    iso = summary.get("iso15066") or {}
-    faults = summary.get("faults") or {}
-    latencies = [f.get("reaction_latency_s_max") for f in faults.values() if isinstance(f, dict)]
-    row.update(
-        {
-            "iso_min_margin_m": iso.get("min_margin_m"),
-            "iso_time_below_zero_s": iso.get("time_below_zero_s"),
-            "iso_human_speed_max_mps": iso.get("human_speed_max_mps"),
-            "unsafe_commands": summary.get("unsafe_commands"),
-            "fault_injected_steps": int(sum((f.get("injected_steps") or 0) for f in faults.values())),
-            "fault_unreacted": int(sum(f.get("reaction") == "none" for f in faults.values())),
-            "fault_reaction_latency_s_max": _max_or_none(latencies),
-            "sim_time_s": summary.get("sim_time_s"),
-            "wall_time_s": summary.get("wall_time_s"),
-        }
-    )
+    row: dict[str, Any] = {}
+    for metric in registered_metrics():
+        row.update(metric.columns(summary))
     return row
-
-
-def _max_or_none(values: Iterable[Any]) -> float | None:
-    finite = [float(v) for v in values if v is not None and math.isfinite(float(v))]
-    return max(finite) if finite else None
 
 
 def collect_sweep(out_dir: Path) -> pd.DataFrame:
@@ -623,125 +556,23 @@ def collect_sweep(out_dir: Path) -> pd.DataFrame:
     return frame
 
 
-def _stat(values: pd.Series, fn: str) -> float | None:
-    x = pd.to_numeric(values, errors="coerce").to_numpy(dtype=float)
-    x = x[np.isfinite(x)]
-    if x.size == 0:
-        return None
-    if fn == "median":
-        return float(np.median(x))
-    if fn == "p99":
-        return float(np.percentile(x, 99))
-    if fn == "min":
-        return float(x.min())
-    if fn == "max":
-        return float(x.max())
-    if fn == "sum":
-        return float(x.sum())
-    raise ValueError(f"unknown statistic '{fn}'")
-
-
 def summarize_sweep_rows(runs: pd.DataFrame) -> dict[str, dict[str, Any]]:
-    """Per-method aggregates of a :func:`collect_sweep` table (the ``methods`` of ``sweep_summary.json``)."""
+    """Per-method aggregates of a :func:`collect_sweep` table (the ``methods`` of ``sweep_summary.json``).
+
+    Per method: ``runs`` (finished), ``errors``, and the aggregates of every registered metric
+    (:meth:`~compare.analysis.metric.Metric.aggregates`) over its finished runs.
+    """
     if runs.empty or "method" not in runs.columns:
         return {}
     return {str(method): _method_aggregate(rows) for method, rows in runs.groupby("method", sort=False)}
 
 
-def _groups_in(rows: pd.DataFrame) -> list[str]:
-    """:data:`GROUPS`, then any other set-task group with columns in a :func:`collect_sweep` table."""
-    found = [c.removesuffix("_present") for c in rows.columns if c.endswith("_present")]
-    return list(dict.fromkeys([*GROUPS, *found]))
-
-
 def _method_aggregate(rows: pd.DataFrame) -> dict[str, Any]:
-    ok = rows[rows["error"].isna()] if "error" in rows.columns else rows
-    n = len(ok)
-
-    def values(name: str) -> pd.Series:
-        return ok[name] if name in ok.columns else pd.Series(np.nan, index=ok.index, dtype=float)
-
-    def share(mask: pd.Series) -> dict[str, Any]:
-        return rate(int(mask.sum()), n)
-
-    def violated(group: str) -> pd.Series:
-        return pd.to_numeric(values(f"{group}_violations"), errors="coerce").fillna(0) > 0
-
-    def positive(name: str) -> pd.Series:
-        return pd.to_numeric(values(name), errors="coerce").fillna(0) > 0
-
-    def total(name: str) -> int:
-        return int(_stat(values(name), "sum") or 0)
-
-    limits_or_walls = violated("joint_limits") | violated("walls")
-    obstacles = violated("obstacles")
-    groups = _groups_in(ok)
-    other = pd.Series(False, index=ok.index)
-    for group in groups[len(GROUPS) :]:  # a new safety task's group
-        other |= violated(group)
-    steps = total("steps")
-    status_steps = {k: total(f"status_steps_{k}") for k in ("ok", "degraded", "failed")}
-    return {
-        "runs": n,
-        "errors": int(len(rows) - n),
-        "share_runs_limit_or_wall_violation": share(limits_or_walls),
-        "share_runs_obstacle_violation": share(obstacles),
-        "share_runs_any_violation": share(limits_or_walls | obstacles | other),
-        "solve_time_us": {
-            "median_of_medians": _stat(values("solve_median_us"), "median"),
-            "median_of_medians_ci95": bootstrap_median_ci(pd.to_numeric(values("solve_median_us"), errors="coerce")),
-            "p99_of_medians": _stat(values("solve_median_us"), "p99"),
-            "median_of_p99": _stat(values("solve_p99_us"), "median"),
-            "max": _stat(values("solve_max_us"), "max"),
-            # The worst steady-state step on the time limit's clock (CPU by default; every timed
-            # step is after the warm-up): what the deadline misses are counted on.
-            "max_on_limit_clock": _stat(values("solve_worst_us"), "max"),
-        },
-        "worst_safety_margin": {g: _stat(values(f"{g}_safety_margin_min"), "min") for g in groups},
-        "worst_physical_margin": {g: _stat(values(f"{g}_physical_margin_min"), "min") for g in groups},
-        "min_obstacle_distance_m": _stat(values("min_obstacle_distance_m"), "min"),
-        "ee_error_final_m": {
-            "median": _stat(values("ee_error_final_m"), "median"),
-            "max": _stat(values("ee_error_final_m"), "max"),
-        },
-        "failures": int(_stat(values("failures"), "sum") or 0),
-        "fallbacks": int(_stat(values("fallbacks"), "sum") or 0),
-        "activation_toggles_per_s_median": _stat(values("activation_toggles_per_s"), "median"),
-        # One accounting for every method (DESIGN §3): step totals over the runs.
-        "steps": steps,
-        "status_steps": status_steps,
-        "share_steps_failed": status_steps["failed"] / steps if steps else None,
-        "share_steps_degraded": status_steps["degraded"] / steps if steps else None,
-        "fallback_steps": total("fallback_steps"),
-        "time_below_physical_s": float(_stat(values("time_below_physical_s"), "sum") or 0.0),
-        "share_runs_below_physical": share(positive("time_below_physical_s")),
-        "deadline_misses": total("deadline_misses"),
-        # Late on the raw CPU clock only because the hypervisor took the CPU (kept, not missed).
-        "deadline_steal_excused": total("deadline_steal_excused"),
-        "warmup_steps": total("warmup_steps"),
-        # Reliability campaigns (issue 9).
-        "share_runs_joint_limit_violation": share(violated("joint_limits")),
-        "share_runs_wall_violation": share(violated("walls")),
-        "share_runs_with_failures": share(positive("failures")),
-        "share_runs_with_fallbacks": share(positive("fallbacks")),
-        "solve_time_percentiles_us": {
-            "p50_of_run_p99": _stat(values("solve_p99_us"), "median"),
-            "p95_of_run_p99": _percentile(values("solve_p99_us"), 95),
-            "max_of_run_p99": _stat(values("solve_p99_us"), "max"),
-            "p95_of_run_medians": _percentile(values("solve_median_us"), 95),
-        },
-        "iso15066": {
-            "min_margin_m": _stat(values("iso_min_margin_m"), "min"),
-            "median_min_margin_m": _stat(values("iso_min_margin_m"), "median"),
-            "share_runs_below_zero": share(positive("iso_time_below_zero_s")),
-            "time_below_zero_s_total": _stat(values("iso_time_below_zero_s"), "sum"),
-        },
-        "unsafe_commands": int(_stat(values("unsafe_commands"), "sum") or 0),
-        "realtime_factor": {
-            "median": _stat(values("realtime_factor"), "median"),
-            "min": _stat(values("realtime_factor"), "min"),
-        },
-    }
+    ok = SweepRuns(rows[rows["error"].isna()] if "error" in rows.columns else rows)
+    out: dict[str, Any] = {"runs": ok.n, "errors": int(len(rows) - ok.n)}
+    for metric in registered_metrics():
+        out.update(metric.aggregates(ok))
+    return out
 
 
 def run_summaries(sweep_dir: Path) -> list[dict[str, Any]]:
@@ -795,12 +626,6 @@ def paired_comparisons(runs: pd.DataFrame) -> dict[str, dict[str, Any]]:
                 entry[outcome] = test
             out[f"{a} vs {b}"] = entry
     return out
-
-
-def _percentile(values: pd.Series, q: float) -> float | None:
-    x = pd.to_numeric(values, errors="coerce").to_numpy(dtype=float)
-    x = x[np.isfinite(x)]
-    return float(np.percentile(x, q)) if x.size else None
 
 
 TIMING_KEYS = frozenset(

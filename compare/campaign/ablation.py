@@ -15,8 +15,9 @@ import json
 from pathlib import Path
 from typing import Any
 
+from compare.analysis.metric import fmt_number, rate_with_ci
 from compare.analysis.metrics import to_jsonable
-from compare.analysis.report import fmt_number, markdown_table, rate_with_ci, write_markdown
+from compare.analysis.report import markdown_table, write_markdown
 from compare.analysis.results import SWEEP_SUMMARY_FILE, write_json_atomic
 from compare.methods import ABLATION_PREFIX, ablation_methods
 

@@ -64,7 +64,7 @@ from compare.campaign.manifest import (
     run_config_hash,
     write_manifest,
 )
-from compare.config import Config, parse_config
+from compare.config import Config, import_extensions, parse_config
 from compare.loop.steal_clock import steal_ticks
 
 log = logging.getLogger(__name__)
@@ -174,12 +174,14 @@ def run_sweep(
         The sweep summary written to ``out_dir/sweep_summary.json``.
 
     Raises:
+        compare.config.ConfigError: An ``[extensions]`` module cannot be imported.
         compare.campaign.executors.ExecutorUnavailable: The executor cannot run here.
         compare.analysis.exceptions.ResultsError: ``out_dir`` holds another sweep or a run, is
             being written by another process, cannot be written or has no room for the runs to do.
     """
     out_dir = Path(out_dir)
     names = methods or list(config.methods.names)
+    import_extensions(config.extensions.modules)  # their metrics are aggregated here, not in the workers
     check_output_dir(out_dir)
     lock = DirectoryLock(out_dir)
     try:

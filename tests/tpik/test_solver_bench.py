@@ -1,14 +1,15 @@
-"""Smoke tests of the solver benchmark runner (compare.bench.solvers) and ``python -m compare.bench``."""
+"""Smoke tests of the solver benchmark runner (compare.bench.solvers) and ``tpik-compare bench``."""
 
 from __future__ import annotations
 
 import json
 
 import pytest
+from typer.testing import CliRunner
 
-from compare.bench.__main__ import main
 from compare.bench.solver_cases import active_set_tasks, case2_states
 from compare.bench.solvers import candidate_hierarchy, run_solver_bench
+from compare.cli import app
 
 
 def test_runner_times_each_case_and_skips_unknown_methods(capsys):
@@ -40,18 +41,18 @@ def test_candidate_hierarchy_has_exactly_k_candidates(jaco, k):
         assert task.margins(task.compute_value_and_jacobian(kin)[0])[0] > 0.0
 
 
-def test_main_writes_the_design_json(tmp_path):
+def test_bench_writes_the_design_json(tmp_path):
     out = tmp_path / "bench.json"
-    argv = ["--only", "solvers", "--methods", "tpik", "--repeats", "2", "--max-candidates", "1"]
-    code = main([*argv, "--json", str(out)])
-    assert code == 0
+    argv = ["bench", "--only", "solvers", "--methods", "tpik", "--repeats", "10", "--max-candidates", "1"]
+    result = CliRunner().invoke(app, [*argv, "--json", str(out)])
+    assert result.exit_code == 0, result.output
     data = json.loads(out.read_text())
-    assert {"versions", "results", "command"} <= set(data)
+    assert set(data) == {"versions", "command", "robot", "results"}
     cases = {(r["name"], r["case"]) for r in data["results"]}
     assert ("tpik", "case2-active3") in cases and ("tpik-exhaustive", "tpik-candidates-1") in cases
     assert ("mink-native", "case2-active3") in cases and ("mink-native", "tpik-candidates-1") in cases
     assert all({"name", "case", "median_us", "p95_us"} <= set(r) for r in data["results"])
 
 
-def test_main_rejects_bad_arguments():
-    assert main(["--repeats", "0"]) == 2
+def test_bench_rejects_bad_arguments():
+    assert CliRunner().invoke(app, ["bench", "--repeats", "0"]).exit_code == 2

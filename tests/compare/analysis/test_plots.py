@@ -12,7 +12,7 @@ from rich.console import Console
 
 from compare.analysis.metrics import compute_summary
 from compare.analysis.plots import plot_run, plot_sweep, wall_axis
-from compare.analysis.report import render_report, summary_table
+from compare.analysis.report import summary_table
 from compare.analysis.results import ResultsWriter, load_summary, sweep_run_dir
 from tests.compare.analysis.test_metrics import WALL_X_MAX, make_meta, make_steps
 
@@ -114,7 +114,7 @@ def test_plot_sweep_writes_comparison_and_distance_cdf(tmp_path):
         _assert_png(p)
 
 
-def test_summary_table_and_markdown_report(plotted_run):
+def test_summary_table_wide_and_narrow(plotted_run):
     run, _ = plotted_run
     summary = load_summary(run)
     console = Console(width=250, record=True)
@@ -128,13 +128,6 @@ def test_summary_table_and_markdown_report(plotted_run):
     assert max(len(line) for line in lines) <= 80
     assert any(line.split("│")[1].strip() == "solve median [µs]" for line in lines if line.count("│") > 2)
     assert "tpik" in lines[2] and "hqp-daqp" in lines[2]
-    report = render_report(run, command="tpik-compare run x.toml")
-    body = report.read_text()
-    assert body.startswith("# Results: synthetic (seed 0)")
-    assert "tpik-compare run x.toml" in body and "git commit" in body
-    assert "](plots/comparison.png)" in body and "](plots/tpik_joints.png)" in body
-    assert "| hqp-daqp |" in body and "NoSolutionFound \\| level 2" not in body.split("## Failed")[0]
-    assert "`hqp-osqp`: NoSolutionFound | level 2" in body
 
 
 def _purple_pixels(path: Path) -> int:

@@ -8,8 +8,9 @@ import math
 
 import numpy as np
 import pytest
+from click.testing import Result
+from typer.testing import CliRunner
 
-from compare.bench.__main__ import main as bench_main
 from compare.bench.correctness import (
     HQP_BACKENDS,
     StepRecord,
@@ -22,8 +23,15 @@ from compare.bench.correctness import (
 from compare.bench.qp_reference import load_reference
 from compare.bench.qp_states import apply_qp_state
 from compare.bench.solver_cases import case2_hierarchy
+from compare.cli import app
 from qp_baseline.hqp import available_qp_solvers
 from tpik.step_result import SolveStatus, StepResult
+
+
+def _bench(*args: str) -> Result:
+    """``tpik-compare bench ARGS``."""
+    return CliRunner().invoke(app, ["bench", *args])
+
 
 AVAILABLE = [m for m in HQP_BACKENDS if m.removeprefix("hqp-") in available_qp_solvers()]
 
@@ -122,23 +130,21 @@ def test_acceptance_no_backend_is_silently_wrong_on_all_reference_states(referen
 
 def test_bench_cli_writes_the_correctness_section_csv_and_plot(tmp_path):
     out = tmp_path / "bench.json"
-    code = bench_main(
-        [
-            "--only",
-            "correctness",
-            "--backends",
-            "hqp-daqp",
-            "--rounds",
-            "1",
-            "--json",
-            str(out),
-            "--csv",
-            str(tmp_path / "steps.csv"),
-            "--plot",
-            str(tmp_path / "tvc.png"),
-        ]
+    result = _bench(
+        "--only",
+        "correctness",
+        "--backends",
+        "hqp-daqp",
+        "--rounds",
+        "1",
+        "--json",
+        str(out),
+        "--csv",
+        str(tmp_path / "steps.csv"),
+        "--plot",
+        str(tmp_path / "tvc.png"),
     )
-    assert code == 0
+    assert result.exit_code == 0, result.output
     payload = json.loads(out.read_text())
     assert {"versions", "command", "results", "correctness"} <= set(payload)  # DESIGN §7 keys kept
     corr = payload["correctness"]
@@ -163,7 +169,7 @@ def test_bench_cli_writes_the_correctness_section_csv_and_plot(tmp_path):
     assert (tmp_path / "tvc.png").stat().st_size > 10_000
 
 
-@pytest.mark.parametrize("argv", [["--rounds", "0"], ["--backends", "mink"]])
-def test_bench_cli_rejects_bad_correctness_arguments(argv, capsys):
-    assert bench_main(["--only", "correctness", *argv]) == 2
-    assert capsys.readouterr().err.strip()
+@pytest.mark.parametrize("argv", [["--rounds", "0"], ["--backends", "mink"], ["--export-method", "mink"]])
+def test_bench_cli_rejects_bad_correctness_arguments(argv):
+    result = _bench("--only", "correctness", *argv)
+    assert result.exit_code == 2 and result.stderr.strip()

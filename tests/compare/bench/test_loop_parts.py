@@ -11,8 +11,6 @@ import pandas as pd
 import pytest
 
 from compare.bench import loop_parts
-from compare.bench.__main__ import RANDOM_CONFIG
-from compare.bench.__main__ import main as bench_main
 from compare.bench.loop_parts import (
     OWN_SOLVE,
     PARTS,
@@ -22,6 +20,7 @@ from compare.bench.loop_parts import (
     run_loop_parts,
     timers,
 )
+from compare.bench.suite import RANDOM_CONFIG
 from compare.config import load_config
 
 
@@ -132,19 +131,24 @@ def test_bench_loop_group_writes_its_entry_and_refuses_an_unknown_method(tmp_pat
     assert entry["config"] == str(family) and entry["seeds"] == [100001]
     tpik = entry["methods"]["tpik"]
     assert tpik["total_us_per_step"] == pytest.approx(sum(tpik["parts_us_per_step"].values()))
-    assert bench_main([*argv, "--loop-methods", "no-such-method"]) == 2
+    refused = CliRunner().invoke(app, ["bench", *argv, "--loop-method", "no-such-method"])
+    assert refused.exit_code == 2 and "no-such-method" in refused.output
     assert CliRunner().invoke(app, ["bench", "--only", "nothing"]).exit_code == 2
 
 
-def test_a_method_that_fails_in_its_runs_is_one_error_not_a_traceback(tmp_path, monkeypatch, capsys):
+def test_a_method_that_fails_in_its_runs_is_one_error_not_a_traceback(tmp_path, monkeypatch):
+    from typer.testing import CliRunner
+
     import compare.run
+    from compare.cli import app
 
     def broken(*args, **kwargs):
         raise RuntimeError("solver exploded")
 
     monkeypatch.setattr(compare.run, "run_method", broken)
     family = _short_family(tmp_path)
-    argv = ["--only", "loop", "--family", str(family), "--loop-methods", "tpik", "--loop-seeds", "100001"]
-    assert bench_main(argv) == 2
-    err = capsys.readouterr().err
+    argv = ["bench", "--only", "loop", "--family", str(family), "--loop-method", "tpik", "--loop-seed", "100001"]
+    result = CliRunner().invoke(app, argv)
+    assert result.exit_code == 2
+    err = result.stderr
     assert "error: loop parts of tpik" in err and "solver exploded" in err and "Traceback" not in err

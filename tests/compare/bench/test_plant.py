@@ -9,11 +9,18 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 import pytest
+from click.testing import Result
+from typer.testing import CliRunner
 
-from compare.bench.__main__ import RANDOM_CONFIG
-from compare.bench.__main__ import main as bench_main
 from compare.bench.plant import read_sweep_solves, run_plant_bench, throughput_ceiling
+from compare.bench.suite import RANDOM_CONFIG, plant_config_of
+from compare.cli import app
 from compare.config import load_config
+
+
+def _bench(*args: str) -> Result:
+    """``tpik-compare bench ARGS``."""
+    return CliRunner().invoke(app, ["bench", *args])
 
 
 def _sweep(root: Path, solve_us: dict[str, list[float]], dt: float = 0.01) -> Path:
@@ -55,19 +62,22 @@ def test_plant_row_times_every_period_of_the_dynamic_plant():
 def test_bench_cli_writes_the_ceiling_and_refuses_a_directory_without_a_sweep(tmp_path):
     sweep = _sweep(tmp_path / "sweep", {"tpik": [30.0], "hqp-daqp": [150.0]})
     out = tmp_path / "bench.json"
-    assert bench_main(["--only", "plant", "--repeats", "200", "--sweep", str(sweep), "--json", str(out)]) == 0
+    result = _bench("--only", "plant", "--repeats", "200", "--sweep", str(sweep), "--json", str(out))
+    assert result.exit_code == 0, result.output
     payload = json.loads(out.read_text())
+    assert set(payload) == {"versions", "command", "robot", "results", "throughput_ceiling"}  # DESIGN §7 keys kept
+    assert payload["command"] == f"tpik-compare bench --only plant --repeats 200 --json {out} --sweep {sweep}"
     (row,) = payload["results"]
-    assert row["name"] == "plant"
+    assert row["name"] == "plant" and {"name", "case", "median_us", "p95_us"} <= set(row)
     ceiling = payload["throughput_ceiling"]
     assert ceiling["ceiling_sim_s_per_cpu_s"] == pytest.approx(0.01 / ((90.0 + ceiling["plant_us"]) * 1e-6))
-    assert bench_main(["--only", "plant", "--repeats", "200", "--sweep", str(tmp_path / "none")]) == 2
+    refused = _bench("--only", "plant", "--repeats", "200", "--sweep", str(tmp_path / "none"))
+    assert refused.exit_code == 2 and refused.stderr.startswith("error: ")
 
 
 def test_the_plant_timed_for_a_sweep_is_its_own_unless_another_is_given(tmp_path):
     from typer.testing import CliRunner
 
-    from compare.bench.__main__ import plant_config_of
     from compare.cli import app
 
     sweep = _sweep(tmp_path / "sweep", {"tpik": [30.0]})

@@ -9,10 +9,17 @@ import numpy as np
 import pandas as pd
 import pytest
 import qpsolvers
+from click.testing import Result
+from typer.testing import CliRunner
 
-from compare.bench.__main__ import main as bench_main
 from compare.bench.qp_export import PARQUET_KEYS, collect_bench_qps, export_test_set
 from compare.bench.qp_reference import load_reference
+from compare.cli import app
+
+
+def _bench(*args: str) -> Result:
+    """``tpik-compare bench ARGS``."""
+    return CliRunner().invoke(app, ["bench", *args])
 
 
 @pytest.fixture(scope="module")
@@ -85,8 +92,8 @@ def test_the_test_set_script_is_a_qpbenchmark_test_set(exported):
 @pytest.mark.slow
 def test_bench_cli_exports_the_reference_states(tmp_path):
     out = tmp_path / "set"
-    code = bench_main(["--only", "correctness", "--backends", "hqp-daqp", "--rounds", "1", "--export-qps", str(out)])
-    assert code == 0
+    result = _bench("--only", "correctness", "--backends", "hqp-daqp", "--rounds", "1", "--export-qps", str(out))
+    assert result.exit_code == 0, result.output
     files = list((out / "data").glob("*.npz"))
     assert len(files) > 200  # at least one level QP per reference state
     assert (out / "README.md").read_text().startswith("# HQP cascade test set")

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
-from compare.analysis.report import misses_cell
+from compare.analysis.metrics import misses_cell
 from compare.analysis.results import (
     CONFIG_FILE,
     STEPS_DIR,

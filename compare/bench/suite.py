@@ -1,0 +1,446 @@
+"""``tpik-compare bench``: the solver, sensing, plant, loop and QP-correctness benchmarks (DESIGN §7).
+
+Examples::
+
+    tpik-compare bench                                          # every group
+    tpik-compare bench --only solvers -m tpik -m mink --repeats 500 --json bench.json
+    tpik-compare bench --only sensing
+    tpik-compare bench --only solvers --config configs/panda_case2.toml   # that config's robot and levels
+    tpik-compare bench --only correctness --rounds 3 --plot time_vs_correctness.png
+    tpik-compare bench --only correctness --export-qps qp_testset/
+    tpik-compare bench --only plant --sweep results/ref40      # plant alone; a sweep's throughput ceiling
+    tpik-compare bench --only loop                             # where a campaign step goes, part by part
+
+:func:`run_bench` prints tables (medians, p95, ratio to ``mink-native`` — the same problem
+written with mink alone — measured in the same interleaved run; ``mink`` is the project's
+adapter, timed beside it) and, with ``json_out``, writes ``{"versions": ..., "command": ...,
+"robot": ..., "results": [row, ...]}`` (DESIGN §7; ``ratio_to_mink`` of a row is against
+``mink-native``), plus ``correctness`` (every HQP backend against the stored lexicographic
+reference, :mod:`compare.bench.correctness`), ``throughput_ceiling`` (with ``sweep``:
+:mod:`compare.bench.plant`) and ``loop_parts`` (:mod:`compare.bench.loop_parts`) when those
+groups ran.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import shlex
+from dataclasses import dataclass, fields
+from pathlib import Path
+from typing import Any
+
+import pandas as pd
+from rich.console import Console
+from rich.table import Table
+
+from compare.analysis.metric import to_jsonable
+from compare.analysis.results import CONFIG_FILE
+from compare.bench.correctness import HQP_BACKENDS, TOLERANCE, StepRecord, Summary, run_correctness_bench, summarize
+from compare.bench.correctness_plot import plot_time_vs_correctness
+from compare.bench.loop_parts import OWN_SOLVE, LoopRunFailed, loop_parts_rows, run_loop_parts, wrapper_cost_ns
+from compare.bench.plant import read_sweep_solves, run_plant_bench, throughput_ceiling
+from compare.bench.qp_export import collect_bench_qps, export_test_set
+from compare.bench.qp_reference import REFERENCE_FILE, ReferenceMismatch, load_reference
+from compare.bench.sensing import run_sensing_bench
+from compare.bench.solvers import DEFAULT_METHODS, run_candidate_bench, run_solver_bench
+from compare.bench.timing import BenchRow
+from compare.campaign.sweep import seeded_config
+from compare.config import Config, load_config
+from compare.exceptions import CompareError
+from compare.versions import versions
+from robots import DEFAULT_ROBOT
+
+RANDOM_CONFIG = Path(__file__).resolve().parents[2] / "configs" / "random.toml"
+"""The randomized family whose plant the ``plant`` group times by default."""
+
+GROUPS = ("solvers", "sensing", "plant", "loop", "correctness")
+"""The benchmark groups, in the order a full run makes them (``only`` picks one)."""
+
+LOOP_METHODS = ("tpik", "hqp-daqp", "mink")
+"""The reference campaign's methods: the ``loop`` group's default."""
+LOOP_SEEDS = (100001, 100002, 100003)
+"""Seeds of the ``loop`` group's timed runs by default (of the reference campaign's 100000–100999)."""
+
+LABELS = {"mink": "mink (project adapter)", "mink-native": "mink-native (reference)"}
+"""Table labels; the JSON keeps the method names."""
+
+
+_FLAGS = {"json_out": "--json", "loop_methods": "--loop-method", "loop_seeds": "--loop-seed"}
+"""Options whose flag is not their field's name (the others: ``--<name-with-dashes>``)."""
+
+
+class BenchError(CompareError, ValueError):
+    """An option out of its range, or a group that cannot run with the files given (one line, exit 2)."""
+
+
+@dataclass(frozen=True)
+class BenchOptions:
+    """What ``tpik-compare bench`` runs; every field is the option of the same name.
+
+    Attributes:
+        only: One group of :data:`GROUPS`; None = all.
+        methods: Solvers group: the methods of the case-2 table.
+        repeats: Timed calls per method and case (plant: steps, at least 200).
+        json_out: Write the results as JSON to this file (``--json``).
+        config: Scenario TOML whose robot, levels (the case-2 hierarchy) and method settings are
+            used; None = the paper's case 2 on the default robot.
+        max_candidates: Largest |C| of the TPIK-vs-candidates table, 0..12; −1 skips it.
+        family: Plant and loop: the scenario family timed; None = the sweep's ``config.toml``,
+            else ``configs/random.toml``.
+        sweep: Plant: a finished sweep, for its throughput ceiling.
+        loop_methods: Loop: the methods, each alone in its runs.
+        loop_seeds: Loop: the scenario seeds of the timed runs.
+        backends: Correctness: the HQP methods judged against the reference.
+        rounds: Correctness: timed passes over the reference states.
+        tolerance: Correctness: level error within which a level matches the reference.
+        plot: Correctness: write the time-vs-correctness figure (PNG/SVG).
+        csv: Correctness: one row per (state, backend), qpbenchmark-style.
+        export_qps: Correctness: write the level QPs of the reference states as a qpbenchmark test set.
+        export_method: The HQP method whose cascade poses the exported QPs.
+
+    Raises:
+        BenchError: An option out of its range (naming it).
+    """
+
+    only: str | None = None
+    methods: tuple[str, ...] = tuple(DEFAULT_METHODS)
+    repeats: int = 300
+    json_out: Path | None = None
+    config: Path | None = None
+    max_candidates: int = 8
+    family: Path | None = None
+    sweep: Path | None = None
+    loop_methods: tuple[str, ...] = LOOP_METHODS
+    loop_seeds: tuple[int, ...] = LOOP_SEEDS
+    backends: tuple[str, ...] = HQP_BACKENDS
+    rounds: int = 3
+    tolerance: float = TOLERANCE
+    plot: Path | None = None
+    csv: Path | None = None
+    export_qps: Path | None = None
+    export_method: str = "hqp-piqp"
+
+    def __post_init__(self) -> None:
+        if self.only is not None and self.only not in GROUPS:
+            raise BenchError(f"--only must be {', '.join(GROUPS[:-1])} or {GROUPS[-1]}, got '{self.only}'")
+        if self.repeats < 1:
+            raise BenchError(f"--repeats must be >= 1, got {self.repeats}")
+        if not -1 <= self.max_candidates <= 12:
+            raise BenchError(f"--max-candidates must be in -1..12, got {self.max_candidates}")
+        if self.rounds < 1:
+            raise BenchError(f"--rounds must be >= 1, got {self.rounds}")
+        if not (math.isfinite(self.tolerance) and self.tolerance > 0):
+            raise BenchError(f"--tolerance must be a finite number > 0, got {self.tolerance}")
+        bad = [b for b in self.backends if not b.startswith("hqp-")]
+        if bad:
+            raise BenchError(f"--backends takes hqp-<backend> methods only, got {', '.join(bad)}")
+        if not self.export_method.startswith("hqp-"):
+            raise BenchError(f"--export-method must be an hqp-<backend> method, got '{self.export_method}'")
+        if not (self.methods and self.loop_methods and self.loop_seeds and self.backends):
+            raise BenchError("--methods, --loop-method, --loop-seed and --backends need at least one value")
+
+    def runs(self, group: str) -> bool:
+        """Whether ``group`` is part of this run."""
+        return self.only in (None, group)
+
+    def command(self) -> str:
+        """The ``tpik-compare bench`` command line of these options (defaults left out)."""
+        words = ["tpik-compare", "bench"]
+        for f in fields(self):
+            value = getattr(self, f.name)
+            if value == f.default:
+                continue
+            flag = _FLAGS.get(f.name, "--" + f.name.replace("_", "-"))
+            for item in value if isinstance(value, tuple) else (value,):
+                words += [flag, str(item)]
+        return shlex.join(words)
+
+
+def _fmt(value: float | None, digits: int = 1) -> str:
+    return "" if value is None else f"{value:.{digits}f}"
+
+
+def solver_table(rows: list[BenchRow], title: str) -> Table:
+    """Rich table of solver rows: median, p95, ratio to mink-native, build/solve split."""
+    table = Table(title=title)
+    for col, justify in (
+        ("method", "left"),
+        ("case", "left"),
+        ("median [µs]", "right"),
+        ("p95 [µs]", "right"),
+        ("× mink (native)", "right"),
+        ("build [µs]", "right"),
+        ("solve [µs]", "right"),
+        ("active", "right"),
+        ("modes", "right"),
+    ):
+        table.add_column(col, justify=justify)  # type: ignore[arg-type]
+    for r in rows:
+        e = r.extra
+        table.add_row(
+            LABELS.get(r.name, r.name),
+            r.case,
+            _fmt(r.median_us),
+            _fmt(r.p95_us),
+            _fmt(e.get("ratio_to_mink"), 2),
+            _fmt(e.get("build_us")),
+            _fmt(e.get("solve_us")),
+            _fmt(e.get("active"), 0),
+            _fmt(e.get("modes_evaluated"), 0),
+        )
+    return table
+
+
+def _generic_table(rows: list[BenchRow], title: str) -> Table:
+    table = Table(title=title)
+    for col in ("stage", "case", "median [µs]", "p95 [µs]", "notes"):
+        table.add_column(col)
+    for r in rows:
+        notes = ", ".join(f"{k}={v:.4g}" for k, v in r.extra.items())
+        table.add_row(r.name, r.case, _fmt(r.median_us), _fmt(r.p95_us), notes)
+    return table
+
+
+def correctness_table(summaries: list[Summary], title: str) -> Table:
+    """Rich table of :class:`~compare.bench.correctness.Summary` rows."""
+    table = Table(title=title)
+    for col in (
+        "backend",
+        "states",
+        "correct",
+        "rate % [95 % CI]",
+        "flagged",
+        "silent",
+        "worst e_k",
+        "primal p95",
+        "dual p95",
+        "gap p95",
+        "median [µs]",
+        "p95 [µs]",
+        "QPs/step",
+    ):
+        table.add_column(col, justify="left" if col in ("backend", "states") else "right")
+
+    def sci(value: float | None) -> str:
+        return "" if value is None or not math.isfinite(value) else f"{value:.1e}"
+
+    for s in summaries:
+        lo, hi = s.success_rate["ci95"]
+        table.add_row(
+            s.name,
+            f"{s.states} ({s.count})",
+            str(s.correct),
+            f"{100 * s.success_rate['rate']:.1f} [{100 * lo:.1f}, {100 * hi:.1f}]",
+            str(s.flagged),
+            str(s.silent),
+            sci(s.worst_level_error),
+            sci(s.primal_residual.get("p95")),
+            sci(s.dual_residual.get("p95")),
+            sci(s.duality_gap.get("p95")),
+            _fmt(s.time_us.get("median")),
+            _fmt(s.time_us.get("p95")),
+            f"{s.qp_calls_per_step:.2f}",
+        )
+    return table
+
+
+def _write_records_csv(records: list[StepRecord], path: Path) -> None:
+    """qpbenchmark-style results table: problem, solver, settings, runtime, found, residuals, plus our verdict."""
+    rows = [
+        {
+            "problem": r.state,
+            "solver": r.method,
+            "settings": "default",
+            "runtime": r.time_us * 1e-6,
+            "found": r.status != "failed",
+            "primal_residual": r.primal_residual,
+            "dual_residual": r.dual_residual,
+            "duality_gap": r.duality_gap,
+            "state_set": r.state_set,
+            "status": r.status,
+            "verdict": r.verdict,
+            "level": r.level,
+            "worst_level_error": r.worst_error,
+            "flagged": r.flagged,
+            "levels_dropped": r.levels_dropped,
+            "levels_uncertified": r.levels_uncertified,
+            "qp_calls": r.qp_calls,
+            "retries": r.retries,
+        }
+        for r in records
+    ]
+    path.parent.mkdir(parents=True, exist_ok=True)
+    pd.DataFrame(rows).to_csv(path, index=False)
+
+
+def _run_correctness(options: BenchOptions, console: Console) -> dict[str, Any]:
+    """The correctness group: its table, figure, CSV and QP export; its ``correctness`` JSON entry."""
+    try:
+        entries = load_reference()
+    except (FileNotFoundError, ReferenceMismatch) as exc:
+        raise BenchError(f"correctness bench: {exc}") from exc
+    records = run_correctness_bench(list(options.backends), entries, rounds=options.rounds, tol=options.tolerance)
+    summaries = summarize(records)
+    console.print(
+        correctness_table(
+            summaries,
+            "Timing vs correctness: HQP backends vs the lexicographic reference "
+            f"(tolerance {options.tolerance:g}, {options.rounds} interleaved rounds)",
+        )
+    )
+    if options.plot is not None:
+        console.print(f"wrote {plot_time_vs_correctness(summaries, records, options.plot, options.tolerance)}")
+    if options.csv is not None:
+        _write_records_csv(records, options.csv)
+        console.print(f"wrote {options.csv}")
+    if options.export_qps is not None:
+        problems = collect_bench_qps(options.export_method, entries)
+        export_test_set(problems, options.export_qps, options.command())
+        console.print(f"wrote {len(problems)} level QPs of {options.export_method} to {options.export_qps}")
+    data = json.loads(REFERENCE_FILE.read_text(encoding="utf-8"))
+    return {
+        "tolerance": options.tolerance,
+        "rounds": options.rounds,
+        "reference": {"file": REFERENCE_FILE.name, "fingerprint": data["fingerprint"], "made_with": data["made_with"]},
+        "summaries": [to_jsonable(s.to_dict()) for s in summaries],
+    }
+
+
+def plant_config_of(explicit: Path | None, sweep_dir: Path | None) -> Path:
+    """The config whose plant is timed: the one given, else the sweep's own copy, else the random family."""
+    if explicit is not None:
+        return explicit
+    if sweep_dir is not None and (sweep_dir / CONFIG_FILE).is_file():
+        return sweep_dir / CONFIG_FILE
+    return RANDOM_CONFIG
+
+
+def _run_plant(options: BenchOptions, console: Console) -> tuple[BenchRow, dict[str, Any] | None]:
+    """The plant row and, with a sweep, the throughput ceiling."""
+    try:  # the sweep first: a wrong directory is refused before the plant is timed
+        sweep = read_sweep_solves(options.sweep) if options.sweep is not None else None
+    except FileNotFoundError as exc:
+        raise BenchError(str(exc)) from exc
+    plant_config = plant_config_of(options.family, options.sweep)
+    config, _ = load_config(plant_config, {"scenario.sensing": "geometric"})
+    row = run_plant_bench(config, steps=max(options.repeats, 200))
+    console.print(_generic_table([row], f"Plant alone, one control period ({plant_config})"))
+    if sweep is None:
+        return row, None
+    ceiling = {**throughput_ceiling(sweep, row.extra["mean_us"]), "plant_config": str(plant_config)}
+    solves = ", ".join(f"{m} {us:.1f}" for m, us in sweep.mean_solve_us.items())
+    console.print(
+        f"throughput ceiling of {options.sweep}: mean solve per step [µs] {solves} "
+        f"(all {ceiling['mean_solve_all_us']:.1f}) + plant {row.extra['mean_us']:.1f} → "
+        f"{ceiling['ceiling_sim_s_per_cpu_s']:.1f} simulated s per CPU s"
+    )
+    return row, ceiling
+
+
+def _run_loop_parts(options: BenchOptions, console: Console) -> tuple[list[BenchRow], dict[str, Any]]:
+    """The ``loop-step`` rows and the ``loop_parts`` entry."""
+    family = plant_config_of(options.family, options.sweep)
+    config, _ = load_config(family)
+    seeded_config(config, options.loop_seeds[0], list(options.loop_methods))  # the methods checked before any run
+    cost_ns = wrapper_cost_ns()
+    results = []
+    for method in options.loop_methods:
+        console.print(f"loop parts: {method}, seeds {' '.join(map(str, options.loop_seeds))} ({family}) …")
+        try:
+            results.append(run_loop_parts(config, method, list(options.loop_seeds)))
+        except LoopRunFailed as exc:
+            raise BenchError(f"loop parts of {method}: {exc}") from exc
+    rows, entry = loop_parts_rows(results, cost_ns)
+    entry["config"] = str(family)
+    entry["seeds"] = list(options.loop_seeds)
+    table = Table(title=f"Where a control step goes [µs per step, exclusive] ({family.name}, one method per run)")
+    table.add_column("part")
+    for r in results:
+        table.add_column(r.method, justify="right")
+    for label in results[0].parts_us:
+        table.add_row(label if label != OWN_SOLVE else f"  {label}", *(f"{r.parts_us[label]:.1f}" for r in results))
+    table.add_row("[bold]total, profiled", *(f"[bold]{r.total_us:.1f}" for r in results))
+    per_method = entry["methods"]
+    table.add_row(
+        f"  of which timers ({cost_ns:.0f} ns per call)",
+        *(f"{per_method[r.method]['timer_cost_us_per_step']:.1f}" for r in results),
+    )
+    table.add_row("[bold]CPU per step, no timer", *(f"[bold]{r.unprofiled_cpu_us_per_step:.1f}" for r in results))
+    console.print(table)
+    return rows, entry
+
+
+def _run_solvers(options: BenchOptions, config: Config | None, console: Console) -> list[BenchRow]:
+    """The case-2 table (the robot, levels and settings of ``config`` when given) and the TPIK-vs-|C| table."""
+    robot, description, settings = None, None, None
+    if config is not None:
+        robot, description, settings = config.load_robot(), config.hierarchy_description(), config.methods.settings
+    rows = run_solver_bench(list(options.methods), options.repeats, robot, description, settings)
+    where = f"{options.config} ({robot.name})" if robot is not None else "case-2 hierarchy"
+    console.print(solver_table(rows, f"Solvers, {where}: one step incl. kinematics"))
+    if options.max_candidates >= 0:
+        candidates = run_candidate_bench(options.repeats, options.max_candidates, robot=robot)
+        console.print(solver_table(candidates, "TPIK vs number of candidate set tasks |C|"))
+        rows += candidates
+    return rows
+
+
+def run_bench(options: BenchOptions) -> dict[str, Any]:
+    """Run the groups of ``options``, print their tables; write and return the JSON payload.
+
+    Raises:
+        BenchError: A group cannot run with the files given (a missing sweep or reference).
+        compare.config.ConfigError: A config or family file is invalid.
+    """
+    config = load_config(options.config)[0] if options.config is not None else None  # refused before any timing
+    console = Console(width=max(Console().width, 160))
+    info = versions()
+    console.print(
+        f"python {info.get('python')} · numpy {info.get('numpy')} · pin {info.get('pin')} · "
+        f"mujoco {info.get('mujoco')} · mink {info.get('mink')} · cpu {info.get('cpu')} ({info.get('machine')})"
+    )
+    robot = config.load_robot() if config is not None else None
+    payload: dict[str, Any] = {
+        "versions": info,
+        "command": options.command(),
+        "robot": robot.name if robot is not None else DEFAULT_ROBOT,
+        "results": [],
+    }
+    rows: list[BenchRow] = []
+    if options.runs("solvers"):
+        rows += _run_solvers(options, config, console)
+    if options.runs("sensing"):
+        sensing = run_sensing_bench(options.repeats, robot)
+        console.print(_generic_table(sensing, "Sensing, one 512×424 frame"))
+        rows += sensing
+    if options.runs("plant"):
+        row, ceiling = _run_plant(options, console)
+        rows.append(row)
+        if ceiling is not None:
+            payload["throughput_ceiling"] = ceiling
+    if options.runs("loop"):
+        loop_rows, payload["loop_parts"] = _run_loop_parts(options, console)
+        rows += loop_rows
+    if options.runs("correctness"):
+        payload["correctness"] = _run_correctness(options, console)
+    payload["results"] = [r.to_dict() for r in rows]
+    if options.json_out is not None:
+        options.json_out.parent.mkdir(parents=True, exist_ok=True)
+        options.json_out.write_text(json.dumps(payload, indent=2) + "\n", encoding="utf-8")
+        console.print(f"wrote {options.json_out}")
+    return payload
+
+
+__all__ = [
+    "GROUPS",
+    "LOOP_METHODS",
+    "LOOP_SEEDS",
+    "RANDOM_CONFIG",
+    "BenchError",
+    "BenchOptions",
+    "correctness_table",
+    "plant_config_of",
+    "run_bench",
+    "solver_table",
+]
