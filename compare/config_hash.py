@@ -21,6 +21,9 @@ from compare.config import Config
 
 EXCLUDED = frozenset({"methods"})
 """Top-level sections left out of the fingerprint."""
+HASHED_WHEN_SET = frozenset({"prediction"})
+"""Sections that enter the hash only when they differ from their defaults: at their defaults they
+change nothing, so results written before the section existed stay results of the same config."""
 
 
 def _plain(value: Any) -> Any:
@@ -54,8 +57,23 @@ def config_fingerprint(config: Config) -> dict[str, Any]:
     return out
 
 
+def _section_defaults(section: str) -> dict[str, Any]:
+    """The fingerprint keys of ``section`` at its defaults."""
+    out: dict[str, Any] = {}
+    default = Config.model_fields[section].default_factory()  # type: ignore[misc]
+    _flatten(_plain(default.model_dump(mode="python")), section, out)
+    return out
+
+
 def fingerprint_hash(fingerprint: dict[str, Any]) -> str:
-    """SHA-256 (hex) of the canonical JSON of a :func:`config_fingerprint`."""
+    """SHA-256 (hex) of the canonical JSON of a :func:`config_fingerprint`.
+
+    A section of :data:`HASHED_WHEN_SET` whose keys all hold their defaults is left out.
+    """
+    for section in HASHED_WHEN_SET:
+        keys = {k: v for k, v in fingerprint.items() if k.startswith(f"{section}.")}
+        if keys == _section_defaults(section):
+            fingerprint = {k: v for k, v in fingerprint.items() if k not in keys}
     text = json.dumps(fingerprint, sort_keys=True, separators=(",", ":"), allow_nan=False)
     return hashlib.sha256(text.encode("utf-8")).hexdigest()
 

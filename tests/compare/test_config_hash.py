@@ -6,7 +6,13 @@ import math
 from pathlib import Path
 
 from compare.config import load_config, parse_config
-from compare.config_hash import config_fingerprint, config_hash, describe_differences, method_settings
+from compare.config_hash import (
+    config_fingerprint,
+    config_hash,
+    describe_differences,
+    fingerprint_hash,
+    method_settings,
+)
 
 CONFIGS = Path(__file__).resolve().parents[2] / "configs"
 
@@ -50,3 +56,14 @@ def test_method_settings_are_recorded_per_method():
     config = _with(config, "methods", names=["tpik", "hqp-osqp"], settings={"hqp-osqp": {"eps_abs": 1e-6}})
     assert method_settings(config, "hqp-osqp") == {"eps_abs": 1e-6}
     assert method_settings(config, "tpik") == {}
+
+
+def test_a_prediction_section_at_its_defaults_leaves_the_hash_of_the_config_without_it():
+    """Results written before ``[prediction]`` existed stay results of the same config; setting it changes the hash."""
+    config, _ = load_config(CONFIGS / "random.toml")
+    fingerprint = config_fingerprint(config)
+    assert any(k.startswith("prediction.") for k in fingerprint)
+    without = {k: v for k, v in fingerprint.items() if not k.startswith("prediction.")}
+    assert config_hash(config) == fingerprint_hash(without)
+    predicted = config.model_copy(update={"prediction": config.prediction.model_copy(update={"mode": "estimated"})})
+    assert config_hash(predicted) != config_hash(config)
