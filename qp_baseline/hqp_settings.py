@@ -43,7 +43,7 @@ class HqpSettings:
             the same default as TPIK and mink).
         certify: Judge every backend answer by its certificate (:mod:`qp_baseline.certificate`:
             primal residual, dual residual, duality gap, level objective against the dual bound);
-            off: status, constraints and the known feasible point only (the checks before issue 23).
+            off: status, constraints and the known feasible point only (the checks before the certificate existed).
         objective_tolerance: Accepted error of a level's residual norm, relative to 1 + ρ
             (:attr:`~qp_baseline.certificate.Tolerances.level`); ``max(1e-6, tolerance)`` when None.
         warm_start: Start each level's backend from that level's answer at the previous step;

@@ -1,4 +1,4 @@
-"""No function of qp_baseline/ is longer than 60 lines of code (issue 17: "no function on the control path
+"""No function of qp_baseline/ is longer than 60 lines of code ("no function on the control path
 longer than ~60 lines").
 
 A function's length is its lines from ``def`` to its last line, its docstring left out (the docstrings

@@ -1,4 +1,4 @@
-r"""One pass that evaluates every task of a list from a kinematics snapshot, compiled (issue 21).
+r"""One pass that evaluates every task of a list from a kinematics snapshot, compiled.
 
 Every method — TPIK (:mod:`tpik.solver`), the HQP cascade and the mink peer (through
 :class:`qp_baseline.set_rows.SetRowBuilder` and :meth:`TaskEvaluation.evaluate`) — needs the

@@ -137,7 +137,7 @@ class TpikSettings:
             inserted. Both add norm to the modes that hold a task, so the largest norm holds a
             task that could be released: it is pulled to its threshold and sticks there
             (``tests/tpik/test_solver_closed_loop.py``), or the choice flips every step between
-            holding and releasing (issue 9: seed 838 of the hard campaign alternated ±0.09 rad/s
+            holding and releasing (seed 838 of the hard campaign alternated ±0.09 rad/s
             every 10 ms for 0.2 s; with the servo lag of the dynamic arm the EE went 3.5 mm past
             a wall).
         max_exhaustive_candidates: Largest |C| for which all 2^|C| modes are tried; above it

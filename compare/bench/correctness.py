@@ -15,7 +15,7 @@ levels above) — and all levels within ``tol`` is a *match*. **Correct** = matc
 is **flagged** when the method told the caller something went wrong with its QPs: FAILED, a
 level dropped, or a level kept without a certificate (``extras["levels_dropped"]``,
 ``extras["levels_uncertified"]``). A wrong step that is not flagged is **silent**: the failure
-the certificate exists to prevent (the acceptance of issue 23 is zero silent steps).
+the certificate exists to prevent (the acceptance is zero silent steps).
 
 Per method and state set: success rate (correct / states, with its Wilson 95 % interval), flagged,
 silent and false-flag counts, the worst level error, the qpbenchmark residuals of the level QPs
@@ -53,7 +53,7 @@ TOLERANCE = 1e-5
 
 Ten times the cascade's own certificate tolerance (1e-6): a level within tolerance at the levels
 above may shift the optimum of the levels below by a little more than 1e-6 (the strict optimum's
-conditioning); real errors are far above it (0.11 m/s for the OSQP drop of issue 23, 2.1e-5 m/s
+conditioning); real errors are far above it (0.11 m/s for an OSQP level drop, 2.1e-5 m/s
 for the ProxQP one)."""
 
 HQP_BACKENDS = tuple(f"hqp-{name}" for name in SUPPORTED_SOLVERS)

@@ -1,4 +1,4 @@
-r"""Where a campaign step goes: the closed loop's parts timed one by one (issue 21, item 4).
+r"""Where a campaign step goes: the closed loop's parts timed one by one.
 
 :func:`run_loop_parts` runs whole runs of one scenario family, one method at a time, in this
 process (a sweep worker's steady state: one untimed run first loads the kernels and builds the

@@ -1,4 +1,4 @@
-r"""The campaign's plant alone, and the throughput ceiling it leaves with the methods' solves (issue 21).
+r"""The campaign's plant alone, and the throughput ceiling it leaves with the methods' solves.
 
 :func:`run_plant_bench` times one control period of the simulated plant of a randomized sweep
 (``SimRobotIO.wait`` after ``send_velocity``: the scripted person's mocap update, the decoupled

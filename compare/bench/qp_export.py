@@ -1,4 +1,4 @@
-r"""Level QPs of the HQP cascade written as a qpbenchmark test set (issue 23).
+r"""Level QPs of the HQP cascade written as a qpbenchmark test set.
 
 qpbenchmark (github.com/qpsolvers/qpbenchmark) reads a test set as problems in the qpsolvers
 format :math:`\min \tfrac12 x^TPx + q^Tx` s.t. :math:`Gx \le h,\ Ax = b,\ lb \le x \le ub`,

@@ -1,4 +1,4 @@
-"""The stored lexicographic reference of the bench's QP states (issue 23).
+"""The stored lexicographic reference of the bench's QP states.
 
 Every backend of the HQP cascade is judged against the same reference: for each state of
 :func:`bench_states` (the three case-2 states and :data:`~compare.bench.qp_states.RANDOM_COUNT`

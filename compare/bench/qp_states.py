@@ -1,4 +1,4 @@
-"""States of the case-2 hierarchy on which the QP backends are judged (issue 23).
+"""States of the case-2 hierarchy on which the QP backends are judged.
 
 A :class:`QpState` is everything a step of the cascade depends on: the configuration, the
 obstacle point per control point, the EE target, one gain per level and the control period.

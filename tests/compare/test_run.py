@@ -162,7 +162,7 @@ def _invoke(config: str, out: Path, *extra: str):
 
 
 def test_one_method_then_another_into_one_directory_keeps_both(tmp_path):
-    """The first command pair of issue 22: the second run adds its method, the first stays as it was."""
+    """The first command pair of a run added to: the second run adds its method, the first stays as it was."""
     out = tmp_path / "R"
     first = _invoke("case1.toml", out, "-m", "tpik")
     assert first.exit_code == 0, first.output

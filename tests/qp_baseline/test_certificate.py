@@ -104,7 +104,7 @@ def test_residuals_equal_qpsolvers_and_the_bound_holds_for_any_multipliers(seed)
 def test_level_tolerance_catches_a_slack_above_a_zero_optimum():
     """A slack-level QP min ½w² s.t. g − w ≤ 0 (x = [g, w], g ∈ [−1, 1]): the optimum needs no slack.
 
-    An answer keeping w = 2.1e-5 (ProxQP's suboptimal "solved" answer of issue 23, in spirit) has an
+    An answer keeping w = 2.1e-5 (ProxQP's suboptimal "solved" answer on a trap state, in spirit) has an
     objective error of only 2.2e-10, but a slack 2.1e-5 above the optimum: the level tolerance, in
     the level's own units, sees it; 1e-7 passes.
     """

@@ -1,6 +1,6 @@
 """Every HQP answer is certified or reported: known optima per backend, frozen backend traps, accounting.
 
-The traps of issue 23 are frozen as data (``data/backend_traps.json``): states on which OSQP gave
+The backend traps are frozen as data (``data/backend_traps.json``): states on which OSQP gave
 up a level (iteration limit) and ProxQP returned a suboptimal "solved" answer or a false "primal
 infeasible", before the certificate. With the current settings each is either solved to the
 certificate's tolerance — judged against the independent lexicographic reference — or reported
@@ -86,7 +86,7 @@ def test_backend_traps_are_solved_to_tolerance_or_reported(jaco, trap):
 
 
 def _pre_issue_solver(jaco: object, backend: str, monkeypatch: pytest.MonkeyPatch) -> HqpSolver:
-    """The cascade as it was before issue 23: no certificate, OSQP's earlier settings and retry."""
+    """The cascade as it was before the certificate: no certificate, OSQP's earlier settings and retry."""
     if backend == "osqp":
         earlier = dataclasses.replace(
             BACKENDS["osqp"],

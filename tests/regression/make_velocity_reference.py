@@ -1,4 +1,4 @@
-"""Reference joint velocities of every method on random case-2 states (issue 21 item 5).
+"""Reference joint velocities of every method on random case-2 states.
 
 ``python -m tests.regression.make_velocity_reference`` draws :data:`COUNT` states from
 :data:`SEED` (:func:`random_states`), runs each method of :data:`METHODS` once per state on the

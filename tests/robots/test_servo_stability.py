@@ -1,4 +1,4 @@
-"""The velocity servos of the MJCF stay stable when their force saturates (issue 9).
+"""The velocity servos of the MJCF stay stable when their force saturates.
 
 MuJoCo's ``implicitfast`` integrator treats a velocity servo's damping ``kv`` implicitly only
 while the servo force is inside its ``forcerange`` (and the joint's ``actuatorfrcrange``); a

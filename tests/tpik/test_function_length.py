@@ -1,4 +1,4 @@
-"""Functions of ``tpik/`` stay short (issue 17 item 2): at most :data:`MAX_LINES` lines each.
+"""Functions of ``tpik/`` stay short: at most :data:`MAX_LINES` lines each.
 
 A function is counted from its ``def`` line to its last line, its docstring excluded (the
 docstrings carry the math and the paper's equations, which should not be cut short). A compiled

@@ -169,7 +169,7 @@ def test_a_task_the_lower_level_pulls_inward_is_released_not_pulled_to_its_thres
     than the weak inward pull: the mode that holds it has the larger norm. The default rule
     releases it (the solution without it is admissible, eqs. 8–9) and q4 reaches its target.
     The largest-norm rule pulls it outward until holding and releasing have equal norms, then
-    flips between the two every step or two (issue 9, seed 838: the same chatter at a wall).
+    flips between the two every step or two (seed 838 of the hard campaign: the same chatter at a wall).
     """
     limit = JointLimitTask.from_robot(jaco, 4, safety_margin=0.1, activation_margin=0.05)
     s_u = limit.thresholds.safety_upper

@@ -1,4 +1,4 @@
-"""Timing vs correctness bench: the lexicographic comparison, the accounting, and the acceptance of issue 23."""
+"""Timing vs correctness bench: the lexicographic comparison, the accounting, and its acceptance."""
 
 from __future__ import annotations
 
@@ -120,7 +120,7 @@ def test_no_backend_is_silently_wrong_on_the_case2_states_and_a_random_sample(re
 
 @pytest.mark.slow
 def test_acceptance_no_backend_is_silently_wrong_on_all_reference_states(reference):
-    """Acceptance of issue 23: on ≥ 200 random case-2 states (and the 3 case-2 states) every backend
+    """Acceptance: on ≥ 200 random case-2 states (and the 3 case-2 states) every backend
     matches the reference cascade or reports DEGRADED/FAILED for that step."""
     records = run_correctness_bench(AVAILABLE, reference, rounds=1)
     for s in summarize(records):

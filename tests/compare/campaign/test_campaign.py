@@ -168,7 +168,7 @@ def test_fifty_run_campaign_keeps_joint_limits_and_walls_for_tpik_and_hqp(tmp_pa
 
 @pytest.mark.parametrize("case", CASES, ids=[c.path.stem for c in CASES])
 def test_campaign_worst_seeds_stay_inside_their_thresholds(case):
-    """Issue 9's worst runs, each simulated from its frozen scenario (``worst_seeds/``).
+    """The hard campaign's worst runs, each simulated from its frozen scenario (``worst_seeds/``).
 
     Seed 379 is cut at 13 s, inside its former 12.4–16.2 s violation. With 5 ms physics steps a
     saturated velocity servo entered a ±force-limit cycle and stopped following its command:

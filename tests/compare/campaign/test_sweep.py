@@ -121,7 +121,7 @@ def _direct(out: Path, n: int, methods: list[str], duration: float = 0.5, **kwar
 
 
 def test_a_sweep_of_one_method_then_more_runs_of_another_keeps_every_finished_result(tmp_path):
-    """The second command pair of issue 22: the resume adds hqp-daqp everywhere, tpik stays as it was."""
+    """The second command pair of a resumed sweep: the resume adds hqp-daqp everywhere, tpik stays as it was."""
     out = tmp_path / "S"
     first = _sweep(out, "--n", "2", "-m", "tpik")
     assert first.exit_code == 0, first.output

@@ -1,4 +1,4 @@
-"""Issue 9's worst campaign runs, frozen as concrete scenarios (``worst_seeds/*.toml``).
+"""The hard campaign's worst runs, frozen as concrete scenarios (``worst_seeds/*.toml``).
 
 Each case is a seed of ``configs/random.toml`` cut at a time inside its former violation. The
 scenario the generator realised for it (start pose, waypoints, person path, sensor noise) is

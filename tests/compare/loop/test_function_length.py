@@ -1,4 +1,4 @@
-"""No function on the control path is longer than 60 lines (issue 17: named parts, each one job).
+"""No function on the control path is longer than 60 lines (named parts, each one job).
 
 Checked: every function and method of ``compare/loop/`` and ``compare/sensing/``, compiled
 kernels included. A function's length is its body's (from the first statement after the
