@@ -584,7 +584,7 @@ class PredictionConfig(_Strict):
 
     mode: Literal["off", "estimated", "truth"] = "off"
     feedforward: bool = True
-    horizon_s: float = Field(0.5, ge=0.0, le=3.0)
+    horizon_s: float = Field(0.25, ge=0.0, le=3.0)
     growth: bool = True
     sample_s: float = Field(0.05, gt=0.0, le=0.5)
     acceleration_mps2: float = Field(8.0, gt=0.0, le=100.0)
