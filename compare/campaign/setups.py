@@ -1,0 +1,243 @@
+r"""Setups of one scenario family compared on the same seeds: safety held, cost of the mission.
+
+Each *setup* is a sweep of one family over the same seeds with something changed (prediction on or
+off, the sensing range, ...): the person, start pose and waypoints are drawn from the seed alone, so
+runs of one seed and method are paired across setups. Per method and setup, on the seeds every
+setup ran, from each run's ``summary.json`` (ground-truth distances):
+
+* **held**: no obstacle safety violation in the run (``obstacles.violations`` = 0); the rate with
+  its Wilson 95 % interval and, against the first setup (the baseline), the exact McNemar test on
+  the discordant seeds. When the baseline's runs carry the verdict (``oracle.label``), the rate is
+  also given over the ``avoidable`` runs only;
+* **joint / wall**: runs with a joint-limit or wall safety violation, and their worst margins;
+* **mission**: the mean end-effector error over the run and the waypoints reached, paired against
+  the baseline with the Wilcoxon signed-rank test; the time below the physical obstacle threshold.
+
+Run::
+
+    python -m compare.campaign.setups results/predicted-off:off results/predicted-estimated:estimated \
+        --out docs/campaign-predicted
+
+(``DIR:LABEL``; the label defaults to the directory's name.) Writes ``setups.json`` and
+``setups.md``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import sys
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pandas as pd
+from scipy import stats
+
+from compare.analysis.results import RUNS_DIR, load_summary, write_json_atomic
+from compare.analysis.statistics import mcnemar, rate
+
+RESULT = "setups.json"
+REPORT = "setups.md"
+COLUMNS = [
+    "seed",
+    "method",
+    "held",
+    "label",
+    "joint_violation",
+    "wall_violation",
+    "joint_margin",
+    "wall_margin",
+    "ee_error_mean",
+    "waypoints",
+    "physical_time_s",
+]
+
+
+def _number(value: Any) -> float:
+    return math.nan if value is None else float(value)
+
+
+def sweep_runs(sweep_dir: Path) -> pd.DataFrame:
+    """One row per (seed, method) of a sweep (:data:`COLUMNS`).
+
+    Raises:
+        FileNotFoundError: ``sweep_dir`` has no ``runs/`` directory.
+    """
+    runs_dir = Path(sweep_dir) / RUNS_DIR
+    if not runs_dir.is_dir():
+        raise FileNotFoundError(f"{sweep_dir}: no {RUNS_DIR}/ directory (not a sweep)")
+    rows: list[dict[str, Any]] = []
+    for run_dir in sorted(p for p in runs_dir.iterdir() if p.is_dir()):
+        try:
+            summary = load_summary(run_dir)
+        except (OSError, ValueError):
+            continue
+        label = (summary.get("oracle") or {}).get("label")
+        for method, m in (summary.get("methods") or {}).items():
+            joints, walls = m.get("joint_limits") or {}, m.get("walls") or {}
+            rows.append(
+                {
+                    "seed": summary.get("seed"),
+                    "method": method,
+                    "held": int((m.get("obstacles") or {}).get("violations") or 0) == 0,
+                    "label": label,
+                    "joint_violation": int(joints.get("violations") or 0) > 0,
+                    "wall_violation": int(walls.get("violations") or 0) > 0,
+                    "joint_margin": _number(joints.get("safety_margin_min")),
+                    "wall_margin": _number(walls.get("safety_margin_min")),
+                    "ee_error_mean": _number((m.get("ee_error_m") or {}).get("mean")),
+                    "waypoints": _number(m.get("waypoints_reached")),
+                    "physical_time_s": _number((m.get("obstacles") or {}).get("physical_violation_time_s")),
+                }
+            )
+    return pd.DataFrame(rows, columns=COLUMNS)
+
+
+def _wilcoxon(a: np.ndarray, b: np.ndarray) -> float | None:
+    keep = np.isfinite(a) & np.isfinite(b)
+    a, b = a[keep], b[keep]
+    if a.size < 2:
+        return None
+    return 1.0 if np.all(a == b) else float(stats.wilcoxon(a, b).pvalue)
+
+
+def _mean(x: np.ndarray) -> float | None:
+    x = x[np.isfinite(x)]
+    return float(x.mean()) if x.size else None
+
+
+def _min(x: np.ndarray) -> float | None:
+    x = x[np.isfinite(x)]
+    return float(x.min()) if x.size else None
+
+
+def _setup_entry(rows: pd.DataFrame, base: pd.DataFrame, avoidable: np.ndarray) -> dict[str, Any]:
+    """One setup of one method, paired seed by seed with the baseline's rows."""
+    held = rows["held"].to_numpy(dtype=bool)
+    base_held = base["held"].to_numpy(dtype=bool)
+    test = mcnemar(held, base_held)
+    ee, base_ee = rows["ee_error_mean"].to_numpy(float), base["ee_error_mean"].to_numpy(float)
+    wp, base_wp = rows["waypoints"].to_numpy(float), base["waypoints"].to_numpy(float)
+    return {
+        "held": rate(int(held.sum()), held.size),
+        "held_avoidable": rate(int(held[avoidable].sum()), int(avoidable.sum())) if avoidable.any() else None,
+        "vs_baseline": {"only_this": test["a_only"], "only_baseline": test["b_only"], "mcnemar_p": test["p_value"]},
+        "joint_violations": int(rows["joint_violation"].sum()),
+        "joint_margin_min_rad": _min(rows["joint_margin"].to_numpy(float)),
+        "wall_violations": int(rows["wall_violation"].sum()),
+        "wall_margin_min_m": _min(rows["wall_margin"].to_numpy(float)),
+        "ee_error_mean_m": _mean(ee),
+        "ee_error_vs_baseline_wilcoxon_p": _wilcoxon(ee, base_ee),
+        "waypoints_mean": _mean(wp),
+        "waypoints_vs_baseline_wilcoxon_p": _wilcoxon(wp, base_wp),
+        "physical_time_s_mean": _mean(rows["physical_time_s"].to_numpy(float)),
+    }
+
+
+def compare_setups(setups: list[tuple[str, Path]]) -> dict[str, Any]:
+    """Paired comparison of the setups (module docstring); the first is the baseline.
+
+    Returns:
+        ``{"setups": {label: dir}, "baseline": label, "methods": {method: {"paired_runs",
+        "setups": {label: entry}}}}`` with each entry as :func:`_setup_entry` gives it.
+    """
+    if len(setups) < 2:
+        raise ValueError("give at least two sweeps (DIR[:LABEL]) to compare")
+    labels = [label for label, _ in setups]
+    if len(set(labels)) != len(labels):
+        raise ValueError(f"setup labels must differ: {labels}")
+    tables = {label: sweep_runs(path) for label, path in setups}
+    baseline = labels[0]
+    out: dict[str, Any] = {"setups": {label: str(path) for label, path in setups}, "baseline": baseline, "methods": {}}
+    for method in tables[baseline]["method"].unique():
+        per = {label: t[t["method"] == method].set_index("seed") for label, t in tables.items()}
+        if any(p.empty for p in per.values()):
+            continue
+        seeds = sorted(set.intersection(*(set(p.index) for p in per.values())))
+        if not seeds:
+            continue
+        base = per[baseline].loc[seeds]
+        avoidable = (base["label"] == "avoidable").to_numpy(dtype=bool)
+        out["methods"][str(method)] = {
+            "paired_runs": len(seeds),
+            "seeds": [int(seeds[0]), int(seeds[-1])],
+            "setups": {label: _setup_entry(p.loc[seeds], base, avoidable) for label, p in per.items()},
+        }
+    return out
+
+
+def _pct(entry: dict[str, Any] | None) -> str:
+    if not entry or entry["rate"] is None:
+        return "–"
+    lo, hi = entry["ci95"]
+    return f"{100 * entry['rate']:.1f} % [{100 * lo:.1f}, {100 * hi:.1f}]"
+
+
+def _num(value: float | None, fmt: str) -> str:
+    return "–" if value is None else format(value, fmt)
+
+
+def render_markdown(result: dict[str, Any]) -> str:
+    """One table: a row per (method, setup)."""
+    lines = [
+        f"Baseline: `{result['baseline']}`; each setup paired with it seed by seed "
+        "(McNemar on held, Wilcoxon on the mission cost).",
+        "",
+        "| method | setup | runs | held (Wilson 95 %) | held, avoidable runs | only this / only baseline (p) "
+        "| joint / wall violations (worst margin) | mean EE error [m] (p) | waypoints (p) |",
+        "|---|---|---|---|---|---|---|---|---|",
+    ]
+    for method, m in result["methods"].items():
+        for label, e in m["setups"].items():
+            vs = e["vs_baseline"]
+            paired = (
+                "–"
+                if label == result["baseline"]
+                else f"{vs['only_this']} / {vs['only_baseline']} ({vs['mcnemar_p']:.2g})"
+            )
+            ee_p = "" if label == result["baseline"] else f" ({_num(e['ee_error_vs_baseline_wilcoxon_p'], '.2g')})"
+            wp_p = "" if label == result["baseline"] else f" ({_num(e['waypoints_vs_baseline_wilcoxon_p'], '.2g')})"
+            jw = (
+                f"{e['joint_violations']} ({_num(e['joint_margin_min_rad'], '+.4f')} rad) / "
+                f"{e['wall_violations']} ({_num(e['wall_margin_min_m'], '+.4f')} m)"
+            )
+            lines.append(
+                f"| `{method}` | {label} | {m['paired_runs']} | {_pct(e['held'])} | {_pct(e['held_avoidable'])} "
+                f"| {paired} | {jw} | {_num(e['ee_error_mean_m'], '.3f')}{ee_p} "
+                f"| {_num(e['waypoints_mean'], '.2f')}{wp_p} |"
+            )
+    return "\n".join(lines) + "\n"
+
+
+def _parse(spec: str) -> tuple[str, Path]:
+    path, _, label = spec.partition(":")
+    return (label or Path(path).name), Path(path)
+
+
+def main(argv: list[str] | None = None) -> int:
+    """``python -m compare.campaign.setups DIR[:LABEL] DIR[:LABEL] ... --out DIR``."""
+    parser = argparse.ArgumentParser(
+        description="Sweeps of one family compared on the same seeds (the first is the baseline)."
+    )
+    parser.add_argument("sweeps", nargs="+", help="sweep directories, each DIR or DIR:LABEL")
+    parser.add_argument("--out", type=Path, required=True, help="output directory (setups.json, setups.md)")
+    args = parser.parse_args(argv)
+    try:
+        result = compare_setups([_parse(s) for s in args.sweeps])
+    except (FileNotFoundError, ValueError) as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    if not result["methods"]:
+        print("error: the sweeps share no (seed, method) run", file=sys.stderr)
+        return 2
+    args.out.mkdir(parents=True, exist_ok=True)
+    write_json_atomic(args.out / RESULT, result)
+    text = render_markdown(result)
+    (args.out / REPORT).write_text(text, encoding="utf-8")
+    print(text, end="")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
