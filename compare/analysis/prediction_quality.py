@@ -9,12 +9,16 @@ one is the rate at which the person's surface comes toward the control point hel
 from the scenario's keyframes (which the estimate never sees), over the steps where the
 prediction saw something. Reported per method and control point: the median and RMS error of
 the estimate against :math:`v_c^+`, its bias, and its latency: the delay ℓ ∈ [0, 0.3] s that
-minimises the RMS error between the estimate at t and the truth at t − ℓ.
-``python -m compare.analysis.prediction_quality RUN_OR_SWEEP_DIR`` prints them.
+minimises the RMS error between the estimate at t and the truth at t − ℓ. The same median error
+and bias over the steps where the person truly closes in faster than
+:data:`CLOSING_MPS` (``closing_*``): most steps have nothing coming, where both are 0.
+``python -m compare.analysis.prediction_quality RUN_OR_SWEEP_DIR [--runs N]`` prints them (the
+first N runs of a sweep).
 """
 
 from __future__ import annotations
 
+import argparse
 import json
 import sys
 from pathlib import Path
@@ -33,6 +37,8 @@ from robots import Robot
 
 MAX_LATENCY_S = 0.3
 """Largest delay searched for the latency [s]."""
+CLOSING_MPS = 0.2
+"""True closing speed above which a step counts as the person closing in [m/s]."""
 
 
 def true_closing(track: PersonTrack, points: np.ndarray, t: np.ndarray, half_window_s: float = 0.02) -> np.ndarray:
@@ -79,8 +85,12 @@ def estimate_errors(estimate: np.ndarray, truth: np.ndarray, dt: float) -> dict[
         rms = float(np.sqrt(np.mean((a[m] - b[m]) ** 2)))
         if rms < best_rms - 1e-12:
             best_lag, best_rms = lag, rms
+    closing = truth[ok] > CLOSING_MPS
     return {
         "samples": int(ok.sum()),
+        "closing_samples": int(closing.sum()),
+        "closing_median_abs_error_mps": float(np.median(np.abs(err[closing]))) if closing.any() else np.nan,
+        "closing_bias_mps": float(np.mean(err[closing])) if closing.any() else np.nan,
         "median_abs_error_mps": float(np.median(np.abs(err))),
         "rms_error_mps": float(np.sqrt(np.mean(err**2))),
         "bias_mps": float(np.mean(err)),
@@ -106,31 +116,41 @@ def quality_run(run_dir: Path) -> list[dict[str, Any]]:
     return rows
 
 
-def quality(directory: Path) -> pd.DataFrame:
-    """:func:`quality_run` for a run directory or every run of a sweep directory."""
+def quality(directory: Path, max_runs: int | None = None) -> pd.DataFrame:
+    """:func:`quality_run` for a run directory or the first ``max_runs`` runs of a sweep directory."""
     directory = Path(directory)
     runs = [directory] if (directory / SUMMARY_FILE).is_file() and not (directory / RUNS_DIR).is_dir() else []
     runs = runs or sorted(p for p in (directory / RUNS_DIR).glob("*") if (p / SUMMARY_FILE).is_file())
+    runs = runs[:max_runs] if max_runs is not None else runs
     return pd.DataFrame([row for run in runs for row in quality_run(run)])
 
 
 def main(argv: list[str] | None = None) -> int:
     """Print the errors per run, method and control point, then their medians per method."""
-    args = sys.argv[1:] if argv is None else argv
-    usage = "usage: python -m compare.analysis.prediction_quality RUN_OR_SWEEP_DIR"
-    if len(args) != 1 or args[0] in ("-h", "--help"):
-        print(usage, file=sys.stderr if len(args) != 1 else sys.stdout)
-        return 0 if args and args[0] in ("-h", "--help") else 2
-    directory = Path(args[0])
+    parser = argparse.ArgumentParser(
+        prog="python -m compare.analysis.prediction_quality",
+        description="The predicted closing speeds against the person's true ones.",
+    )
+    parser.add_argument("directory", type=Path, help="a run directory (summary.json) or a sweep directory (runs/)")
+    parser.add_argument("--runs", type=int, default=None, help="only the first N runs of a sweep")
+    args = parser.parse_args(argv)
+    directory = args.directory
     if not (directory / SUMMARY_FILE).is_file() and not (directory / RUNS_DIR).is_dir():
         print(f"error: {directory} is neither a run (summary.json) nor a sweep (runs/) directory", file=sys.stderr)
         return 2
-    frame = quality(directory)
+    frame = quality(directory, args.runs)
     if frame.empty or "median_abs_error_mps" not in frame.columns:
         print("no run with prediction (closing_pred columns)")
         return 0
     print(frame.round(3).to_string(index=False))
-    cols = ["median_abs_error_mps", "rms_error_mps", "bias_mps", "latency_s"]
+    cols = [
+        "median_abs_error_mps",
+        "rms_error_mps",
+        "bias_mps",
+        "latency_s",
+        "closing_median_abs_error_mps",
+        "closing_bias_mps",
+    ]
     print("\nmedian over runs and control points:")
     print(frame.groupby("method")[cols].median().round(3).to_string())
     return 0
