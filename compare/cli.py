@@ -118,7 +118,8 @@ MethodsOpt = Annotated[
     typer.Option(
         "--methods",
         "-m",
-        help="Methods to run instead of the config's (repeatable): tpik, tpik-paper, hqp-daqp, mink, mink-hard...",
+        help="Methods to run instead of the config's (repeatable): tpik, tpik-paper, hqp-<backend>, mink, "
+        "mink-hard, ...; what each is: tpik-compare methods.",
     ),
 ]
 SeedOpt = Annotated[
@@ -585,6 +586,17 @@ def plot(results: Annotated[Path, typer.Argument(help="A run or sweep results di
         return
     for p in paths:
         typer.echo(str(p))
+
+
+@app.command("methods")
+def list_methods() -> None:
+    """Every method name this installation accepts (-m, [methods] names), with what it is."""
+    from compare.methods import available_methods, describe
+
+    names = available_methods()
+    width = max(len(n) for n in names)
+    for name in names:
+        typer.echo(f"{name:<{width}}  {describe(name)}")
 
 
 def _parse_size(size: str) -> tuple[int, int]:

@@ -10,8 +10,12 @@ Names:
 * ``tpik-no-<deviation>``: ``tpik`` with one of its :data:`tpik.solver.DEVIATIONS` from the
   paper switched off (the ablation, ``tpik-compare ablation``);
 * ``hqp-<qp solver>``: the HQP cascade with any qpsolvers backend installed;
-* ``mink``: mink as its users run it; ``mink-hard``: the strict variant (hard return-rate
-  rows), :mod:`qp_baseline.mink_peer`.
+* ``mink``: mink with the project's set-based tasks as one custom mink ``Limit`` and a soft,
+  weighted return into the safe set (a custom mink ``Task``); ``mink-hard``: the same with hard
+  return-rate rows instead of the soft return, :mod:`qp_baseline.mink_peer`.
+
+:data:`DESCRIPTIONS` says what each name is in one line (``tpik-compare methods``, the README's
+method table).
 
 A method whose package cannot be imported is left out of :func:`available_methods`
 (qpsolvers' approach to optional backends). Settings of the config (``[methods.settings.<name>]``)
@@ -38,6 +42,35 @@ class UnknownMethod(CompareError, ValueError):
 
 ABLATION_PREFIX = "tpik-no-"
 """``tpik-no-<deviation>``: ``tpik`` with one deviation from the paper switched off."""
+
+DESCRIPTIONS: dict[str, str] = {
+    "tpik-paper": "the paper as printed: eq. 4 at every level, the largest-norm mode admissible by eqs. 8–9 "
+    "alone, the damping of sec. II-A with σ* = ‖σ̃‖/‖q̇‖_max, no gain cap",
+    "tpik": "the project's set-based TPIK: tpik-paper plus the deviations of tpik.solver.DEVIATIONS "
+    "(compensated levels, fewest-active mode choice, return-rate condition, gain cap, σ* from the reference)",
+    "tpik-ss": "tpik with the Siciliano–Slotine cascade at every level",
+    f"{ABLATION_PREFIX}<deviation>": "tpik with one deviation from the paper switched off (the ablation)",
+    "hqp-<solver>": "the same levels as a lexicographic cascade of QPs (set tasks as slack-relaxed rate rows, "
+    "hard joint box), any qpsolvers backend",
+    "mink": "mink (its kinematics, FrameTask, ConfigurationLimit, VelocityLimit) with the project's set tasks "
+    "as one custom mink Limit that the zero step satisfies and a custom weighted Task pulling a task past its "
+    "safety threshold back (costs 1000/100/10 for joint limits/walls/obstacles vs 1 for the EE task, "
+    "level_cost_ratio 10): a build of the project's hierarchy in mink, not a mink idiom",
+    "mink-hard": "mink with the same limits but hard return-rate rows instead of the soft return "
+    "(the project's earlier adapter): no solution is a FAILED step",
+}
+"""What each method name (or name pattern) is, in one line (plain text, printed by ``tpik-compare methods``)."""
+
+
+def describe(name: str) -> str:
+    """The :data:`DESCRIPTIONS` line of ``name`` (``hqp-*`` and ``tpik-no-*`` from their pattern); "" if none."""
+    if name in DESCRIPTIONS:
+        return DESCRIPTIONS[name]
+    if name.startswith(ABLATION_PREFIX):
+        return f"tpik with its deviation '{name.removeprefix(ABLATION_PREFIX)}' switched off (the ablation)"
+    if name.startswith("hqp-"):
+        return DESCRIPTIONS["hqp-<solver>"].replace("any qpsolvers backend", f"backend {name.removeprefix('hqp-')}")
+    return ""
 
 
 def tpik_presets() -> dict[str, dict[str, Any]]:

@@ -1,4 +1,4 @@
-r"""The mink peer: the same hierarchy given to mink as its users set it up (weighted, not strict, priorities).
+r"""The mink peers: the project's hierarchy built in mink (weighted, not strict, priorities).
 
 mink solves one QP per step over the configuration displacement :math:`\Delta q = \dot q\,dt`:
 
@@ -9,9 +9,13 @@ mink solves one QP per step over the configuration displacement :math:`\Delta q 
 and returns :math:`v = \Delta q / dt` [rad/s] (what :func:`mink.solve_ik` does; ``dt`` scales
 the constraints, e.g. ``VelocityLimit`` gives :math:`|\Delta q| \le v_{max} dt`).
 
-Set up as a mink user would (its README, examples and issues: kinematics from
-``mink.Configuration``, frame targets through ``FrameTask``, limits that the zero step always
-satisfies, as ``ConfigurationLimit`` and ``CollisionAvoidanceLimit`` are written):
+mink's own parts where mink has them (kinematics from ``mink.Configuration``, frame targets
+through ``FrameTask``, ``ConfigurationLimit`` and ``VelocityLimit``), and two custom parts for
+the project's set-based tasks: a :class:`mink.Limit` of rows that the zero step always satisfies
+(as ``ConfigurationLimit`` and ``CollisionAvoidanceLimit`` are written) and, in ``mink``, a
+weighted :class:`mink.Task` that pulls a task past its safety threshold back. That return task
+is the project's, not a mink idiom: mink's own limits bound the step and none of them pulls a
+quantity back into a safe set.
 
 * **Kinematics**: every task is evaluated on :class:`~qp_baseline.mink_kinematics.MinkKinematics`,
   mink's own ``Configuration`` (MuJoCo data), not on our pinocchio snapshot. The obstacle points
@@ -36,16 +40,16 @@ satisfies, as ``ConfigurationLimit`` and ``CollisionAvoidanceLimit`` are written
   operational tasks (the hierarchy's order, one factor ρ per level). With the joint limits
   (``ConfigurationLimit``, ``VelocityLimit``) every limit holds at :math:`\Delta q = 0` while q is
   inside the model's joint ranges, so the QP always has a solution there.
-* **Formulation ``hard`` (method ``mink-hard``, the strict variant)**: the set-task rows are
+* **Formulation ``hard`` (method ``mink-hard``, the project's earlier adapter)**: the set-task rows are
   HQP's hard return-rate rows :math:`\dot\sigma_l\,dt \le J\Delta q \le \dot\sigma_u\,dt` with
   no slack, and no return task: a task past its threshold *demands* its return rate, and when
   the rows cannot all hold (a person closer than the arm can retreat from within its velocity
   limits) mink finds no solution and the step is FAILED.
 * Joint limits: by default mink's own :class:`mink.ConfigurationLimit` (gain
-  ``configuration_limit_gain``) and :class:`mink.VelocityLimit` (``robot.v_max``), as its users
-  write them; the same limits as :mod:`tpik.limits` objects are :attr:`MinkSolver.limits`.
-  Other limits (e.g. an acceleration limit) are passed as ``limits`` and become one mink limit
-  (:class:`JointLimits`).
+  ``configuration_limit_gain``) and :class:`mink.VelocityLimit` (``robot.v_max``); the same
+  limits as :mod:`tpik.limits` objects are :attr:`MinkSolver.limits`. Other limits (e.g. an
+  acceleration limit) are passed as ``limits`` and become one mink limit (:class:`JointLimits`);
+  no method name passes any.
 
 Priorities are weights (mink's nature): the levels, highest first, get the costs
 :math:`c_k = \rho^{-k}` (:math:`\rho` = ``level_cost_ratio``, default 10, i.e. a factor 100 per
@@ -296,7 +300,7 @@ class MinkSolver(TimeLimited):
         )
         """Joint limits (:mod:`tpik.limits`), as rows of one mink limit (:class:`JointLimits`)."""
         if limits is None:
-            # The defaults as mink's users write them: its own ConfigurationLimit and VelocityLimit
+            # The defaults are mink's own ConfigurationLimit and VelocityLimit
             # (the same rows as self.limits; tests/qp_baseline/test_limits.py compares them).
             velocities = {robot.joint_names[i]: float(robot.v_max[i]) for i in range(nv)}
             own: list[mink.Limit] = [

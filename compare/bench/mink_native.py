@@ -1,4 +1,4 @@
-r"""``mink-native``: the paper's case-2 problem written with mink alone, as a mink user writes it.
+r"""``mink-native``: the paper's case-2 problem written with mink's API alone.
 
 The reference of every "× mink" ratio of ``tpik-compare bench`` (DESIGN §7). No project class is
 involved in a step: no task objects, no hierarchy, no pinocchio; only mink's ``Configuration``,

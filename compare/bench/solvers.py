@@ -13,8 +13,8 @@ Two tables:
 
 A timed call is ``kin = robot.kinematics(q); solver.solve(hierarchy, kin, dt)``. The reference
 of every ratio (``ratio_to_mink``, "× mink") is ``mink-native``
-(:class:`compare.bench.mink_native.MinkCase2`): the same problem written with mink alone, as a
-mink user writes it, one call = ``configuration.update(q)`` + its limits + ``mink.solve_ik``. The
+(:class:`compare.bench.mink_native.MinkCase2`): the same problem written with mink's API alone,
+one call = ``configuration.update(q)`` + its limits + ``mink.solve_ik``. The
 ``mink`` row is the project's adapter (our task layer on mink's kinematics), timed beside it.
 Methods are timed in interleaved blocks of 10 calls, so a slow phase of a shared machine hits
 every method alike and the ratios to the reference stay meaningful.
