@@ -694,7 +694,8 @@ def bench(
         typer.Option(
             "--methods",
             "-m",
-            help="Solvers: a method of the case-2 table (repeatable; default tpik tpik-paper tpik-ss hqp-daqp mink).",
+            help="Solvers: a method of the case-2 table "
+            "(repeatable; default tpik tpik-paper tpik-ss hqp-daqp mink mink-posture).",
         ),
     ] = None,
     config: Annotated[

@@ -12,7 +12,8 @@ Names:
 * ``hqp-<qp solver>``: the HQP cascade with any qpsolvers backend installed;
 * ``mink``: mink with the project's set-based tasks as one custom mink ``Limit`` and a soft,
   weighted return into the safe set (a custom mink ``Task``); ``mink-hard``: the same with hard
-  return-rate rows instead of the soft return, :mod:`qp_baseline.mink_peer`.
+  return-rate rows instead of the soft return; ``mink-posture``: ``mink`` with the regularisation
+  of mink's arm examples (:data:`qp_baseline.mink_peer.POSTURE_PRESET`), :mod:`qp_baseline.mink_peer`.
 
 :data:`DESCRIPTIONS` says what each name is in one line (``tpik-compare methods``, the README's
 method table).
@@ -58,6 +59,9 @@ DESCRIPTIONS: dict[str, str] = {
     "level_cost_ratio 10): a build of the project's hierarchy in mink, not a mink idiom",
     "mink-hard": "mink with the same limits but hard return-rate rows instead of the soft return "
     "(the project's earlier adapter): no solution is a FAILED step",
+    "mink-posture": "mink set up as mink's arm examples set up a redundant arm: the tasks and limits of mink plus "
+    "a PostureTask toward the start posture (cost 1e-2), lm_damping 1.0 on the frame task and solver damping "
+    "1e-3 (values of mink's franka_emika_panda.py and arm_iiwa.py examples)",
 }
 """What each method name (or name pattern) is, in one line (plain text, printed by ``tpik-compare methods``)."""
 
@@ -102,9 +106,9 @@ def available_methods() -> list[str]:
     except ImportError:
         pass
     try:
-        from qp_baseline.mink_peer import FORMULATIONS
+        from qp_baseline.mink_peer import MINK_METHODS
 
-        names += list(FORMULATIONS.values())
+        names += list(MINK_METHODS)
     except ImportError:
         pass
     return names
@@ -131,9 +135,11 @@ def make_method(name: str, robot: Robot, settings: Mapping[str, Any] | None = No
         if solver not in available_qp_solvers():
             raise UnknownMethod(name, available_methods())
         return HqpSolver(robot, solver=solver, settings=opts, name=name)
-    if name in ("mink", "mink-hard"):
-        from qp_baseline.mink_peer import FORMULATIONS, MinkSolver
+    if name.startswith("mink"):
+        from qp_baseline.mink_peer import MINK_METHODS, MinkSolver
 
-        formulation = next(f for f, method in FORMULATIONS.items() if method == name)
-        return MinkSolver(robot, settings=opts, name=name, formulation=formulation)
+        if name not in MINK_METHODS:
+            raise UnknownMethod(name, available_methods())
+        formulation, preset = MINK_METHODS[name]
+        return MinkSolver(robot, settings={**preset, **opts}, name=name, formulation=formulation)
     raise UnknownMethod(name, available_methods())

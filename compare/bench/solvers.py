@@ -44,7 +44,7 @@ if TYPE_CHECKING:
 DT = 0.01
 """Control period of the benchmark steps [s] (100 Hz, as the loop)."""
 
-DEFAULT_METHODS = ["tpik", "tpik-paper", "tpik-ss", "hqp-daqp", "mink"]
+DEFAULT_METHODS = ["tpik", "tpik-paper", "tpik-ss", "hqp-daqp", "mink", "mink-posture"]
 REFERENCE = "mink-native"
 """The reference of every ratio: mink alone on the same problem (:mod:`compare.bench.mink_native`)."""
 BLOCK = 10
