@@ -132,9 +132,10 @@ def call_split(total_us: float, output: object) -> dict[str, float]:
         assert isinstance(output, StepResult)
         core_s = output.solve_time_s
         problem = output.extras.get("problem_build_s")
-        mink_peer = isinstance(problem, float)
-        build_s = float(problem) if mink_peer else output.build_time_s
-        rows_s = output.build_time_s - build_s if mink_peer else 0.0
+        if isinstance(problem, float):  # a mink peer: its build_time_s is the row updates and build_ik
+            build_s, rows_s = problem, output.build_time_s - problem
+        else:
+            build_s, rows_s = output.build_time_s, 0.0
     core, build, rows = 1e6 * core_s, 1e6 * build_s, 1e6 * rows_s
     return {"core_us": core, "build_us": build, "rows_us": rows, "rest_us": total_us - core - build - rows}
 
