@@ -118,7 +118,8 @@ MethodsOpt = Annotated[
     typer.Option(
         "--methods",
         "-m",
-        help="Methods to run instead of the config's (repeatable): tpik, tpik-paper, hqp-daqp, mink, mink-hard...",
+        help="Methods to run instead of the config's (repeatable): tpik, tpik-paper, hqp-<backend>, mink, "
+        "mink-hard, ...; what each is: tpik-compare methods.",
     ),
 ]
 SeedOpt = Annotated[
@@ -526,6 +527,60 @@ def ablation(
     typer.echo(f"sweep report:   {out_dir}/sweep_report.md")
 
 
+@app.command()
+def tune(
+    config: ConfigArg,
+    method: Annotated[str, typer.Option("--method", "-m", help="The method whose settings are tuned.")],
+    grid: Annotated[
+        list[str],
+        typer.Option(
+            "--grid",
+            help="A setting of [methods.settings.METHOD] and its values (repeatable): KEY=V1,V2,... "
+            "Every combination is one sweep.",
+        ),
+    ],
+    n: Annotated[int, typer.Option("--n", "-n", min=1, help="Number of randomized runs (seeds seed..seed+n-1).")] = 10,
+    workers: WorkersOpt = 2,
+    out: Annotated[Path | None, typer.Option("--out", "-o", help="Grid directory [results/tune-<method>].")] = None,
+    seed: SeedOpt = None,
+    duration: DurationOpt = None,
+) -> None:
+    """Tune a method's settings on a grid: one resumable sweep per grid point, then tuning.md / tuning.json.
+
+    Each point runs the method alone on the same seeds (geometric sensing) in OUT/<point>/; the
+    points are ranked by joint-limit/wall violations, time below a physical threshold, failed
+    steps, then the final EE error (compare/campaign/tuning.py). Tune on seeds 0-999, report on
+    100000+ (docs/benchmarks.md, "Equal care").
+    """
+    import shlex
+
+    from compare.analysis.exceptions import ResultsError
+    from compare.campaign.sweep import run_sweep
+    from compare.campaign.tuning import grid_points, parse_grid, point_name, point_overrides, write_tuning
+    from compare.config import ConfigError, load_config
+
+    points = grid_points(parse_grid(grid))
+    out_dir = out or Path("results") / f"tune-{method}"
+    base = _overrides(duration, None, "geometric", None, None, seed)
+    loaded = []
+    try:  # every point's settings checked before the first run
+        loaded = [load_config(config, {**base, **point_overrides(method, point)}) for point in points]
+    except ConfigError as exc:
+        _fail(str(exc))
+    for point, (cfg, text) in zip(points, loaded, strict=True):
+        typer.echo(f"grid point {point_name(point)}")
+        try:
+            run_sweep(cfg, text, out_dir / point_name(point), n=n, workers=workers, methods=[method])
+        except (ConfigError, ResultsError) as exc:
+            _fail(str(exc))
+    words = ["tpik-compare", "tune", str(config), "-m", method, *(w for g in grid for w in ("--grid", g))]
+    words += ["--n", str(n), "--workers", str(workers), "--out", str(out_dir)]
+    words += [] if seed is None else ["--seed", str(seed)]
+    words += [] if duration is None else ["--duration", str(duration)]
+    report = write_tuning(out_dir, method, points, shlex.join(words))
+    typer.echo(f"tuning table: {report}")
+
+
 @app.command("recheck-misses")
 def recheck_misses(
     sweep_dir: Annotated[Path, typer.Argument(help="A sweep directory.")],
@@ -585,6 +640,17 @@ def plot(results: Annotated[Path, typer.Argument(help="A run or sweep results di
         return
     for p in paths:
         typer.echo(str(p))
+
+
+@app.command("methods")
+def list_methods() -> None:
+    """Every method name this installation accepts (-m, [methods] names), with what it is."""
+    from compare.methods import available_methods, describe
+
+    names = available_methods()
+    width = max(len(n) for n in names)
+    for name in names:
+        typer.echo(f"{name:<{width}}  {describe(name)}")
 
 
 def _parse_size(size: str) -> tuple[int, int]:
@@ -682,7 +748,8 @@ def bench(
         typer.Option(
             "--methods",
             "-m",
-            help="Solvers: a method of the case-2 table (repeatable; default tpik tpik-paper tpik-ss hqp-daqp mink).",
+            help="Solvers: a method of the case-2 table "
+            "(repeatable; default tpik tpik-paper tpik-ss hqp-daqp mink mink-posture).",
         ),
     ] = None,
     config: Annotated[

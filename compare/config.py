@@ -696,7 +696,7 @@ class MethodsConfig(_Strict):
     """Which methods run, and their settings by method name.
 
     Attributes:
-        names: Method names (``tpik``, ``tpik-ss``, ``hqp-<qp solver>``, ``mink``).
+        names: Method names (``tpik-compare methods`` lists them: ``tpik``, ``hqp-<qp solver>``, ``mink``, ...).
         settings: ``{method name: {setting: value}}`` passed to the method.
     """
 

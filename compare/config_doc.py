@@ -225,7 +225,7 @@ def _dataclass_rows(cls: type, where: str) -> list[list[str]]:
 def _methods_settings() -> Iterator[str]:
     from qp_baseline.backends import BACKENDS
     from qp_baseline.hqp import HqpSettings
-    from qp_baseline.mink_peer import MinkSettings
+    from qp_baseline.mink_peer import POSTURE_PRESET, MinkSettings
     from tpik.solver import TpikSettings
 
     yield from ["", "### `[methods.settings.tpik]` (and `tpik-<variant>`)", ""]
@@ -247,8 +247,12 @@ def _methods_settings() -> Iterator[str]:
             for name, backend in BACKENDS.items()
         ],
     )
-    yield from ["", "### `[methods.settings.mink]`", ""]
-    yield "Settings of the mink peer (`qp_baseline.mink_peer.MinkSettings`)."
+    yield from ["", "### `[methods.settings.mink]` (and `mink-hard`, `mink-posture`)", ""]
+    yield (
+        "Settings of the mink peers (`qp_baseline.mink_peer.MinkSettings`). `mink-posture` starts from"
+        f" `{_toml(dict(POSTURE_PRESET))}` (`qp_baseline.mink_peer.POSTURE_PRESET`, the values of mink's arm"
+        " examples); its return weight is `level_cost_ratio`."
+    )
     yield ""
     yield from _table(_HEADERS, _dataclass_rows(MinkSettings, "methods.settings.mink"))
 

@@ -10,8 +10,13 @@ Names:
 * ``tpik-no-<deviation>``: ``tpik`` with one of its :data:`tpik.solver.DEVIATIONS` from the
   paper switched off (the ablation, ``tpik-compare ablation``);
 * ``hqp-<qp solver>``: the HQP cascade with any qpsolvers backend installed;
-* ``mink``: mink as its users run it; ``mink-hard``: the strict variant (hard return-rate
-  rows), :mod:`qp_baseline.mink_peer`.
+* ``mink``: mink with the project's set-based tasks as one custom mink ``Limit`` and a soft,
+  weighted return into the safe set (a custom mink ``Task``); ``mink-hard``: the same with hard
+  return-rate rows instead of the soft return; ``mink-posture``: ``mink`` with the regularisation
+  of mink's arm examples (:data:`qp_baseline.mink_peer.POSTURE_PRESET`), :mod:`qp_baseline.mink_peer`.
+
+:data:`DESCRIPTIONS` says what each name is in one line (``tpik-compare methods``, the README's
+method table).
 
 A method whose package cannot be imported is left out of :func:`available_methods`
 (qpsolvers' approach to optional backends). Settings of the config (``[methods.settings.<name>]``)
@@ -38,6 +43,38 @@ class UnknownMethod(CompareError, ValueError):
 
 ABLATION_PREFIX = "tpik-no-"
 """``tpik-no-<deviation>``: ``tpik`` with one deviation from the paper switched off."""
+
+DESCRIPTIONS: dict[str, str] = {
+    "tpik-paper": "the paper as printed: eq. 4 at every level, the largest-norm mode admissible by eqs. 8–9 "
+    "alone, the damping of sec. II-A with σ* = ‖σ̃‖/‖q̇‖_max, no gain cap",
+    "tpik": "the project's set-based TPIK: tpik-paper plus the deviations of tpik.solver.DEVIATIONS "
+    "(compensated levels, fewest-active mode choice, return-rate condition, gain cap, σ* from the reference)",
+    "tpik-ss": "tpik with the Siciliano–Slotine cascade at every level",
+    f"{ABLATION_PREFIX}<deviation>": "tpik with one deviation from the paper switched off (the ablation)",
+    "hqp-<solver>": "the same levels as a lexicographic cascade of QPs (set tasks as slack-relaxed rate rows, "
+    "hard joint box), any qpsolvers backend",
+    "mink": "mink (its kinematics, FrameTask, ConfigurationLimit, VelocityLimit) with the project's set tasks "
+    "as one custom mink Limit that the zero step satisfies and a custom weighted Task pulling a task past its "
+    "safety threshold back (costs 1000/100/10 for joint limits/walls/obstacles vs 1 for the EE task, "
+    "level_cost_ratio 10): a build of the project's hierarchy in mink, not a mink idiom",
+    "mink-hard": "mink with the same limits but hard return-rate rows instead of the soft return "
+    "(the project's earlier adapter): no solution is a FAILED step",
+    "mink-posture": "mink set up as mink's arm examples set up a redundant arm: the tasks and limits of mink plus "
+    "a PostureTask toward the start posture (cost 1e-2), lm_damping 1.0 on the frame task and solver damping "
+    "1e-3 (values of mink's franka_emika_panda.py and arm_iiwa.py examples)",
+}
+"""What each method name (or name pattern) is, in one line (plain text, printed by ``tpik-compare methods``)."""
+
+
+def describe(name: str) -> str:
+    """The :data:`DESCRIPTIONS` line of ``name`` (``hqp-*`` and ``tpik-no-*`` from their pattern); "" if none."""
+    if name in DESCRIPTIONS:
+        return DESCRIPTIONS[name]
+    if name.startswith(ABLATION_PREFIX):
+        return f"tpik with its deviation '{name.removeprefix(ABLATION_PREFIX)}' switched off (the ablation)"
+    if name.startswith("hqp-"):
+        return DESCRIPTIONS["hqp-<solver>"].replace("any qpsolvers backend", f"backend {name.removeprefix('hqp-')}")
+    return ""
 
 
 def tpik_presets() -> dict[str, dict[str, Any]]:
@@ -69,9 +106,9 @@ def available_methods() -> list[str]:
     except ImportError:
         pass
     try:
-        from qp_baseline.mink_peer import FORMULATIONS
+        from qp_baseline.mink_peer import MINK_METHODS
 
-        names += list(FORMULATIONS.values())
+        names += list(MINK_METHODS)
     except ImportError:
         pass
     return names
@@ -98,9 +135,11 @@ def make_method(name: str, robot: Robot, settings: Mapping[str, Any] | None = No
         if solver not in available_qp_solvers():
             raise UnknownMethod(name, available_methods())
         return HqpSolver(robot, solver=solver, settings=opts, name=name)
-    if name in ("mink", "mink-hard"):
-        from qp_baseline.mink_peer import FORMULATIONS, MinkSolver
+    if name.startswith("mink"):
+        from qp_baseline.mink_peer import MINK_METHODS, MinkSolver
 
-        formulation = next(f for f, method in FORMULATIONS.items() if method == name)
-        return MinkSolver(robot, settings=opts, name=name, formulation=formulation)
+        if name not in MINK_METHODS:
+            raise UnknownMethod(name, available_methods())
+        formulation, preset = MINK_METHODS[name]
+        return MinkSolver(robot, settings={**preset, **opts}, name=name, formulation=formulation)
     raise UnknownMethod(name, available_methods())

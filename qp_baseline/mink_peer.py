@@ -1,4 +1,4 @@
-r"""The mink peer: the same hierarchy given to mink as its users set it up (weighted, not strict, priorities).
+r"""The mink peers: the project's hierarchy built in mink (weighted, not strict, priorities).
 
 mink solves one QP per step over the configuration displacement :math:`\Delta q = \dot q\,dt`:
 
@@ -9,9 +9,13 @@ mink solves one QP per step over the configuration displacement :math:`\Delta q 
 and returns :math:`v = \Delta q / dt` [rad/s] (what :func:`mink.solve_ik` does; ``dt`` scales
 the constraints, e.g. ``VelocityLimit`` gives :math:`|\Delta q| \le v_{max} dt`).
 
-Set up as a mink user would (its README, examples and issues: kinematics from
-``mink.Configuration``, frame targets through ``FrameTask``, limits that the zero step always
-satisfies, as ``ConfigurationLimit`` and ``CollisionAvoidanceLimit`` are written):
+mink's own parts where mink has them (kinematics from ``mink.Configuration``, frame targets
+through ``FrameTask``, ``ConfigurationLimit`` and ``VelocityLimit``), and two custom parts for
+the project's set-based tasks: a :class:`mink.Limit` of rows that the zero step always satisfies
+(as ``ConfigurationLimit`` and ``CollisionAvoidanceLimit`` are written) and, in ``mink``, a
+weighted :class:`mink.Task` that pulls a task past its safety threshold back. That return task
+is the project's, not a mink idiom: mink's own limits bound the step and none of them pulls a
+quantity back into a safe set.
 
 * **Kinematics**: every task is evaluated on :class:`~qp_baseline.mink_kinematics.MinkKinematics`,
   mink's own ``Configuration`` (MuJoCo data), not on our pinocchio snapshot. The obstacle points
@@ -36,16 +40,22 @@ satisfies, as ``ConfigurationLimit`` and ``CollisionAvoidanceLimit`` are written
   operational tasks (the hierarchy's order, one factor ρ per level). With the joint limits
   (``ConfigurationLimit``, ``VelocityLimit``) every limit holds at :math:`\Delta q = 0` while q is
   inside the model's joint ranges, so the QP always has a solution there.
-* **Formulation ``hard`` (method ``mink-hard``, the strict variant)**: the set-task rows are
+* **Formulation ``hard`` (method ``mink-hard``, the project's earlier adapter)**: the set-task rows are
   HQP's hard return-rate rows :math:`\dot\sigma_l\,dt \le J\Delta q \le \dot\sigma_u\,dt` with
   no slack, and no return task: a task past its threshold *demands* its return rate, and when
   the rows cannot all hold (a person closer than the arm can retreat from within its velocity
   limits) mink finds no solution and the step is FAILED.
+* **Method ``mink-posture``**: ``mink`` (formulation ``soft_return``) with the regularisation
+  mink's examples give a redundant arm (:data:`POSTURE_PRESET`): a :class:`mink.PostureTask`
+  toward the start posture (the ``q`` of the hierarchy's first solve), ``lm_damping`` on every
+  ``FrameTask`` and solver damping µ. Without them the Hessian is singular in the EE task's null
+  space (eigenvalues at mink's default µ = 1e-12, the answer a minimum-norm one by accident);
+  with them every eigenvalue is at least µ + posture_cost².
 * Joint limits: by default mink's own :class:`mink.ConfigurationLimit` (gain
-  ``configuration_limit_gain``) and :class:`mink.VelocityLimit` (``robot.v_max``), as its users
-  write them; the same limits as :mod:`tpik.limits` objects are :attr:`MinkSolver.limits`.
-  Other limits (e.g. an acceleration limit) are passed as ``limits`` and become one mink limit
-  (:class:`JointLimits`).
+  ``configuration_limit_gain``) and :class:`mink.VelocityLimit` (``robot.v_max``); the same
+  limits as :mod:`tpik.limits` objects are :attr:`MinkSolver.limits`. Other limits (e.g. an
+  acceleration limit) are passed as ``limits`` and become one mink limit (:class:`JointLimits`);
+  no method name passes any.
 
 Priorities are weights (mink's nature): the levels, highest first, get the costs
 :math:`c_k = \rho^{-k}` (:math:`\rho` = ``level_cost_ratio``, default 10, i.e. a factor 100 per
@@ -88,8 +98,24 @@ from tpik.reference import ControlReference
 from tpik.step_result import SolveStatus, StepResult, failed
 from tpik.tasks import OrientationTask, PoseTask, PositionTask, SetTask, Task
 
-FORMULATIONS: dict[str, str] = {"soft_return": "mink", "hard": "mink-hard"}
-"""Set-task formulation → method name (module docstring)."""
+FORMULATIONS: tuple[str, ...] = ("soft_return", "hard")
+"""The set-task formulations (module docstring)."""
+
+POSTURE_PRESET: dict[str, Any] = {"posture_cost": 1e-2, "lm_damping": 1.0, "damping": 1e-3}
+"""What ``mink-posture`` adds to ``mink``: the regularisation of mink's examples for arms.
+
+From mink's ``franka_emika_panda.py`` example (a 7-joint arm, as the Jaco²): ``PostureTask``
+cost 1e-2, ``FrameTask`` ``lm_damping`` 1.0, ``solve_ik`` damping 1e-3. The ``arm_iiwa.py``
+example (KUKA iiwa 14) uses the same three values, ``arm_ur5e.py`` the same ``lm_damping`` and
+damping (no posture task).
+"""
+
+MINK_METHODS: dict[str, tuple[str, dict[str, Any]]] = {
+    "mink": ("soft_return", {}),
+    "mink-hard": ("hard", {}),
+    "mink-posture": ("soft_return", POSTURE_PRESET),
+}
+"""Method name → (formulation, settings preset); the config's settings override the preset key by key."""
 
 
 @dataclass(frozen=True)
@@ -99,9 +125,16 @@ class MinkSettings:
     Attributes:
         solver: QP backend mink hands its problem to (any name of
             :func:`qp_baseline.hqp.available_qp_solvers`).
-        damping: mink's Levenberg–Marquardt damping µ on :math:`\|\Delta q\|^2` (mink's default).
+        damping: mink's Levenberg–Marquardt damping µ on :math:`\|\Delta q\|^2` (mink's default;
+            ``mink-posture``: 1e-3, :data:`POSTURE_PRESET`).
         level_cost_ratio: ρ ≥ 1: the k-th level below the first equality level has cost ρ^-k,
-            the k-th above it (set-task return tasks) ρ^k.
+            the k-th above it (set-task return tasks) ρ^k: the return weight of ``mink`` and
+            ``mink-posture`` (10: costs 1000 / 100 / 10 over three safety levels).
+        posture_cost: Cost of a :class:`mink.PostureTask` toward the start posture (the ``q`` of
+            the first solve of a hierarchy), per joint [1/rad]; 0 = no posture task
+            (``mink-posture``: 1e-2).
+        lm_damping: ``lm_damping`` of every :class:`mink.FrameTask`: µ = lm_damping · (its
+            weighted squared error) added to the Hessian's diagonal (``mink-posture``: 1.0).
         configuration_limit_gain: Gain in (0, 1] of :class:`mink.ConfigurationLimit`.
         tolerance: Accepted violation of the returned step's constraints, in Δq units [rad or
             task unit]; None = the backend's tolerance (:data:`qp_baseline.backends.BACKENDS`).
@@ -113,6 +146,8 @@ class MinkSettings:
     solver: str = "daqp"
     damping: float = 1e-12
     level_cost_ratio: float = 10.0
+    posture_cost: float = 0.0
+    lm_damping: float = 0.0
     configuration_limit_gain: float = 0.95
     tolerance: float | None = None
     gain_cap: bool = True
@@ -139,6 +174,8 @@ class MinkSettings:
         checks = [
             ("damping", self.damping, lambda v: v >= 0.0, ">= 0"),
             ("level_cost_ratio", self.level_cost_ratio, lambda v: v >= 1.0, ">= 1"),
+            ("posture_cost", self.posture_cost, lambda v: v >= 0.0, ">= 0"),
+            ("lm_damping", self.lm_damping, lambda v: v >= 0.0, ">= 0"),
             ("configuration_limit_gain", self.configuration_limit_gain, lambda v: 0.0 < v <= 1.0, "in (0, 1]"),
         ]
         if self.tolerance is not None:
@@ -259,7 +296,7 @@ class MinkSolver(TimeLimited):
         robot: The robot; mink gets ``robot.mj_model`` (same MJCF as pinocchio).
         settings: A plain dict validated by :meth:`MinkSettings.from_dict`.
         name: Method name reported in results.
-        formulation: ``"soft_return"`` (``mink``, default) or ``"hard"`` (``mink-hard``).
+        formulation: ``"soft_return"`` (``mink``, ``mink-posture``; default) or ``"hard"`` (``mink-hard``).
         limits: Joint limits (:mod:`tpik.limits`) as rows of one mink limit; the position limits
             (gain ``configuration_limit_gain``) and the velocity limits when None.
 
@@ -296,7 +333,7 @@ class MinkSolver(TimeLimited):
         )
         """Joint limits (:mod:`tpik.limits`), as rows of one mink limit (:class:`JointLimits`)."""
         if limits is None:
-            # The defaults as mink's users write them: its own ConfigurationLimit and VelocityLimit
+            # The defaults are mink's own ConfigurationLimit and VelocityLimit
             # (the same rows as self.limits; tests/qp_baseline/test_limits.py compares them).
             velocities = {robot.joint_names[i]: float(robot.v_max[i]) for i in range(nv)}
             own: list[mink.Limit] = [
@@ -317,10 +354,16 @@ class MinkSolver(TimeLimited):
         self._no_return: tuple[np.ndarray, np.ndarray] = (np.zeros(0), np.zeros((0, nv)))
         self._safety_bounds: list[tuple[float, float]] = []
         self._tasks: list[mink.Task] = []
+        self._posture: mink.PostureTask | None = None
         probe_settings(s.solver, s.qp_settings or {})  # a bad backend setting fails here, not mid-run
 
     def __repr__(self) -> str:
         return f"MinkSolver(name={self.name!r}, formulation={self.formulation!r}, settings={self.settings})"
+
+    @property
+    def posture_target(self) -> np.ndarray | None:
+        """The posture task's target [rad] (the start posture), None without a posture task or before a solve."""
+        return None if self._posture is None or self._posture.target_q is None else self._posture.target_q.copy()
 
     def _prepare(self, hierarchy: Hierarchy) -> None:
         """Build the mink tasks of a hierarchy once (rebuilt only for a new hierarchy object)."""
@@ -357,6 +400,10 @@ class MinkSolver(TimeLimited):
         self._no_return = zeros
         self._safety_bounds = [(t.thresholds.safety_lower, t.thresholds.safety_upper) for t in set_tasks]
         self._tasks = [a.mink_task for a in adapters] + ([self._return] if self._return is not None else [])
+        self._posture = None  # a new hierarchy (a new run): a new start posture
+        if self.settings.posture_cost > 0.0:  # its target: the q of this hierarchy's first solve
+            self._posture = mink.PostureTask(self.robot.mj_model, cost=self.settings.posture_cost)
+            self._tasks.append(self._posture)
         self._hierarchy = hierarchy
 
     def _adapter(self, task: Task, cost: float) -> _Adapter:
@@ -369,7 +416,9 @@ class MinkSolver(TimeLimited):
             if isinstance(task, cls):
                 frame = str(task.frame)  # type: ignore[attr-defined]
                 body = self.robot.mujoco_body(frame)
-                frame_task = mink.FrameTask(body, "body", position_cost=pos_cost, orientation_cost=rot_cost)
+                frame_task = mink.FrameTask(
+                    body, "body", position_cost=pos_cost, orientation_cost=rot_cost, lm_damping=self.settings.lm_damping
+                )
                 body_id = int(mujoco.mj_name2id(self.robot.mj_model, mujoco.mjtObj.mjOBJ_BODY, body))
                 return _Adapter(task, frame_task, kind, body_id)
         return _Adapter(task, _StateTask(np.full(task.dim, cost)), "state")
@@ -464,6 +513,8 @@ class MinkSolver(TimeLimited):
             self.budget.start()
         self._prepare(hierarchy)
         self.configuration.update(kin.q)
+        if self._posture is not None and self._posture.target_q is None:
+            self._posture.set_target(kin.q)  # the start posture
         mkin = MinkKinematics(self.robot, self.configuration, self._bodies)
         ev = self._evaluation
         assert ev is not None
@@ -473,6 +524,7 @@ class MinkSolver(TimeLimited):
         rows = self._rows.rows(ev, dt)
         self._limit_rows.set_rows(rows.G, rows.h)
         pulled = self._update_return(ev, rows.sigma, dt) if self._return is not None else []
+        tb = time.perf_counter()
         problem = mink.build_ik(self.configuration, self._tasks, dt, self.settings.damping, self._limits)
         t1 = time.perf_counter()
         try:
@@ -487,6 +539,7 @@ class MinkSolver(TimeLimited):
         t2 = time.perf_counter()
         result = self._finish(solution, problem, rows, pulled, dt)
         result.build_time_s, result.solve_time_s = t1 - t0, t2 - t1
+        result.extras["problem_build_s"] = t1 - tb  # mink.build_ik alone (the rest of build: row updates)
         return result
 
     def _finish(

@@ -5,7 +5,7 @@ Each set-based task σ with Jacobian row J has the reference rates of :mod:`tpik
 A finite upper rate gives the row :math:`J\dot q \le \dot\sigma_u`, a finite lower one
 :math:`-J\dot q \le -\dot\sigma_l`; a non-finite σ (no obstacle in range) gives no row.
 
-``hold_at_zero`` (mink as its users run it): the bounds are relaxed to
+``hold_at_zero`` (the ``mink`` peer): the bounds are relaxed to
 :math:`J\dot q \le \max(0, \dot\sigma_u)` and :math:`J\dot q \ge \min(0, \dot\sigma_l)`, so
 :math:`\dot q = 0` satisfies every row whatever σ: inside the safety set the task may approach
 its threshold no faster than its reference; past it, it may not move further out (mink's

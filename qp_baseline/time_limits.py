@@ -1,8 +1,12 @@
 """Time budget of one solve call, and the QP backends' own time-limit settings.
 
 A method's solve may take at most a budget (``[solver_limit]`` of the scenario, the same for
-every method). A QP-based method checks it before each backend call and hands the backend what
-is left, where the backend has a time limit of its own. The names and units, checked against
+every method). One rule for every method: an answer counts when the whole call — its kinematics,
+its problem, its solver, its bookkeeping — ends within the budget; nothing is held back from any
+method's solver. A QP-based method checks the budget before each backend call and does not start
+one once the budget is used up (the answer would be late whatever it is: the caller's guard
+discards it, as it discards a late TPIK answer); it hands the backend what is left, where the
+backend has a time limit of its own. The names and units, checked against
 each backend's documentation and the installed versions (qpsolvers 4.13 passes them through), are
 the records' ``time_limit_key`` (:data:`qp_baseline.backends.BACKENDS`):
 
@@ -40,10 +44,6 @@ from tpik.step_result import SolverBase
 
 CLOCKS: dict[str, Callable[[], float]] = {"wall": time.perf_counter, "cpu": time.thread_time}
 """Clocks a budget can be measured on [s]."""
-
-RESERVE_FRACTION = 0.1
-"""Share of the budget kept back from the backend for the work after its answer (checks, the
-levels' bookkeeping), so that an answer cut at the backend's limit still arrives in time."""
 
 
 class TimeLimitReached(HqpError):
@@ -105,12 +105,12 @@ class CallBudget:
         return shared.stolen_s()
 
     def backend_kwargs(self, solver: str) -> dict[str, Any]:
-        """Keyword arguments limiting one backend call to the budget left (minus a reserve).
+        """Keyword arguments limiting one backend call to the budget left (no reserve: module docstring).
 
         Raises:
-            TimeLimitReached: Nothing is left for another backend call.
+            TimeLimitReached: The budget is used up: the call's answer would be late.
         """
-        left = self.remaining_s() - RESERVE_FRACTION * self.limit_s
+        left = self.remaining_s()
         if left <= 0.0:  # what the machine took is not the solver's
             left += self._stolen_s()
         if left <= 0.0:
@@ -130,7 +130,8 @@ class TimeLimited(SolverBase):
 
         Each backend call gets what is left; with nothing left the backend is not called and the
         QP counts as failed (HQP: level 0 → FAILED, a later level → DEGRADED keeping the levels
-        above; mink: FAILED).
+        above; mink: FAILED). The call is then already past its limit: the guard around it
+        (``compare.loop.deadline``) reports a FAILED deadline miss, as for every method.
         """
         self.budget = None if limit_s is None else CallBudget(limit_s, clock)
 

@@ -1,4 +1,4 @@
-r"""``mink-native``: the paper's case-2 problem written with mink alone, as a mink user writes it.
+r"""``mink-native``: the paper's case-2 problem written with mink's API alone.
 
 The reference of every "× mink" ratio of ``tpik-compare bench`` (DESIGN §7). No project class is
 involved in a step: no task objects, no hierarchy, no pinocchio; only mink's ``Configuration``,
@@ -12,16 +12,21 @@ soft return weighted ρ = 10 per level above the EE task. ``tests/compare/bench/
 checks that both give the same step.
 
 A step (:meth:`MinkCase2.step`): ``configuration.update(q)``, evaluate the 12 safety quantities
-from ``configuration.data`` (MuJoCo kinematics and ``mj_jacBody``), ``solve_ik``.
+from ``configuration.data`` (MuJoCo kinematics and ``mj_jacBody``) and set the EE target (the
+row updates), then what ``mink.solve_ik`` does — its limit check and ``mink.build_ik`` (the
+problem build), ``qpsolvers.solve_problem`` with DAQP (the solver), Δq / dt — with the three
+parts timed apart (:attr:`MinkCase2.parts_s`).
 """
 
 from __future__ import annotations
 
+import time
 from collections.abc import Mapping, Sequence
 
 import mink
 import mujoco
 import numpy as np
+import qpsolvers
 
 
 class _SafetyRows:
@@ -171,6 +176,8 @@ class MinkCase2:
             mink.VelocityLimit(model, dict(v_max)),
             _SafetyLimit(self.rows),
         ]
+        self.parts_s: tuple[float, float, float] = (0.0, 0.0, 0.0)
+        """(row updates, problem build, solver) of the last :meth:`step` [s]."""
 
     def set_scene(self, obstacles: Sequence[np.ndarray | None], target: np.ndarray) -> None:
         """Closest obstacle point per control point (``control_bodies`` order; None: out of range), EE target [m]."""
@@ -178,7 +185,12 @@ class MinkCase2:
         self._target = np.asarray(target, dtype=float)
 
     def step(self, q: np.ndarray, dt: float) -> np.ndarray:
-        """Joint velocity [rad/s] of one control step at ``q``."""
+        """Joint velocity [rad/s] of one control step at ``q``; :attr:`parts_s` its three parts.
+
+        Raises:
+            mink.NoSolutionFound: DAQP found no solution (as ``mink.solve_ik`` raises).
+        """
+        t0 = time.perf_counter()
         configuration = self.configuration
         configuration.update(q)
         self.rows.update(configuration, dt)
@@ -187,7 +199,16 @@ class MinkCase2:
         # Position only: the target keeps the frame's current orientation (SE(3) log couples the two).
         current = configuration.get_transform_frame_to_world(self.ee_task.frame_name, "body")
         self.ee_task.set_target(mink.SE3.from_rotation_and_translation(current.rotation(), self._target))
-        return mink.solve_ik(configuration, self.tasks, dt, "daqp", damping=1e-12, limits=self.limits)
+        t1 = time.perf_counter()
+        configuration.check_limits(safety_break=False)  # mink.solve_ik's first call, then its problem
+        problem = mink.build_ik(configuration, self.tasks, dt, 1e-12, self.limits)
+        t2 = time.perf_counter()
+        solution = qpsolvers.solve_problem(problem, solver="daqp")
+        t3 = time.perf_counter()
+        self.parts_s = (t1 - t0, t2 - t1, t3 - t2)
+        if not solution.found or solution.x is None:
+            raise mink.NoSolutionFound("daqp")
+        return solution.x / dt
 
 
 __all__ = ["MinkCase2"]

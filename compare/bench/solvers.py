@@ -13,11 +13,21 @@ Two tables:
 
 A timed call is ``kin = robot.kinematics(q); solver.solve(hierarchy, kin, dt)``. The reference
 of every ratio (``ratio_to_mink``, "× mink") is ``mink-native``
-(:class:`compare.bench.mink_native.MinkCase2`): the same problem written with mink alone, as a
-mink user writes it, one call = ``configuration.update(q)`` + its limits + ``mink.solve_ik``. The
+(:class:`compare.bench.mink_native.MinkCase2`): the same problem written with mink's API alone,
+one call = ``configuration.update(q)`` + its rows + what ``mink.solve_ik`` does. The
 ``mink`` row is the project's adapter (our task layer on mink's kinematics), timed beside it.
 Methods are timed in interleaved blocks of 10 calls, so a slow phase of a shared machine hits
 every method alike and the ratios to the reference stay meaningful.
+
+"× mink" compares whole steps, and a mink step is mostly Python (its problem build and the row
+updates) around a small QP solve: the ratio is largely compiled code against mink's Python layer,
+not one algorithm against another. Every timed call is therefore also split, in the same calls,
+into its **core** — the QP solver (mink-native, the mink peers, HQP: every backend call and
+linear solve) or TPIK's compiled step (its kinematics, rows and mode search) — its **build**
+(``mink.build_ik``; HQP's assembly of its levels; TPIK's Python part before the compiled step),
+its **rows** (the mink peers and mink-native: kinematics and row updates) and the **rest** (the
+call minus those three: the kinematics snapshot, checks, the result) (:func:`call_split`);
+``core_ratio_to_mink`` compares the cores alone.
 """
 
 from __future__ import annotations
@@ -35,7 +45,7 @@ from compare.bench.timing import BenchRow, summarize, time_calls
 from robots import Robot
 from tpik.exceptions import TargetNotSet
 from tpik.hierarchy import Hierarchy, Level
-from tpik.step_result import IkSolver
+from tpik.step_result import IkSolver, StepResult
 from tpik.tasks import JointLimitTask, ObstacleDistanceTask, PositionTask, Task, Thresholds, VirtualWallTask
 
 if TYPE_CHECKING:
@@ -44,7 +54,7 @@ if TYPE_CHECKING:
 DT = 0.01
 """Control period of the benchmark steps [s] (100 Hz, as the loop)."""
 
-DEFAULT_METHODS = ["tpik", "tpik-paper", "tpik-ss", "hqp-daqp", "mink"]
+DEFAULT_METHODS = ["tpik", "tpik-paper", "tpik-ss", "hqp-daqp", "mink", "mink-posture"]
 REFERENCE = "mink-native"
 """The reference of every ratio: mink alone on the same problem (:mod:`compare.bench.mink_native`)."""
 BLOCK = 10
@@ -65,14 +75,26 @@ def build_methods(
     return built
 
 
-def interleaved(fns: Mapping[str, Callable[[], object]], repeats: int, block: int = BLOCK) -> dict[str, np.ndarray]:
-    """Time several functions in alternating blocks of ``block`` calls; durations per call [µs]."""
+def interleaved(
+    fns: Mapping[str, Callable[[], object]],
+    repeats: int,
+    block: int = BLOCK,
+    outputs: Mapping[str, list[object]] | None = None,
+) -> dict[str, np.ndarray]:
+    """Time several functions in alternating blocks of ``block`` calls; durations per call [µs].
+
+    With ``outputs``, ``outputs[name]`` receives the return value of each of ``name``'s timed
+    calls, in the order of its durations.
+    """
     for fn in fns.values():
         time_calls(fn, 1, warmup=20)
     out: dict[str, list[np.ndarray]] = {name: [] for name in fns}
     for _ in range(max(1, math.ceil(repeats / block))):
         for name, fn in fns.items():
-            out[name].append(time_calls(fn, block, warmup=0))
+            out[name].append(time_calls(fn, block, warmup=0, outputs=None if outputs is None else outputs[name]))
+    if outputs is not None:
+        for values in outputs.values():
+            del values[repeats:]
     return {name: np.concatenate(chunks)[:repeats] for name, chunks in out.items()}
 
 
@@ -83,24 +105,53 @@ def _step(robot: Robot, solver: IkSolver, hierarchy: Hierarchy, q: np.ndarray) -
     return call
 
 
-def _split(robot: Robot, solver: IkSolver, hierarchy: Hierarchy, q: np.ndarray, calls: int) -> dict[str, float]:
-    """Median build/solve split [µs] and what the solver reported (untimed pass)."""
-    build, solve, ok = [], [], 0
-    result = None
-    for _ in range(calls):
-        result = solver.solve(hierarchy, robot.kinematics(q), DT)
-        build.append(result.build_time_s)
-        solve.append(result.solve_time_s)
-        ok += bool(result.ok)
-    assert result is not None
-    extra = {
-        "build_us": float(np.median(build)) * 1e6,
-        "solve_us": float(np.median(solve)) * 1e6,
-        "ok_fraction": ok / calls,
-        "active": float(len(result.active_set)),
-    }
+def _native_step(native: MinkCase2, q: np.ndarray) -> Callable[[], object]:
+    def call() -> object:
+        native.step(q, DT)
+        return native.parts_s
+
+    return call
+
+
+SPLIT = ("core_us", "build_us", "rows_us", "rest_us")
+"""The parts of a timed call (:func:`call_split`), each a median over the timed calls in a row's ``extra``."""
+
+
+def call_split(total_us: float, output: object) -> dict[str, float]:
+    """One timed call of ``total_us`` split into core, build, rows and the rest [µs] (module docstring).
+
+    ``output`` is what the call returned: mink-native's ``parts_s`` (rows, build, solver) [s], or a
+    method's :class:`~tpik.step_result.StepResult`: core = ``solve_time_s``; build = the mink
+    peers' ``extras["problem_build_s"]`` (``mink.build_ik``), else ``build_time_s`` (HQP's
+    assembly, TPIK's Python part); rows = the rest of a mink peer's ``build_time_s``. The rest is
+    ``total_us`` minus the three (≥ 0 when the parts lie inside the call, as they do).
+    """
+    if isinstance(output, tuple):
+        rows_s, build_s, core_s = output
+    else:
+        assert isinstance(output, StepResult)
+        core_s = output.solve_time_s
+        problem = output.extras.get("problem_build_s")
+        if isinstance(problem, float):  # a mink peer: its build_time_s is the row updates and build_ik
+            build_s, rows_s = problem, output.build_time_s - problem
+        else:
+            build_s, rows_s = output.build_time_s, 0.0
+    core, build, rows = 1e6 * core_s, 1e6 * build_s, 1e6 * rows_s
+    return {"core_us": core, "build_us": build, "rows_us": rows, "rest_us": total_us - core - build - rows}
+
+
+def _extras(samples_us: np.ndarray, outputs: Sequence[object]) -> dict[str, float]:
+    """Median of each part of :func:`call_split` over the timed calls, and what the method reported."""
+    splits = [call_split(float(t), out) for t, out in zip(samples_us, outputs, strict=True)]
+    extra = {key: float(np.median([sp[key] for sp in splits])) for key in SPLIT}
+    extra["core_fraction"] = float(np.median([sp["core_us"] / t for sp, t in zip(splits, samples_us, strict=True)]))
+    results = [out for out in outputs if isinstance(out, StepResult)]
+    if not results:
+        return extra
+    extra["ok_fraction"] = sum(bool(r.ok) for r in results) / len(results)
+    extra["active"] = float(len(results[-1].active_set))
     for key in ("candidates", "modes_evaluated"):
-        value = result.extras.get(key)
+        value = results[-1].extras.get(key)
         if isinstance(value, int | float):
             extra[key] = float(value)
     return extra
@@ -151,7 +202,7 @@ def _rows_for(
 ) -> list[BenchRow]:
     fns: dict[str, Callable[[], object]] = {}
     if native is not None:
-        fns[REFERENCE] = lambda: native.step(q, DT)
+        fns[REFERENCE] = _native_step(native, q)
     for name, solver in solvers.items():
         try:
             solver.solve(hierarchies[name], robot.kinematics(q), DT)
@@ -159,22 +210,23 @@ def _rows_for(
             print(f"note: skipping method '{name}' on {case}: {type(exc).__name__}: {exc}")
             continue
         fns[name] = _step(robot, solver, hierarchies[name], q)
-    samples = interleaved(fns, repeats)
-    rows = []
-    for name, us in samples.items():
-        extra = {} if name == REFERENCE else _split(robot, solvers[name], hierarchies[name], q, min(repeats, 50))
-        rows.append(summarize(name, case, us, **extra))
+    outputs: dict[str, list[object]] = {name: [] for name in fns}
+    samples = interleaved(fns, repeats, outputs=outputs)
+    rows = [summarize(name, case, us, **_extras(us, outputs[name])) for name, us in samples.items()]
     return _with_ratios(rows)
 
 
 def _with_ratios(rows: list[BenchRow]) -> list[BenchRow]:
-    """Add ``ratio_to_mink`` (median / median of ``mink-native`` in the same case) to each row."""
-    ref = {r.case: r.median_us for r in rows if r.name == REFERENCE}
+    """Add ``ratio_to_mink`` (median / median of ``mink-native`` in the same case) and ``core_ratio_to_mink``."""
+    ref = {r.case: r for r in rows if r.name == REFERENCE}
     out = []
     for r in rows:
         extra = dict(r.extra)
-        if r.case in ref:
-            extra["ratio_to_mink"] = r.median_us / ref[r.case]
+        native = ref.get(r.case)
+        if native is not None:
+            extra["ratio_to_mink"] = r.median_us / native.median_us
+            if "core_us" in extra and native.extra.get("core_us", 0.0) > 0.0:
+                extra["core_ratio_to_mink"] = extra["core_us"] / native.extra["core_us"]
         out.append(BenchRow(r.name, r.case, r.median_us, r.p95_us, r.samples, extra))
     return out
 
@@ -199,8 +251,9 @@ def run_solver_bench(
 
     Returns:
         One row per (method, case), ``mink-native`` first: median and p95 [µs], ``extra`` with
-        the build/solve split reported by the solver (``build_us``, ``solve_us``), the active set
-        size, and ``ratio_to_mink`` (to ``mink-native``, timed in the same interleaved run).
+        the split of the same timed calls (:data:`SPLIT`: ``core_us``, ``build_us``, ``rows_us``,
+        ``rest_us``; ``core_fraction``), the active set size, ``ratio_to_mink`` and
+        ``core_ratio_to_mink`` (to ``mink-native``, timed in the same interleaved run).
     """
     robot = robot or robots.load(robots.DEFAULT_ROBOT)
     solvers = build_methods(method_names, robot, settings)

@@ -12,8 +12,9 @@ Examples::
     tpik-compare bench --only loop                             # where a campaign step goes, part by part
 
 :func:`run_bench` prints tables (medians, p95, ratio to ``mink-native`` — the same problem
-written with mink alone — measured in the same interleaved run; ``mink`` is the project's
-adapter, timed beside it) and, with ``json_out``, writes ``{"versions": ..., "command": ...,
+written with mink alone — measured in the same interleaved run, and the split of the same calls
+into the QP solver or compiled step against the rest, with :data:`RATIO_CAPTION` under each;
+``mink`` is the project's adapter, timed beside it) and, with ``json_out``, writes ``{"versions": ..., "command": ...,
 "robot": ..., "results": [row, ...]}`` (DESIGN §7; ``ratio_to_mink`` of a row is against
 ``mink-native``), plus ``correctness`` (every HQP backend against the stored lexicographic
 reference, :mod:`compare.bench.correctness`), ``throughput_ceiling`` (with ``sweep``:
@@ -161,17 +162,30 @@ def _fmt(value: float | None, digits: int = 1) -> str:
     return "" if value is None else f"{value:.{digits}f}"
 
 
+RATIO_CAPTION = (
+    "× mink = whole step / mink-native's whole step, timed in the same interleaved run: mostly compiled code or"
+    " our Python against mink's Python layer (its build_ik, the row updates), not one algorithm against another."
+    " Split of the same calls (medians): core = the QP solver (mink, HQP: every backend call) or TPIK's compiled"
+    " step (its kinematics, rows, mode search); build = mink.build_ik, HQP's assembly, TPIK's Python part; rows ="
+    " mink's kinematics and row updates; rest = the call minus those. core × mink compares the cores alone."
+)
+"""The sentence under every "× mink" table: what the ratios compare (:mod:`compare.bench.solvers`)."""
+
+
 def solver_table(rows: list[BenchRow], title: str) -> Table:
-    """Rich table of solver rows: median, p95, ratio to mink-native, build/solve split."""
-    table = Table(title=title)
+    """Rich table of solver rows: median, p95, ratio to mink-native, the core/build/rows/rest split."""
+    table = Table(title=title, caption=RATIO_CAPTION)
     for col, justify in (
         ("method", "left"),
         ("case", "left"),
         ("median [µs]", "right"),
         ("p95 [µs]", "right"),
         ("× mink (native)", "right"),
+        ("core [µs]", "right"),
+        ("core × mink", "right"),
         ("build [µs]", "right"),
-        ("solve [µs]", "right"),
+        ("rows [µs]", "right"),
+        ("rest [µs]", "right"),
         ("active", "right"),
         ("modes", "right"),
     ):
@@ -184,8 +198,11 @@ def solver_table(rows: list[BenchRow], title: str) -> Table:
             _fmt(r.median_us),
             _fmt(r.p95_us),
             _fmt(e.get("ratio_to_mink"), 2),
+            _fmt(e.get("core_us")),
+            _fmt(e.get("core_ratio_to_mink"), 2),
             _fmt(e.get("build_us")),
-            _fmt(e.get("solve_us")),
+            _fmt(e.get("rows_us") or None),
+            _fmt(e.get("rest_us")),
             _fmt(e.get("active"), 0),
             _fmt(e.get("modes_evaluated"), 0),
         )
@@ -394,7 +411,7 @@ def run_bench(options: BenchOptions) -> dict[str, Any]:
         compare.config.ConfigError: A config or family file is invalid.
     """
     config = load_config(options.config)[0] if options.config is not None else None  # refused before any timing
-    console = Console(width=max(Console().width, 160))
+    console = Console(width=max(Console().width, 200))
     info = versions()
     console.print(
         f"python {info.get('python')} · numpy {info.get('numpy')} · pin {info.get('pin')} · "
@@ -437,6 +454,7 @@ __all__ = [
     "LOOP_METHODS",
     "LOOP_SEEDS",
     "RANDOM_CONFIG",
+    "RATIO_CAPTION",
     "BenchError",
     "BenchOptions",
     "correctness_table",

@@ -34,16 +34,23 @@ class BenchRow:
         return asdict(self)
 
 
-def time_calls(fn: Callable[[], object], repeats: int, warmup: int = 20) -> np.ndarray:
-    """Call ``fn`` ``warmup`` times untimed, then ``repeats`` times; return each duration [µs]."""
+def time_calls(
+    fn: Callable[[], object], repeats: int, warmup: int = 20, outputs: list[object] | None = None
+) -> np.ndarray:
+    """Call ``fn`` ``warmup`` times untimed, then ``repeats`` times; return each duration [µs].
+
+    With ``outputs``, the return value of every timed call is appended to it (outside the timing).
+    """
     for _ in range(warmup):
         fn()
     out = np.empty(repeats)
     clock = time.perf_counter_ns
     for i in range(repeats):
         t0 = clock()
-        fn()
+        value = fn()
         out[i] = (clock() - t0) * 1e-3
+        if outputs is not None:
+            outputs.append(value)
     return out
 
 

@@ -6,7 +6,10 @@ One control step (period ``dt``, 100 Hz in the paper):
 2. at the sensing rate (30 Hz), update the closest obstacle point of each control point
    from the obstacle source; between updates the latest estimate is used;
 3. advance the waypoint schedule and set the EE target;
-4. solve the hierarchy (timed: kinematics + solver);
+4. solve the hierarchy, timed: the method gets a kinematics snapshot at the step's ``q`` with
+   nothing computed yet, so the kinematics it reads (pinocchio's for HQP, MuJoCo's for mink,
+   TPIK's compiled chain) are computed inside its timed call — one rule for every method
+   (:func:`timed_solve`);
 5. guard the command: a failed solve, a non-finite or out-of-limit velocity is replaced by the
    configured fallback; blind or stale sensing commands zero velocity (safe stop);
 6. send the command and wait for the next period.
@@ -191,7 +194,10 @@ class _Targets:
 def timed_solve(
     solver: IkSolver, hierarchy: Hierarchy, kin: Kinematics, dt: float
 ) -> tuple[np.ndarray, SolveStatus, Sequence[str], str, bool, float]:
-    """One solve, timed (kinematics already done: the solver's own work only).
+    """One solve, timed: everything ``solver.solve`` does, the kinematics it reads from ``kin`` included.
+
+    The loop hands over a fresh snapshot (:meth:`robots.Robot.kinematics`: nothing computed until
+    first read), so every method pays for its own kinematics inside this window.
 
     A solver error of its own domain (:data:`SOLVER_ERRORS`) is a FAILED step with zero velocity.
     Python's cyclic garbage collector is paused during the solve (it runs at the next allocation
@@ -266,13 +272,15 @@ class _Step:
         if reading is None:
             io.send_velocity(np.zeros(robot.nq))
             return None
-        kin = robot.kinematics(reading.q)
+        kin = robot.kinematics(reading.q)  # the loop's own: sensing and the waypoints
         self.gate.step(t, kin)
         ee = kin.frame_position(robot.ee_frame)
         target = self.waypoints.update(t, ee)
         self.targets.set(target)
+        # A fresh snapshot, nothing computed: the method's kinematics fall inside its timed solve.
+        kin = robot.kinematics(reading.q)
         qdot, status, active, message, missed, solve_us = timed_solve(self.solver, self.hierarchy, kin, dt)
-        if not kin.is_current:  # a solver computed kinematics of its own: take a fresh snapshot
+        if not kin.is_current:  # a solver took a snapshot of its own: take a fresh one
             kin = robot.kinematics(reading.q)
         command, fallback, status = self.policy.decide(t, qdot, status, message)
         stopped = self.gate.blind and self.settings.stop_when_blind

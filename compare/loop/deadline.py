@@ -20,9 +20,11 @@ is FAILED, the loop's fallback acts, and the step counts as a deadline miss (per
   thread: that is what the QP backends' own time limits are for
   (:mod:`qp_baseline.time_limits`), set on the wall clock to what is left of the budget.
 
-Methods with a QP backend (HQP, mink) also get the budget itself (``set_time_limit``): they
-check it before every backend call and give up a level that has no time left instead of
-starting it.
+One rule for every method: the call is timed whole (the loop hands over a kinematics snapshot
+with nothing computed, so each method's kinematics are inside it) and its answer counts when the
+call ends within the limit. Methods with a QP backend (HQP, mink) also get the budget itself
+(``set_time_limit``): they check it before every backend call and start none once it is used up
+(no share is held back: :mod:`qp_baseline.time_limits`), an answer that would be late anyway.
 """
 
 from __future__ import annotations

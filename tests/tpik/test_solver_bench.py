@@ -25,7 +25,7 @@ def test_runner_times_each_case_and_skips_unknown_methods(capsys):
     tpik = [r for r in rows if r.name == "tpik"]
     native = {r.case: r.median_us for r in rows if r.name == "mink-native"}
     for row in tpik:
-        assert {"build_us", "solve_us", "active", "modes_evaluated"} <= set(row.extra)
+        assert {"core_us", "build_us", "rows_us", "rest_us", "active", "modes_evaluated"} <= set(row.extra)
         assert row.extra["ratio_to_mink"] == pytest.approx(row.median_us / native[row.case])
     assert tpik[0].extra["active"] == 0
 

@@ -19,7 +19,7 @@ from tpik.step_result import SolverBase, StepResult
 from tpik.tasks import PositionTask
 
 DT = 0.01
-METHODS = ("tpik", "tpik-paper", "hqp-daqp", "mink", "mink-hard")
+METHODS = ("tpik", "tpik-paper", "hqp-daqp", "mink", "mink-hard", "mink-posture")
 
 
 class KinematicIO(RobotIO):

@@ -29,7 +29,7 @@ from compare.methods import make_method
 from compare.run import loop_setup, run_method
 from qp_baseline.backends import BACKENDS
 from qp_baseline.hqp import HqpSolver, available_qp_solvers
-from qp_baseline.time_limits import RESERVE_FRACTION, CallBudget, TimeLimitReached
+from qp_baseline.time_limits import CallBudget, TimeLimitReached
 from tests.qp_baseline.helpers import DT, position_level
 from tpik.hierarchy import Hierarchy
 from tpik.step_result import SolverBase, StepResult
@@ -266,10 +266,10 @@ def test_the_backends_time_limit_setting_is_the_one_they_honour(solver):
 
 
 def test_a_budget_hands_the_backend_what_is_left_on_the_wall_clock_only():
-    wall = CallBudget(0.05, "wall")
+    wall = CallBudget(1.0, "wall")
     wall.start()
     kwargs = wall.backend_kwargs("osqp")
-    assert 0.0 < kwargs["time_limit"] <= 0.05 * (1.0 - RESERVE_FRACTION)
+    assert 0.9 < kwargs["time_limit"] <= 1.0  # all that is left: no share held back
     assert wall.backend_kwargs("proxqp") == {} and wall.backend_kwargs("quadprog") == {}
     cpu = CallBudget(0.05, "cpu")
     cpu.start()
@@ -326,7 +326,7 @@ def test_hqp_gives_each_backend_call_the_budget_left(robot, monkeypatch, solver)
         assert all("time_limit" not in k for k in seen)
     else:
         limits = [k[key] for k in seen]
-        assert all(0.0 < x <= 0.45 for x in limits) and limits == sorted(limits, reverse=True)
+        assert all(0.0 < x <= 0.5 for x in limits) and limits == sorted(limits, reverse=True)
 
 
 def test_hqp_gives_up_a_level_with_no_time_left_and_keeps_the_levels_above(robot, monkeypatch):
@@ -373,5 +373,5 @@ def test_mink_gives_its_backend_the_budget(robot, monkeypatch):
 
     monkeypatch.setattr(qpsolvers, "solve_problem", spy)
     assert guard.solve(hierarchy, kin, 0.01).ok
-    assert len(seen) == 1 and 0.0 < seen[0]["time_limit"] <= 0.5 * (1 - RESERVE_FRACTION)  # mink uses daqp
+    assert len(seen) == 1 and 0.45 < seen[0]["time_limit"] <= 0.5  # mink uses daqp; no share held back
     assert math.isclose(guard.deadline_s, 0.5)
