@@ -454,29 +454,38 @@ class MinkSolver(TimeLimited):
         ftask.set_target(_frame_target(R_t, p_t))
 
     def _update_return(self, ev: TaskEvaluation, sigma: np.ndarray, dt: float) -> list[tuple[int, float, float]]:
-        """Rows of the return task; returns (task index, reference rate, side) of the tasks it pulls back.
+        r"""Rows of the return task; returns (task index, reference rate, side) of the tasks it pulls back.
 
-        A task is pulled back when its σ is finite and outside its safety thresholds; its row is
-        the evaluated Jacobian row (the one its limit rows use) and the error −rate·dt.
+        A task is pulled back when its σ is finite and its reference asks it to move away from a
+        threshold: :math:`\dot\sigma_l > 0` or :math:`\dot\sigma_u < 0`. Without a rate
+        feed-forward that is σ outside its safety thresholds; with a predicted approach f it
+        starts f/K earlier, as the rows of HQP hold it. Its row is the evaluated Jacobian row (the
+        one its limit rows use) and the error −rate·dt.
         """
         ret = self._return
         assert ret is not None
         tasks = self._rows.tasks
         bounds = zip(sigma.tolist(), self._safety_bounds, strict=True)
-        past = [(i, s) for i, (s, (lo, hi)) in enumerate(bounds) if not lo <= s <= hi and math.isfinite(s)]
-        if not past:  # the usual step: no row (read-only zeros, shared between steps)
+        near = [
+            (i, s)
+            for i, (s, (lo, hi)) in enumerate(bounds)
+            if math.isfinite(s) and (not lo <= s <= hi or tasks[i].rate_feedforward != 0.0)
+        ]
+        pulled: list[tuple[int, float, float]] = []
+        for i, s in near:
+            lo, hi = self.reference.set_rates(tasks[i], s, dt)
+            if lo > 0.0:
+                pulled.append((i, lo, -1.0))
+            elif hi < 0.0:
+                pulled.append((i, hi, 1.0))
+        if not pulled:  # the usual step: no row (read-only zeros, shared between steps)
             ret.error, ret.jacobian = self._no_return
             return []
         error = np.zeros(len(tasks))
         jac = np.zeros((len(tasks), self.robot.nq))
-        pulled: list[tuple[int, float, float]] = []
-        for i, s in past:
-            task = tasks[i]
-            lo, hi = self.reference.set_rates(task, s, dt)
-            rate, side = (lo, -1.0) if s < task.thresholds.safety_lower else (hi, 1.0)
+        for i, rate, _ in pulled:
             jac[i] = ev.set_out[i, SET_JAC:]
             error[i] = -rate * dt
-            pulled.append((i, rate, side))
         ret.error, ret.jacobian = error, jac
         return pulled
 

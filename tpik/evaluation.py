@@ -111,9 +111,16 @@ def _evaluate_set(
                     for k in range(set_i[s, 2]):  # partial Jacobian: columns from joint j on are zero
                         out[SET_JAC + k] = u0 * f[1, k] + u1 * f[2, k] + u2 * f[3, k]
         sigma = out[SET_SIGMA]
-        if set_in[s, _ACT_HI] <= sigma < math.inf:
+        act_lo, act_hi = set_in[s, _ACT_LO], set_in[s, _ACT_HI]
+        ff, gain = set_in[s, SET_FEEDFORWARD], set_in[s, SET_GAIN]
+        if ff != 0.0 and gain > 0.0:  # SetTask.activation_bounds: f/K earlier
+            if ff > 0.0:
+                act_lo += ff / gain
+            else:
+                act_hi += ff / gain
+        if act_hi <= sigma < math.inf:
             out[SET_SIDE] = 1.0
-        elif -math.inf < sigma <= set_in[s, _ACT_LO]:
+        elif -math.inf < sigma <= act_lo:
             out[SET_SIDE] = -1.0
         else:
             out[SET_SIDE] = 0.0

@@ -135,9 +135,9 @@ def unmet_set_rates(
     for task, sigma in zip(tasks, sigmas, strict=True):
         if not math.isfinite(sigma):
             continue
-        th = task.thresholds
-        upper = sigma >= th.activation_upper
-        lower = sigma <= th.activation_lower
+        act_lo, act_hi = task.activation_bounds()
+        upper = sigma >= act_hi
+        lower = sigma <= act_lo
         if not (upper or lower):
             continue
         rate = float(task.compute_jacobian(kin)[0] @ qdot)  # type: ignore[arg-type]

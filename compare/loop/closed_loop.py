@@ -296,7 +296,9 @@ class _Step:
         if status is SolveStatus.OK and fallback is None:
             # unmet_set_rates skips the tasks between their activation thresholds and the non-finite σ
             # itself; left out here first, it sees only the few it checks (the same verdict).
-            bands = enumerate(zip(sigmas, self.bands, strict=True))
+            # With a prediction the thresholds move with the feed-forward (SetTask.activation_bounds).
+            now = [t.activation_bounds() for t in self.set_tasks] if self.predicting else self.bands
+            bands = enumerate(zip(sigmas, now, strict=True))
             near = [k for k, (s, (lo, hi)) in bands if (s >= hi or s <= lo) and math.isfinite(s)]
             tasks = [self.set_tasks[k] for k in near]
             if near and unmet_set_rates(tasks, [sigmas[k] for k in near], kin, qdot, dt, self.reference):

@@ -133,8 +133,27 @@ def test_every_method_cancels_a_predicted_approach(jaco, name):
 
 
 @pytest.mark.parametrize("name", SOLVERS)
+def test_every_method_acts_on_a_predicted_approach_before_the_activation_threshold(jaco, name):
+    """σ = 0.45 m, past σ_s + ε = 0.40 m, closing at f = 0.4 m/s: the reference K(σ_s − σ) + f = 0.2 m/s.
+
+    HQP's and mink's rows hold it at every σ; TPIK's task is a candidate from
+    σ_s + ε + f/K = 0.60 m on (:meth:`tpik.tasks.SetTask.activation_bounds`), so every method
+    moves the control point away at least at 0.2 m/s instead of waiting for the static threshold.
+    """
+    kin = jaco.kinematics(jaco.home)
+    f = 0.4
+    obstacles = obstacle_level(gain=2.0)
+    task = next(t for t in obstacles.tasks if isinstance(t, ObstacleDistanceTask) and t.frame == "link_7")
+    task.set_obstacle(kin.frame_position("link_7") + 0.45 * np.array([0.0, 0.6, 0.8]), f, 0.0)
+    assert task.activation_bounds()[0] == pytest.approx(0.35 + 0.05 + f / 2.0)
+    result = make_method(name, jaco).solve(Hierarchy([obstacles]), kin, DT)
+    rate = float(task.compute_jacobian(kin)[0] @ result.qdot)
+    assert rate >= 2.0 * (0.35 - 0.45) + f - 2e-3
+
+
+@pytest.mark.parametrize("name", SOLVERS)
 def test_every_method_commands_the_capped_ee_velocity_with_gain_500(jaco, name):
-    """The issue's case: 1 mm error, gain 500: the commanded EE velocity is 0.100 m/s for every method."""
+    """1 mm error, gain 500: the commanded EE velocity is 0.100 m/s for every method."""
     kin = jaco.kinematics(jaco.home)
     target = kin.frame_position("end_effector") + np.array([0.001, 0.0, 0.0])
     hierarchy = Hierarchy([position_level(target, gain=500.0)])

@@ -240,9 +240,10 @@ class SetTask(Task):
         """Evaluate σ and J; σ_d is the safety threshold σ is closest to (eq. 7), else σ."""
         sigma, jac = self.compute_value_and_jacobian(kin)
         th = self.thresholds
-        if sigma >= th.activation_upper:
+        lower, upper = self.activation_bounds()
+        if sigma >= upper:
             desired = th.safety_upper
-        elif sigma <= th.activation_lower:
+        elif sigma <= lower:
             desired = th.safety_lower
         else:
             desired = sigma
@@ -252,14 +253,28 @@ class SetTask(Task):
         error = np.array([desired - sigma]) if math.isfinite(sigma) else np.zeros(1)
         return TaskState(value, jac, np.array([desired]), np.zeros(1), error)
 
+    def activation_bounds(self) -> tuple[float, float]:
+        r"""The activation thresholds (σ_{a,l}, σ_{a,u}) of this step, moved by the rate feed-forward f.
+
+        A task is past its activation threshold where its reference rate
+        :math:`K(\sigma_s - \sigma) + f` asks at least what it asks at σ_a without f (eq. 7):
+        :math:`\sigma_{a,l} + \max(f, 0)/K` and :math:`\sigma_{a,u} + \min(f, 0)/K`. With f = 0
+        (no prediction) these are the thresholds; f only ever brings the activation earlier.
+        """
+        th, f = self.thresholds, self.rate_feedforward
+        if f == 0.0 or self.gain <= 0.0:
+            return th.activation_lower, th.activation_upper
+        return th.activation_lower + max(f, 0.0) / self.gain, th.activation_upper + min(f, 0.0) / self.gain
+
     def activation_state(self, state: TaskState) -> Activation:
-        """Which activation threshold σ has crossed (eq. 7); INACTIVE for a non-finite σ."""
+        """Which activation threshold (:meth:`activation_bounds`) σ has crossed (eq. 7); INACTIVE for a non-finite σ."""
         sigma = float(state.value[0])
         if not math.isfinite(sigma):
             return Activation.INACTIVE
-        if sigma >= self.thresholds.activation_upper:
+        lower, upper = self.activation_bounds()
+        if sigma >= upper:
             return Activation.UPPER
-        if sigma <= self.thresholds.activation_lower:
+        if sigma <= lower:
             return Activation.LOWER
         return Activation.INACTIVE
 
