@@ -319,13 +319,6 @@ def sweep(
     oracle: OracleOpt = None,
     prediction: PredictionOpt = None,
     sets: SetOpt = None,
-    recheck: Annotated[
-        bool,
-        typer.Option(
-            "--recheck-misses",
-            help="Afterwards, re-time every deadline miss on its own state (as the recheck-misses command).",
-        ),
-    ] = False,
 ) -> None:
     """Run a randomized batch in parallel; re-running the same command resumes it.
 
@@ -360,10 +353,6 @@ def sweep(
     except (ConfigError, ResultsError) as exc:
         _fail(str(exc))
         return
-    if recheck:
-        from compare.campaign.miss_recheck import DEFAULT_REPLAYS
-
-        _recheck(out_dir, DEFAULT_REPLAYS, None)
     typer.echo(f"sweep summary: {out_dir}/sweep_summary.json ({summary.get('runs', n)} runs)")
     typer.echo(f"sweep report:  {out_dir}/sweep_report.md")
 
@@ -579,51 +568,6 @@ def tune(
     words += [] if duration is None else ["--duration", str(duration)]
     report = write_tuning(out_dir, method, points, shlex.join(words))
     typer.echo(f"tuning table: {report}")
-
-
-@app.command("recheck-misses")
-def recheck_misses(
-    sweep_dir: Annotated[Path, typer.Argument(help="A sweep directory.")],
-    replays: Annotated[
-        int, typer.Option("--replays", min=1, help="Copies of the method timed at each missed step.")
-    ] = 5,
-    methods: MethodsOpt = None,
-) -> None:
-    """Re-time the deadline misses of a sweep: the method's own cost at that state, or a pause of the machine?
-
-    Every miss: its run is simulated again to that step (earlier misses made again), where copies
-    of the method solve the same state, timed on the CPU clock; the miss is reproduced when their
-    median exceeds the limit. Writes deadline_recheck.json, adds deadline_recheck to sweep_summary.json and
-    redraws sweep_report.md.
-    """
-    _recheck(sweep_dir, replays, list(methods) if methods else None)
-
-
-def _recheck(sweep_dir: Path, replays: int, methods: list[str] | None) -> None:
-    """Re-time a sweep's misses (compare.campaign.miss_recheck), print the table, redraw the report."""
-    from rich.console import Console
-    from rich.table import Table
-
-    from compare.analysis.report import render_sweep_report
-    from compare.campaign.miss_recheck import RECHECK_FILE, recheck_sweep
-
-    def step(done: int, total: int) -> None:
-        typer.echo(f"rechecked {done}/{total}", err=True)
-
-    result = recheck_sweep(sweep_dir, replays, methods, progress=step)
-    columns = ("method", "misses", "rechecked", "reproduced", "not reproduced", "unverified", "max median replay [µs]")
-    table = Table(*columns)
-    for name, m in result["methods"].items():
-        worst = m["replay_median_us_max"]
-        table.add_row(
-            name,
-            *(str(m[k]) for k in ("misses", "rechecked", "reproduced", "not_reproduced", "unverified")),
-            "–" if worst is None else f"{worst:.0f}",
-        )
-    Console().print(table)
-    if (sweep_dir / "sweep_summary.json").exists():
-        render_sweep_report(sweep_dir)
-    typer.echo(f"rechecks: {sweep_dir / RECHECK_FILE}")
 
 
 @app.command()
