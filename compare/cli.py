@@ -684,9 +684,7 @@ def replay(
 def bench(
     json_out: Annotated[Path | None, typer.Option("--json", help="Write results as JSON (DESIGN §7).")] = None,
     repeats: Annotated[int, typer.Option(min=10, help="Timed calls per case.")] = 300,
-    only: Annotated[
-        str | None, typer.Option(help="solvers | sensing | plant | loop | correctness (default all).")
-    ] = None,
+    only: Annotated[str | None, typer.Option(help="solvers | sensing | correctness (default all).")] = None,
     methods: Annotated[
         list[str] | None,
         typer.Option(
@@ -722,41 +720,15 @@ def bench(
         list[str] | None,
         typer.Option("--backends", help="Correctness: HQP methods to judge (repeatable; default all six)."),
     ] = None,
-    sweep_dir: Annotated[
-        Path | None,
-        typer.Option("--sweep", help="Plant: a finished sweep, for its throughput ceiling (solves + plant only)."),
-    ] = None,
-    loop_methods: Annotated[
-        list[str] | None,
-        typer.Option(
-            "--loop-method", help="Loop: a method, alone in its runs (repeatable; default tpik hqp-daqp mink)."
-        ),
-    ] = None,
-    loop_seeds: Annotated[
-        list[int] | None,
-        typer.Option("--loop-seed", help="Loop: scenario seed of a timed run (repeatable; default 100001-100003)."),
-    ] = None,
-    family: Annotated[
-        Path | None,
-        typer.Option(
-            "--family",
-            "--plant-config",
-            help="Plant and loop: scenario family whose plant and runs are timed "
-            "(default: the --sweep's config.toml, else configs/random.toml).",
-        ),
-    ] = None,
 ) -> None:
     """Solver, sensing and QP-correctness benchmarks: medians, p95, ratios, timing vs correctness.
 
     --only correctness judges every HQP backend against the stored lexicographic reference
     (compare/bench/data/qp_reference.json): success rate, level errors, qpbenchmark residuals, time.
-    --only plant times a sweep's plant alone; with --sweep DIR it adds that sweep's
-    throughput ceiling (compare/bench/plant.py). --only loop times the closed loop's parts on
-    whole runs, one method at a time: where a campaign step goes (compare/bench/loop_parts.py).
     """
     from compare.bench.suite import BenchOptions, run_bench
 
-    given = {"methods": methods, "backends": backends, "loop_methods": loop_methods, "loop_seeds": loop_seeds}
+    given = {"methods": methods, "backends": backends}
     lists: dict[str, Any] = {name: tuple(value) for name, value in given.items() if value}  # absent: the default
     options = BenchOptions(
         only=only,
@@ -764,8 +736,6 @@ def bench(
         json_out=json_out,
         config=config,
         max_candidates=max_candidates,
-        family=family,
-        sweep=sweep_dir,
         rounds=rounds,
         tolerance=tolerance,
         plot=plot_out,

@@ -1,8 +1,13 @@
-r"""Where a campaign step goes: the closed loop's parts timed one by one.
+r"""Where a campaign step goes: the closed loop's parts timed one by one (a profile of the project itself).
+
+Run from the repository root::
+
+    python scripts/loop_parts.py        # configs/random.toml; tpik, hqp-daqp, mink; seeds 100001-100003
+    python scripts/loop_parts.py -m tpik --seed 100001 --family configs/random.toml --json results/loop_parts.json
 
 :func:`run_loop_parts` runs whole runs of one scenario family, one method at a time, in this
 process (a sweep worker's steady state: one untimed run first loads the kernels and builds the
-caches), with a timer around each named part of the loop (:data:`PARTS`: the plant, the guarded
+caches), with a timer around each named part of the loop (:data:`PARTS`: the plant, the
 solve, sensing, the ground truth, recording, ...). Each part is charged its *exclusive* time:
 the time inside it minus the time inside the parts it calls, so the parts add up to the whole
 run and nothing is counted twice,
@@ -14,7 +19,7 @@ run and nothing is counted twice,
 
 reported per control step (the run's time divided by its steps). The method's own solve comes
 from the run's per-step table (``solve_time_us``, what the loop records) and is taken out of
-the guarded solve's row, which keeps the time-limit guard and its bookkeeping.
+the timed solve's row, which keeps the loop's bookkeeping around the call.
 
 The timers cost time themselves (:func:`wrapper_cost_ns`, measured here on a no-op part): the
 table says how many timed calls a step makes and what they cost, and beside it the same runs'
@@ -25,8 +30,11 @@ always restored.
 
 from __future__ import annotations
 
+import argparse
 import functools
 import importlib
+import json
+import sys
 import tempfile
 import time
 from collections.abc import Callable, Iterator, Sequence
@@ -36,11 +44,25 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from rich.console import Console
+from rich.table import Table
 
 from compare.analysis.results import load_steps
 from compare.bench.timing import BenchRow, summarize
-from compare.config import Config
+from compare.campaign.sweep import seeded_config
+from compare.config import Config, load_config
 from compare.exceptions import CompareError
+from compare.run import run_scenario
+from compare.versions import versions
+
+RANDOM_CONFIG = Path(__file__).resolve().parents[1] / "configs" / "random.toml"
+"""The scenario family timed by default (the reference campaign's)."""
+
+METHODS = ("tpik", "hqp-daqp", "mink")
+"""The reference campaign's methods: the default, each alone in its runs."""
+
+SEEDS = (100001, 100002, 100003)
+"""Seeds of the timed runs by default (of the reference campaign's 100000–100999)."""
 
 
 @dataclass(frozen=True)
@@ -64,8 +86,8 @@ class Part:
 RUN_PART = "per run: scenario, results files"
 """The label of the outermost part (a whole run): its inclusive times are the runs' whole time."""
 
-GUARD_PART = "guarded solve (the method's own call taken out below)"
-"""The label of the guarded solve, whose row keeps all but the method's own call (:data:`OWN_SOLVE`)."""
+GUARD_PART = "timed solve (the method's own call taken out below)"
+"""The label of the timed solve, whose row keeps all but the method's own call (:data:`OWN_SOLVE`)."""
 
 STEP_PART = "the step's own code"
 """The label whose calls are the control steps (their inclusive times give the step's median)."""
@@ -95,7 +117,7 @@ PARTS: tuple[Part, ...] = (
 """The parts, in table order; parts with the same label are added up."""
 
 OWN_SOLVE = "the method's own solve (solve_time_us)"
-"""The row of the method's own call, taken out of the guarded solve's."""
+"""The row of the method's own call, taken out of the timed solve's."""
 
 
 @dataclass
@@ -211,7 +233,7 @@ class LoopParts:
     Attributes:
         method: The method.
         parts_us: Exclusive time per control step by part [µs] (table order; the method's own
-            solve in :data:`OWN_SOLVE`, out of the guarded solve's row).
+            solve in :data:`OWN_SOLVE`, out of the timed solve's row).
         steps: Control steps of the timed runs.
         timed_calls_per_step: Timer calls per step (per-run parts spread over the steps).
         step_us: Inclusive time of each control step, the plant not included [µs].
@@ -242,8 +264,6 @@ class LoopRunFailed(CompareError):
 
 
 def _run(config: Config, out: Path) -> None:
-    from compare.run import run_scenario
-
     summary = run_scenario(config, out, progress=False, make_plots=False, overwrite=True)
     errors = summary.get("errors") or {}
     if errors:
@@ -265,8 +285,6 @@ def run_loop_parts(config: Config, method: str, seeds: Sequence[int]) -> LoopPar
     Raises:
         LoopRunFailed: A run's method ended in an error.
     """
-    from compare.campaign.sweep import seeded_config
-
     configs = [seeded_config(config, int(s), [method]) for s in seeds]
     with tempfile.TemporaryDirectory(prefix="loop-parts-") as tmp:
         root = Path(tmp)
@@ -302,7 +320,7 @@ def run_loop_parts(config: Config, method: str, seeds: Sequence[int]) -> LoopPar
 
 
 def loop_parts_rows(results: Sequence[LoopParts], cost_ns: float) -> tuple[list[BenchRow], dict[str, Any]]:
-    """The ``bench --json`` rows and the ``loop_parts`` entry of the methods' loop parts.
+    """The JSON rows and the ``loop_parts`` entry of the methods' loop parts.
 
     Rows: name ``loop-step``, case the method, the inclusive time of a step without the plant.
     Entry: per method, its parts, totals and the timers' cost.
@@ -334,17 +352,67 @@ def loop_parts_rows(results: Sequence[LoopParts], cost_ns: float) -> tuple[list[
     return rows, entry
 
 
-__all__ = [
-    "GUARD_PART",
-    "OWN_SOLVE",
-    "PARTS",
-    "LoopParts",
-    "LoopRunFailed",
-    "Part",
-    "PartProfiler",
-    "check_parts",
-    "loop_parts_rows",
-    "run_loop_parts",
-    "timers",
-    "wrapper_cost_ns",
-]
+def loop_parts_table(results: Sequence[LoopParts], entry: dict[str, Any], cost_ns: float, title: str) -> Table:
+    """The parts per method as a table [µs per step]: exclusive times, their total, the timers, the CPU without them."""
+    table = Table(title=title)
+    table.add_column("part")
+    for r in results:
+        table.add_column(r.method, justify="right")
+    for label in results[0].parts_us:
+        table.add_row(label if label != OWN_SOLVE else f"  {label}", *(f"{r.parts_us[label]:.1f}" for r in results))
+    table.add_row("[bold]total, profiled", *(f"[bold]{r.total_us:.1f}" for r in results))
+    per_method = entry["methods"]
+    table.add_row(
+        f"  of which timers ({cost_ns:.0f} ns per call)",
+        *(f"{per_method[r.method]['timer_cost_us_per_step']:.1f}" for r in results),
+    )
+    table.add_row("[bold]CPU per step, no timer", *(f"[bold]{r.unprofiled_cpu_us_per_step:.1f}" for r in results))
+    return table
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Time the loop's parts of every method given; print the table, write ``--json``; the exit code."""
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0], prog="python scripts/loop_parts.py")
+    parser.add_argument("--family", type=Path, default=RANDOM_CONFIG, help="Scenario family [configs/random.toml].")
+    parser.add_argument(
+        "-m", "--method", action="append", dest="methods", help="A method, alone in its runs (repeatable)."
+    )
+    parser.add_argument("--seed", action="append", type=int, dest="seeds", help="Seed of a timed run (repeatable).")
+    parser.add_argument("--json", type=Path, dest="json_out", help="Write the rows and the parts as JSON.")
+    args = parser.parse_args(argv)
+    methods, seeds = tuple(args.methods or METHODS), tuple(args.seeds or SEEDS)
+    try:
+        config, _ = load_config(args.family)
+        seeded_config(config, seeds[0], list(methods))  # the methods checked before any run
+        cost_ns = wrapper_cost_ns()
+        console = Console(width=max(Console().width, 160))
+        results = []
+        for method in methods:
+            console.print(f"loop parts: {method}, seeds {' '.join(map(str, seeds))} ({args.family}) …")
+            try:
+                results.append(run_loop_parts(config, method, list(seeds)))
+            except LoopRunFailed as exc:
+                raise LoopRunFailed(f"loop parts of {method}: {exc}") from exc
+    except CompareError as exc:  # a config, a method or a run that failed: one line
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    rows, entry = loop_parts_rows(results, cost_ns)
+    entry["config"] = str(args.family)
+    entry["seeds"] = list(seeds)
+    title = f"Where a control step goes [µs per step, exclusive] ({args.family.name}, one method per run)"
+    console.print(loop_parts_table(results, entry, cost_ns, title))
+    if args.json_out is not None:
+        payload = {
+            "versions": versions(),
+            "command": " ".join(["python", "scripts/loop_parts.py", *(argv if argv is not None else sys.argv[1:])]),
+            "results": [r.to_dict() for r in rows],
+            "loop_parts": entry,
+        }
+        args.json_out.parent.mkdir(parents=True, exist_ok=True)
+        args.json_out.write_text(json.dumps(payload, indent=2) + "\n", encoding="utf-8")
+        console.print(f"wrote {args.json_out}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
