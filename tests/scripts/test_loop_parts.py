@@ -13,6 +13,7 @@ import pytest
 from loop_parts import (
     OWN_SOLVE,
     PARTS,
+    PLANT_PART,
     RANDOM_CONFIG,
     Part,
     PartProfiler,
@@ -114,6 +115,19 @@ def test_the_parts_of_real_runs_add_up_to_the_runs_and_the_own_solve_is_the_step
     assert result.unprofiled_cpu_us_per_step > 0.0 and result.timed_calls_per_step > 10
 
 
+def test_on_the_cpu_clock_the_own_solve_is_timed_on_the_methods_solve_and_the_parts_still_add_up(tmp_path):
+    config, _ = load_config(_short_family(tmp_path))
+    result = run_loop_parts(config, "hqp-daqp", [100001], clock="cpu")
+    assert result.total_us == pytest.approx(result.runs_us_per_step, rel=1e-9)
+    assert set(result.parts_us) == {p.label for p in PARTS} | {OWN_SOLVE}
+    assert all(v >= 0.0 for v in result.parts_us.values()), result.parts_us
+    # The solve is most of a step's CPU outside the plant, and no more than the whole step.
+    assert 0.0 < result.parts_us[OWN_SOLVE] < float(result.step_us.mean())
+    assert result.shared_loop_us(0.0) == pytest.approx(
+        result.total_us - result.parts_us[PLANT_PART] - result.parts_us[OWN_SOLVE]
+    )
+
+
 def test_the_script_writes_its_entry_and_refuses_an_unknown_method_in_one_line(tmp_path, capsys):
     family = _short_family(tmp_path)
     out = tmp_path / "loop.json"
@@ -125,8 +139,10 @@ def test_the_script_writes_its_entry_and_refuses_an_unknown_method_in_one_line(t
     assert payload["command"] == f"python scripts/loop_parts.py {' '.join(argv)} -m tpik"
     entry = payload["loop_parts"]
     assert entry["config"] == str(family) and entry["seeds"] == [100001]
+    assert entry["clock"] == "wall"
     tpik = entry["methods"]["tpik"]
     assert tpik["total_us_per_step"] == pytest.approx(sum(tpik["parts_us_per_step"].values()))
+    assert tpik["shared_loop_us_per_step"] > 0.0
     capsys.readouterr()
     assert main([*argv, "-m", "no-such-method"]) == 2
     err = capsys.readouterr().err

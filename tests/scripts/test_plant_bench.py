@@ -48,6 +48,7 @@ def test_plant_row_times_every_period_of_the_dynamic_plant():
     assert (row.name, row.case, row.samples) == ("plant", "dynamic-decoupled", 200)
     assert row.extra["dt_s"] == config.scenario.dt and row.extra["substeps"] >= 1
     assert 0 < row.median_us <= row.p95_us and row.extra["mean_us"] > 0
+    assert 0 < row.extra["cpu_mean_us"] <= 2 * row.extra["mean_us"]
 
 
 def test_the_script_writes_the_ceiling_and_refuses_a_directory_without_a_sweep(tmp_path, capsys):
