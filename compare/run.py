@@ -97,6 +97,7 @@ def loop_setup(
 def write_plots(out_dir: Path) -> None:
     """Draw the run's plots; a plotting error is logged and never loses the results."""
     try:
+        # Deferred: matplotlib costs ~0.25 s of CPU, and sweep workers, which import this module, never plot.
         from compare.analysis.plots import plot_run
 
         plot_run(Path(out_dir))
@@ -337,7 +338,7 @@ def run_scenario(
 
 def view_scenario(config: Config, method: str) -> None:
     """Run one method in the interactive MuJoCo viewer, in real time."""
-    import mujoco.viewer
+    import mujoco.viewer  # Deferred: the GLFW viewer needs a display; headless runs never load it.
 
     robot = config.load_robot()
     config = realize(config, robot)
