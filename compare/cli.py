@@ -3,13 +3,22 @@
 User mistakes (bad config, unknown method, missing directory) print one line on stderr
 and exit with code 2; no traceback. Every command gets that for the error roots of the
 packages (:data:`USER_ERRORS`) from :class:`_App`.
+
+Start-up: a command imports what it runs when it runs ("Deferred" imports: ``compare.config``,
+``compare.run``, the campaign, analysis, replay, bench and hardware modules). Together they cost
+more than a second of CPU (pandas, matplotlib, scipy.stats, rerun, pydantic models), each of them
+at least ~0.1 s (``compare.config`` alone ~0.1 s, ``compare.bench.suite`` ~1 s), which ``--help``
+and the commands that do not need them do not pay (the list of deferred imports: pyproject.toml,
+``[tool.importlinter]``).
 """
 
 from __future__ import annotations
 
 import functools
+import json
 import logging
 import os
+import shlex
 import sys
 import tomllib
 from collections.abc import Callable
@@ -17,8 +26,13 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Annotated, Any, TypeVar
 
 import typer
+from rich.console import Console
+from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
+from compare.analysis.exceptions import ResultsError
 from compare.exceptions import CompareError
+from compare.hardware.exceptions import HardwareError
+from compare.methods import ablation_methods, available_methods, describe
 from qp_baseline.exceptions import HqpError
 from robots.exceptions import RobotError
 from tpik.exceptions import TpikError
@@ -190,6 +204,7 @@ def _select_methods(cfg: Config, methods: list[str] | None) -> Config:
     """``cfg`` with only ``methods`` (and their settings) when given; raises ConfigError."""
     if not methods:
         return cfg
+    # Deferred: start-up cost (module docstring).
     from compare.config import parse_config
 
     data = cfg.model_dump(mode="python")
@@ -243,7 +258,7 @@ def run(
     (the others' results are kept); a different config, or a method it already has finished
     results of, is refused (exit 2) unless --overwrite.
     """
-    from compare.analysis.exceptions import ResultsError
+    # Deferred: start-up cost (module docstring).
     from compare.campaign.realize import realize_with_verdict
     from compare.config import ConfigError, load_config
     from compare.run import run_scenario
@@ -275,8 +290,7 @@ def run(
 
 
 def _print_summary(summary: dict[str, object], out_dir: Path) -> None:
-    from rich.console import Console
-
+    # Deferred: start-up cost (module docstring).
     from compare.analysis.report import summary_table
 
     console = Console()
@@ -327,7 +341,7 @@ def sweep(
     ones: more --n or other -m methods extend the sweep. A different config, plant, first seed,
     method settings or project version is refused (exit 2) unless --overwrite.
     """
-    from compare.analysis.exceptions import ResultsError
+    # Deferred: start-up cost (module docstring).
     from compare.campaign.sweep import run_sweep
     from compare.config import ConfigError, load_config
 
@@ -385,6 +399,7 @@ def critical_speed(
     quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress bar.")] = False,
 ) -> None:
     """Sweep the person's approach speed on a case's geometry: each method's critical speed."""
+    # Deferred: start-up cost (module docstring).
     from compare.campaign.critical_speed import run_critical_speed
     from compare.config import ConfigError, load_config
 
@@ -420,6 +435,7 @@ def claims(
     ] = None,
 ) -> None:
     """The paper's claims of Sec. IV measured per method: one table for runs and critical speeds."""
+    # Deferred: start-up cost (module docstring).
     from compare.analysis.claims import claims_report
 
     try:
@@ -429,8 +445,6 @@ def claims(
         return
     typer.echo(text)
     if out is not None:
-        import json
-
         out.parent.mkdir(parents=True, exist_ok=True)
         out.write_text(text + "\n", encoding="utf-8")
         out.with_suffix(".json").write_text(json.dumps(data, indent=2) + "\n", encoding="utf-8")
@@ -453,7 +467,7 @@ def paper_claims(
     The same tables as README.md's, regenerated on this code (compare/campaign/paper_claims.py);
     runs already in --out with the same config are reused.
     """
-    from compare.analysis.exceptions import ResultsError
+    # Deferred: start-up cost (module docstring).
     from compare.campaign.paper_claims import CASES, claims_details, claims_json, claims_tables, run_paper_claims
     from compare.config import ConfigError
 
@@ -470,8 +484,6 @@ def paper_claims(
     tables = claims_tables(results, picked)
     out.mkdir(parents=True, exist_ok=True)
     (out / "claims.md").write_text(tables + "\n\n" + claims_details(results) + "\n", encoding="utf-8")
-    import json
-
     (out / "claims.json").write_text(json.dumps(claims_json(results), indent=2) + "\n", encoding="utf-8")
     typer.echo(tables)
     typer.echo(f"tables and what was measured: {out / 'claims.md'}")
@@ -495,10 +507,10 @@ def ablation(
     A resumable sweep of those methods (geometric sensing), then ablation.md / ablation.json:
     violations (Wilson 95 %, McNemar p vs tpik), toggles/s, EE error, solve time.
     """
+    # Deferred: start-up cost (module docstring).
     from compare.campaign.ablation import write_ablation
     from compare.campaign.sweep import run_sweep
     from compare.config import ConfigError, load_config
-    from compare.methods import ablation_methods
 
     try:
         cfg, text = load_config(config, _overrides(duration, None, "geometric", simulation, drive, seed))
@@ -541,9 +553,7 @@ def tune(
     steps, then the final EE error (compare/campaign/tuning.py). Tune on seeds 0-999, report on
     100000+ (docs/benchmarks.md, "Equal care").
     """
-    import shlex
-
-    from compare.analysis.exceptions import ResultsError
+    # Deferred: start-up cost (module docstring).
     from compare.campaign.sweep import run_sweep
     from compare.campaign.tuning import grid_points, parse_grid, point_name, point_overrides, write_tuning
     from compare.config import ConfigError, load_config
@@ -573,6 +583,7 @@ def tune(
 @app.command()
 def plot(results: Annotated[Path, typer.Argument(help="A run or sweep results directory.")]) -> None:
     """Draw the plots of a finished run (summary.json) or sweep (runs/)."""
+    # Deferred: start-up cost (module docstring).
     from compare.analysis.plots import plot_campaign, plot_run, plot_sweep
 
     if (results / "summary.json").is_file():
@@ -589,8 +600,6 @@ def plot(results: Annotated[Path, typer.Argument(help="A run or sweep results di
 @app.command("methods")
 def list_methods() -> None:
     """Every method name this installation accepts (-m, [methods] names), with what it is."""
-    from compare.methods import available_methods, describe
-
     names = available_methods()
     width = max(len(n) for n in names)
     for name in names:
@@ -642,8 +651,7 @@ def replay(
     scenario at the same instant (offscreen, headless); nothing is simulated again. Results
     written before runs recorded their scenario for replays are refused (exit 2).
     """
-    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
-
+    # Deferred: start-up cost (module docstring).
     from compare.replay.panels import check_still_path, write_still
     from compare.replay.recording import check_recording_path, write_recording
     from compare.replay.run_data import load_run
@@ -726,6 +734,7 @@ def bench(
     --only correctness judges every HQP backend against the stored lexicographic reference
     (compare/bench/data/qp_reference.json): success rate, level errors, qpbenchmark residuals, time.
     """
+    # Deferred: start-up cost (module docstring).
     from compare.bench.suite import BenchOptions, run_bench
 
     given = {"methods": methods, "backends": backends}
@@ -750,6 +759,7 @@ def bench(
 @app.command()
 def view(config: ConfigArg, method: Annotated[str, typer.Option(help="Method driving the arm.")] = "tpik") -> None:
     """Watch a scenario in the interactive MuJoCo viewer (needs a display)."""
+    # Deferred: start-up cost (module docstring).
     from compare.config import ConfigError, load_config
 
     if not os.environ.get("DISPLAY") and not os.environ.get("WAYLAND_DISPLAY"):
@@ -760,6 +770,7 @@ def view(config: ConfigArg, method: Annotated[str, typer.Option(help="Method dri
     except ConfigError as exc:
         _fail(str(exc))
         return
+    # Deferred: start-up cost (module docstring).
     from compare.run import view_scenario
 
     view_scenario(cfg, method)
@@ -802,9 +813,8 @@ def hw(
     Exit codes: 0 done, 2 refused start (one line), 3 halted for a safety cause (a foreign
     publisher; results written), 130 interrupted.
     """
-    from compare.analysis.exceptions import ResultsError
+    # Deferred: start-up cost (module docstring).
     from compare.config import ConfigError, load_config
-    from compare.hardware.exceptions import HardwareError
 
     try:
         cfg, text = load_config(config, _overrides(None, time_scale, None))
@@ -812,6 +822,7 @@ def hw(
         _fail(str(exc))
         return
     if method not in cfg.methods.names:
+        # Deferred: start-up cost (module docstring).
         from compare.config import parse_config
 
         data = cfg.model_dump(mode="python")
@@ -826,6 +837,7 @@ def hw(
         cfg = _allow_network(cfg)
     logging.getLogger("compare.hardware").setLevel(logging.INFO)
     if capture_background is not None:
+        # Deferred: start-up cost (module docstring).
         from compare.hardware.run import capture_background_file
 
         try:
@@ -836,8 +848,7 @@ def hw(
         typer.echo(f"background: {capture_background} ({100.0 * covered:.0f}% of the pixels)")
         return
     out_dir = out or Path("results") / f"hw-{cfg.scenario.name}"
-    from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
-
+    # Deferred: start-up cost (module docstring).
     from compare.hardware.run import run_hardware
 
     total = duration if duration is not None else cfg.scenario.sim_time_s
@@ -900,8 +911,8 @@ def hw_check(
     allow_network_master: AllowNetworkOpt = False,
 ) -> None:
     """Check the camera calibration: render the arm model into the live depth from the configured pose."""
+    # Deferred: start-up cost (module docstring).
     from compare.config import ConfigError, load_config
-    from compare.hardware.exceptions import HardwareError
     from compare.hardware.run import calibration_problem, check_camera
 
     try:
