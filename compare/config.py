@@ -24,7 +24,6 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_valida
 
 import robots
 from compare.exceptions import CompareError
-from compare.methods import UnknownMethod, make_method
 from compare.sensing.motion_estimate import MotionFilterSettings
 from compare.sensing.prediction import PredictionSettings
 from compare.sensing.rig import scene_camera_names
@@ -1045,6 +1044,10 @@ def _check_cameras(config: Config, robot: robots.Robot) -> None:
 
 
 def _check_methods(config: Config, robot: robots.Robot) -> None:
+    # Deferred: importing compare.config (as the replay and analysis modules do) loads no method
+    # registry; checking the methods does (tests/compare/replay/test_run_data.py).
+    from compare.methods import UnknownMethod, make_method
+
     for i, name in enumerate(config.methods.names):
         try:
             make_method(name, robot, config.methods.settings.get(name))
