@@ -3,13 +3,22 @@
 User mistakes (bad config, unknown method, missing directory) print one line on stderr
 and exit with code 2; no traceback. Every command gets that for the error roots of the
 packages (:data:`USER_ERRORS`) from :class:`_App`.
+
+Start-up: a command imports what it runs when it runs ("Deferred" imports: ``compare.config``,
+``compare.run``, the campaign, analysis, replay, bench and hardware modules). Together they cost
+more than a second of CPU (pandas, matplotlib, scipy.stats, rerun, pydantic models), each of them
+at least ~0.1 s (``compare.config`` alone ~0.1 s, ``compare.bench.suite`` ~1 s), which ``--help``
+and the commands that do not need them do not pay (the list of deferred imports: pyproject.toml,
+``[tool.importlinter]``).
 """
 
 from __future__ import annotations
 
 import functools
+import json
 import logging
 import os
+import shlex
 import sys
 import tomllib
 from collections.abc import Callable
@@ -17,8 +26,13 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Annotated, Any, TypeVar
 
 import typer
+from rich.console import Console
+from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
+from compare.analysis.exceptions import ResultsError
 from compare.exceptions import CompareError
+from compare.hardware.exceptions import HardwareError
+from compare.methods import ablation_methods, available_methods, describe
 from qp_baseline.exceptions import HqpError
 from robots.exceptions import RobotError
 from tpik.exceptions import TpikError
@@ -190,6 +204,7 @@ def _select_methods(cfg: Config, methods: list[str] | None) -> Config:
     """``cfg`` with only ``methods`` (and their settings) when given; raises ConfigError."""
     if not methods:
         return cfg
+    # Deferred: start-up cost (module docstring).
     from compare.config import parse_config
 
     data = cfg.model_dump(mode="python")
@@ -243,7 +258,7 @@ def run(
     (the others' results are kept); a different config, or a method it already has finished
     results of, is refused (exit 2) unless --overwrite.
     """
-    from compare.analysis.exceptions import ResultsError
+    # Deferred: start-up cost (module docstring).
     from compare.campaign.realize import realize_with_verdict
     from compare.config import ConfigError, load_config
     from compare.run import run_scenario
@@ -275,8 +290,7 @@ def run(
 
 
 def _print_summary(summary: dict[str, object], out_dir: Path) -> None:
-    from rich.console import Console
-
+    # Deferred: start-up cost (module docstring).
     from compare.analysis.report import summary_table
 
     console = Console()
@@ -319,13 +333,6 @@ def sweep(
     oracle: OracleOpt = None,
     prediction: PredictionOpt = None,
     sets: SetOpt = None,
-    recheck: Annotated[
-        bool,
-        typer.Option(
-            "--recheck-misses",
-            help="Afterwards, re-time every deadline miss on its own state (as the recheck-misses command).",
-        ),
-    ] = False,
 ) -> None:
     """Run a randomized batch in parallel; re-running the same command resumes it.
 
@@ -334,7 +341,7 @@ def sweep(
     ones: more --n or other -m methods extend the sweep. A different config, plant, first seed,
     method settings or project version is refused (exit 2) unless --overwrite.
     """
-    from compare.analysis.exceptions import ResultsError
+    # Deferred: start-up cost (module docstring).
     from compare.campaign.sweep import run_sweep
     from compare.config import ConfigError, load_config
 
@@ -360,10 +367,6 @@ def sweep(
     except (ConfigError, ResultsError) as exc:
         _fail(str(exc))
         return
-    if recheck:
-        from compare.campaign.miss_recheck import DEFAULT_REPLAYS
-
-        _recheck(out_dir, DEFAULT_REPLAYS, None)
     typer.echo(f"sweep summary: {out_dir}/sweep_summary.json ({summary.get('runs', n)} runs)")
     typer.echo(f"sweep report:  {out_dir}/sweep_report.md")
 
@@ -396,6 +399,7 @@ def critical_speed(
     quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress bar.")] = False,
 ) -> None:
     """Sweep the person's approach speed on a case's geometry: each method's critical speed."""
+    # Deferred: start-up cost (module docstring).
     from compare.campaign.critical_speed import run_critical_speed
     from compare.config import ConfigError, load_config
 
@@ -431,6 +435,7 @@ def claims(
     ] = None,
 ) -> None:
     """The paper's claims of Sec. IV measured per method: one table for runs and critical speeds."""
+    # Deferred: start-up cost (module docstring).
     from compare.analysis.claims import claims_report
 
     try:
@@ -440,8 +445,6 @@ def claims(
         return
     typer.echo(text)
     if out is not None:
-        import json
-
         out.parent.mkdir(parents=True, exist_ok=True)
         out.write_text(text + "\n", encoding="utf-8")
         out.with_suffix(".json").write_text(json.dumps(data, indent=2) + "\n", encoding="utf-8")
@@ -464,7 +467,7 @@ def paper_claims(
     The same tables as README.md's, regenerated on this code (compare/campaign/paper_claims.py);
     runs already in --out with the same config are reused.
     """
-    from compare.analysis.exceptions import ResultsError
+    # Deferred: start-up cost (module docstring).
     from compare.campaign.paper_claims import CASES, claims_details, claims_json, claims_tables, run_paper_claims
     from compare.config import ConfigError
 
@@ -481,8 +484,6 @@ def paper_claims(
     tables = claims_tables(results, picked)
     out.mkdir(parents=True, exist_ok=True)
     (out / "claims.md").write_text(tables + "\n\n" + claims_details(results) + "\n", encoding="utf-8")
-    import json
-
     (out / "claims.json").write_text(json.dumps(claims_json(results), indent=2) + "\n", encoding="utf-8")
     typer.echo(tables)
     typer.echo(f"tables and what was measured: {out / 'claims.md'}")
@@ -506,10 +507,10 @@ def ablation(
     A resumable sweep of those methods (geometric sensing), then ablation.md / ablation.json:
     violations (Wilson 95 %, McNemar p vs tpik), toggles/s, EE error, solve time.
     """
+    # Deferred: start-up cost (module docstring).
     from compare.campaign.ablation import write_ablation
     from compare.campaign.sweep import run_sweep
     from compare.config import ConfigError, load_config
-    from compare.methods import ablation_methods
 
     try:
         cfg, text = load_config(config, _overrides(duration, None, "geometric", simulation, drive, seed))
@@ -552,9 +553,7 @@ def tune(
     steps, then the final EE error (compare/campaign/tuning.py). Tune on seeds 0-999, report on
     100000+ (docs/benchmarks.md, "Equal care").
     """
-    import shlex
-
-    from compare.analysis.exceptions import ResultsError
+    # Deferred: start-up cost (module docstring).
     from compare.campaign.sweep import run_sweep
     from compare.campaign.tuning import grid_points, parse_grid, point_name, point_overrides, write_tuning
     from compare.config import ConfigError, load_config
@@ -581,54 +580,10 @@ def tune(
     typer.echo(f"tuning table: {report}")
 
 
-@app.command("recheck-misses")
-def recheck_misses(
-    sweep_dir: Annotated[Path, typer.Argument(help="A sweep directory.")],
-    replays: Annotated[
-        int, typer.Option("--replays", min=1, help="Copies of the method timed at each missed step.")
-    ] = 5,
-    methods: MethodsOpt = None,
-) -> None:
-    """Re-time the deadline misses of a sweep: the method's own cost at that state, or a pause of the machine?
-
-    Every miss: its run is simulated again to that step (earlier misses made again), where copies
-    of the method solve the same state, timed on the CPU clock; the miss is reproduced when their
-    median exceeds the limit. Writes deadline_recheck.json, adds deadline_recheck to sweep_summary.json and
-    redraws sweep_report.md.
-    """
-    _recheck(sweep_dir, replays, list(methods) if methods else None)
-
-
-def _recheck(sweep_dir: Path, replays: int, methods: list[str] | None) -> None:
-    """Re-time a sweep's misses (compare.campaign.miss_recheck), print the table, redraw the report."""
-    from rich.console import Console
-    from rich.table import Table
-
-    from compare.analysis.report import render_sweep_report
-    from compare.campaign.miss_recheck import RECHECK_FILE, recheck_sweep
-
-    def step(done: int, total: int) -> None:
-        typer.echo(f"rechecked {done}/{total}", err=True)
-
-    result = recheck_sweep(sweep_dir, replays, methods, progress=step)
-    columns = ("method", "misses", "rechecked", "reproduced", "not reproduced", "unverified", "max median replay [µs]")
-    table = Table(*columns)
-    for name, m in result["methods"].items():
-        worst = m["replay_median_us_max"]
-        table.add_row(
-            name,
-            *(str(m[k]) for k in ("misses", "rechecked", "reproduced", "not_reproduced", "unverified")),
-            "–" if worst is None else f"{worst:.0f}",
-        )
-    Console().print(table)
-    if (sweep_dir / "sweep_summary.json").exists():
-        render_sweep_report(sweep_dir)
-    typer.echo(f"rechecks: {sweep_dir / RECHECK_FILE}")
-
-
 @app.command()
 def plot(results: Annotated[Path, typer.Argument(help="A run or sweep results directory.")]) -> None:
     """Draw the plots of a finished run (summary.json) or sweep (runs/)."""
+    # Deferred: start-up cost (module docstring).
     from compare.analysis.plots import plot_campaign, plot_run, plot_sweep
 
     if (results / "summary.json").is_file():
@@ -645,8 +600,6 @@ def plot(results: Annotated[Path, typer.Argument(help="A run or sweep results di
 @app.command("methods")
 def list_methods() -> None:
     """Every method name this installation accepts (-m, [methods] names), with what it is."""
-    from compare.methods import available_methods, describe
-
     names = available_methods()
     width = max(len(n) for n in names)
     for name in names:
@@ -698,8 +651,7 @@ def replay(
     scenario at the same instant (offscreen, headless); nothing is simulated again. Results
     written before runs recorded their scenario for replays are refused (exit 2).
     """
-    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
-
+    # Deferred: start-up cost (module docstring).
     from compare.replay.panels import check_still_path, write_still
     from compare.replay.recording import check_recording_path, write_recording
     from compare.replay.run_data import load_run
@@ -740,9 +692,7 @@ def replay(
 def bench(
     json_out: Annotated[Path | None, typer.Option("--json", help="Write results as JSON (DESIGN §7).")] = None,
     repeats: Annotated[int, typer.Option(min=10, help="Timed calls per case.")] = 300,
-    only: Annotated[
-        str | None, typer.Option(help="solvers | sensing | plant | loop | correctness (default all).")
-    ] = None,
+    only: Annotated[str | None, typer.Option(help="solvers | sensing | correctness (default all).")] = None,
     methods: Annotated[
         list[str] | None,
         typer.Option(
@@ -778,41 +728,16 @@ def bench(
         list[str] | None,
         typer.Option("--backends", help="Correctness: HQP methods to judge (repeatable; default all six)."),
     ] = None,
-    sweep_dir: Annotated[
-        Path | None,
-        typer.Option("--sweep", help="Plant: a finished sweep, for its throughput ceiling (solves + plant only)."),
-    ] = None,
-    loop_methods: Annotated[
-        list[str] | None,
-        typer.Option(
-            "--loop-method", help="Loop: a method, alone in its runs (repeatable; default tpik hqp-daqp mink)."
-        ),
-    ] = None,
-    loop_seeds: Annotated[
-        list[int] | None,
-        typer.Option("--loop-seed", help="Loop: scenario seed of a timed run (repeatable; default 100001-100003)."),
-    ] = None,
-    family: Annotated[
-        Path | None,
-        typer.Option(
-            "--family",
-            "--plant-config",
-            help="Plant and loop: scenario family whose plant and runs are timed "
-            "(default: the --sweep's config.toml, else configs/random.toml).",
-        ),
-    ] = None,
 ) -> None:
     """Solver, sensing and QP-correctness benchmarks: medians, p95, ratios, timing vs correctness.
 
     --only correctness judges every HQP backend against the stored lexicographic reference
     (compare/bench/data/qp_reference.json): success rate, level errors, qpbenchmark residuals, time.
-    --only plant times a sweep's plant alone; with --sweep DIR it adds that sweep's
-    throughput ceiling (compare/bench/plant.py). --only loop times the closed loop's parts on
-    whole runs, one method at a time: where a campaign step goes (compare/bench/loop_parts.py).
     """
+    # Deferred: start-up cost (module docstring).
     from compare.bench.suite import BenchOptions, run_bench
 
-    given = {"methods": methods, "backends": backends, "loop_methods": loop_methods, "loop_seeds": loop_seeds}
+    given = {"methods": methods, "backends": backends}
     lists: dict[str, Any] = {name: tuple(value) for name, value in given.items() if value}  # absent: the default
     options = BenchOptions(
         only=only,
@@ -820,8 +745,6 @@ def bench(
         json_out=json_out,
         config=config,
         max_candidates=max_candidates,
-        family=family,
-        sweep=sweep_dir,
         rounds=rounds,
         tolerance=tolerance,
         plot=plot_out,
@@ -836,6 +759,7 @@ def bench(
 @app.command()
 def view(config: ConfigArg, method: Annotated[str, typer.Option(help="Method driving the arm.")] = "tpik") -> None:
     """Watch a scenario in the interactive MuJoCo viewer (needs a display)."""
+    # Deferred: start-up cost (module docstring).
     from compare.config import ConfigError, load_config
 
     if not os.environ.get("DISPLAY") and not os.environ.get("WAYLAND_DISPLAY"):
@@ -846,6 +770,7 @@ def view(config: ConfigArg, method: Annotated[str, typer.Option(help="Method dri
     except ConfigError as exc:
         _fail(str(exc))
         return
+    # Deferred: start-up cost (module docstring).
     from compare.run import view_scenario
 
     view_scenario(cfg, method)
@@ -888,9 +813,8 @@ def hw(
     Exit codes: 0 done, 2 refused start (one line), 3 halted for a safety cause (a foreign
     publisher; results written), 130 interrupted.
     """
-    from compare.analysis.exceptions import ResultsError
+    # Deferred: start-up cost (module docstring).
     from compare.config import ConfigError, load_config
-    from compare.hardware.exceptions import HardwareError
 
     try:
         cfg, text = load_config(config, _overrides(None, time_scale, None))
@@ -898,6 +822,7 @@ def hw(
         _fail(str(exc))
         return
     if method not in cfg.methods.names:
+        # Deferred: start-up cost (module docstring).
         from compare.config import parse_config
 
         data = cfg.model_dump(mode="python")
@@ -912,6 +837,7 @@ def hw(
         cfg = _allow_network(cfg)
     logging.getLogger("compare.hardware").setLevel(logging.INFO)
     if capture_background is not None:
+        # Deferred: start-up cost (module docstring).
         from compare.hardware.run import capture_background_file
 
         try:
@@ -922,8 +848,7 @@ def hw(
         typer.echo(f"background: {capture_background} ({100.0 * covered:.0f}% of the pixels)")
         return
     out_dir = out or Path("results") / f"hw-{cfg.scenario.name}"
-    from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
-
+    # Deferred: start-up cost (module docstring).
     from compare.hardware.run import run_hardware
 
     total = duration if duration is not None else cfg.scenario.sim_time_s
@@ -986,8 +911,8 @@ def hw_check(
     allow_network_master: AllowNetworkOpt = False,
 ) -> None:
     """Check the camera calibration: render the arm model into the live depth from the configured pose."""
+    # Deferred: start-up cost (module docstring).
     from compare.config import ConfigError, load_config
-    from compare.hardware.exceptions import HardwareError
     from compare.hardware.run import calibration_problem, check_camera
 
     try:

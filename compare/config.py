@@ -26,7 +26,9 @@ import robots
 from compare.exceptions import CompareError
 from compare.sensing.motion_estimate import MotionFilterSettings
 from compare.sensing.prediction import PredictionSettings
+from compare.sensing.rig import scene_camera_names
 from qp_baseline.exceptions import HqpError
+from qp_baseline.hqp import available_qp_solvers
 from tpik.exceptions import TpikError
 from tpik.hierarchy import Hierarchy
 from tpik.tasks import ObstacleDistanceTask
@@ -673,8 +675,6 @@ class OracleConfig(_Strict):
                 raise ValueError(f"knot_s ({self.knot_s:g}) must be <= the horizon of witness '{name}'")
         if self.avoidable_only and not self.enabled:
             raise ValueError("avoidable_only needs enabled = true (the draws are filtered by the verdict)")
-        from qp_baseline.hqp import available_qp_solvers
-
         if self.solver not in available_qp_solvers():
             raise ValueError(f"unknown QP solver '{self.solver}'; available: {', '.join(available_qp_solvers())}")
         return self
@@ -1028,8 +1028,6 @@ def _check_cameras(config: Config, robot: robots.Robot) -> None:
             raise ConfigError(f"faults.inject[{i}].camera: no camera {spec.camera} (there are {max(1, len(cameras))})")
     if not cameras:
         return
-    from compare.sensing.rig import scene_camera_names
-
     in_scene = scene_camera_names(robot.name)
     rate = config.scenario.sensing_rate_hz
     for i, cam in enumerate(cameras):
@@ -1046,6 +1044,8 @@ def _check_cameras(config: Config, robot: robots.Robot) -> None:
 
 
 def _check_methods(config: Config, robot: robots.Robot) -> None:
+    # Deferred: importing compare.config (as the replay and analysis modules do) loads no method
+    # registry; checking the methods does (tests/compare/replay/test_run_data.py).
     from compare.methods import UnknownMethod, make_method
 
     for i, name in enumerate(config.methods.names):

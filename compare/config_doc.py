@@ -32,6 +32,11 @@ from pydantic_core import PydanticUndefined
 
 from compare.config import Config
 from compare.exceptions import CompareError
+from qp_baseline.backends import BACKENDS
+from qp_baseline.hqp import HqpSettings
+from qp_baseline.mink_peer import POSTURE_PRESET, MinkSettings
+from tpik.solver import TpikSettings
+from tpik.tasks import BUILTIN_TASK_TYPES, get_task_type
 
 DOC_PATH = Path(__file__).resolve().parents[1] / "docs" / "config.md"
 """The generated file."""
@@ -223,11 +228,6 @@ def _dataclass_rows(cls: type, where: str) -> list[list[str]]:
 
 
 def _methods_settings() -> Iterator[str]:
-    from qp_baseline.backends import BACKENDS
-    from qp_baseline.hqp import HqpSettings
-    from qp_baseline.mink_peer import POSTURE_PRESET, MinkSettings
-    from tpik.solver import TpikSettings
-
     yield from ["", "### `[methods.settings.tpik]` (and `tpik-<variant>`)", ""]
     yield "Settings of the paper's solver (`tpik.solver.TpikSettings`); `tpik-<variant>` sets `variant`."
     yield ""
@@ -258,8 +258,6 @@ def _methods_settings() -> Iterator[str]:
 
 
 def _task_types() -> Iterator[str]:
-    from tpik.tasks import BUILTIN_TASK_TYPES, get_task_type
-
     builtin = [get_task_type(name) for name in BUILTIN_TASK_TYPES]
     units: dict[str, dict[str, list[str]]] = {}
     yield from ["", "### Task types (`type = ...` in `[[levels]] tasks`)", ""]

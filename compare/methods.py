@@ -79,7 +79,7 @@ def describe(name: str) -> str:
 
 def tpik_presets() -> dict[str, dict[str, Any]]:
     """TPIK method names and the settings each stands for (before the config's own settings)."""
-    from tpik.solver import DEVIATIONS, PAPER_SETTINGS
+    from tpik.solver import DEVIATIONS, PAPER_SETTINGS  # Deferred: optional method (docstring)
 
     presets: dict[str, dict[str, Any]] = {"tpik": {}, "tpik-paper": dict(PAPER_SETTINGS), "tpik-ss": {"variant": "ss"}}
     for name, dev in DEVIATIONS.items():
@@ -100,13 +100,13 @@ def available_methods() -> list[str]:
     except ImportError:
         pass
     try:
-        from qp_baseline.hqp import available_qp_solvers
+        from qp_baseline.hqp import available_qp_solvers  # Deferred: optional method (docstring)
 
         names += [f"hqp-{s}" for s in available_qp_solvers()]
     except ImportError:
         pass
     try:
-        from qp_baseline.mink_peer import MINK_METHODS
+        from qp_baseline.mink_peer import MINK_METHODS  # Deferred: optional method (docstring)
 
         names += list(MINK_METHODS)
     except ImportError:
@@ -122,21 +122,21 @@ def make_method(name: str, robot: Robot, settings: Mapping[str, Any] | None = No
     """
     opts = dict(settings or {})
     if name == "tpik" or name.startswith("tpik-"):
-        from tpik.solver import TpikSettings, TpikSolver
+        from tpik.solver import TpikSettings, TpikSolver  # Deferred: optional method (docstring)
 
         presets = tpik_presets()
         if name not in presets:
             raise UnknownMethod(name, available_methods())
         return TpikSolver(robot, TpikSettings.from_dict({**presets[name], **opts}), name=name)
     if name.startswith("hqp-"):
-        from qp_baseline.hqp import HqpSolver, available_qp_solvers
+        from qp_baseline.hqp import HqpSolver, available_qp_solvers  # Deferred: optional method (docstring)
 
         solver = name.removeprefix("hqp-")
         if solver not in available_qp_solvers():
             raise UnknownMethod(name, available_methods())
         return HqpSolver(robot, solver=solver, settings=opts, name=name)
     if name.startswith("mink"):
-        from qp_baseline.mink_peer import MINK_METHODS, MinkSolver
+        from qp_baseline.mink_peer import MINK_METHODS, MinkSolver  # Deferred: optional method (docstring)
 
         if name not in MINK_METHODS:
             raise UnknownMethod(name, available_methods())

@@ -30,7 +30,6 @@ from compare.loop.waypoints import WaypointSchedule
 from compare.methods import make_method
 from compare.scenarios.random_scenario import realize
 from tpik.hierarchy import Hierarchy
-from tpik.step_result import IkSolver
 from tpik.tasks import ObstacleDistanceTask
 
 log = logging.getLogger(__name__)
@@ -98,6 +97,7 @@ def loop_setup(
 def write_plots(out_dir: Path) -> None:
     """Draw the run's plots; a plotting error is logged and never loses the results."""
     try:
+        # Deferred: matplotlib costs ~0.25 s of CPU, and sweep workers, which import this module, never plot.
         from compare.analysis.plots import plot_run
 
         plot_run(Path(out_dir))
@@ -105,23 +105,13 @@ def write_plots(out_dir: Path) -> None:
         log.warning("plots failed: %s", exc)
 
 
-SolverHook = Callable[[IkSolver, IkSolver], IkSolver]
-"""``hook(guarded, method)``: what the loop calls instead of the guarded solver (a probe; see
-:mod:`compare.campaign.miss_recheck`)."""
-
-
 def run_method(
     config: Config,
     method: str,
     robot: robots.Robot,
     progress: Progress | None = None,
-    solver_hook: SolverHook | None = None,
 ) -> dict[str, Any]:
-    """Simulate ``config`` (already realized) with one method; return summary and steps.
-
-    ``solver_hook`` (None in every run) receives the time-limited solver and the method behind
-    it, and returns what the loop calls.
-    """
+    """Simulate ``config`` (already realized) with one method; return summary and steps."""
     hierarchy = config.build_hierarchy(robot)
     solver = make_method(method, robot, config.methods.settings.get(method))
     sc = config.scenario
@@ -149,8 +139,6 @@ def run_method(
     inner = injector.wrap_solver(solver)
     # Only with [loop] realtime does a late solve change the run: otherwise it is a function of (config, seed).
     solver = guard_solver(inner, config.solver_limit, sc.dt) if config.loop.realtime else inner
-    if solver_hook is not None:
-        solver = solver_hook(solver, inner)
     stale_after_s = (
         None if settings.stale_frame_periods is None else settings.stale_frame_periods * settings.sensing_period_s
     )
@@ -350,7 +338,7 @@ def run_scenario(
 
 def view_scenario(config: Config, method: str) -> None:
     """Run one method in the interactive MuJoCo viewer, in real time."""
-    import mujoco.viewer
+    import mujoco.viewer  # Deferred: the GLFW viewer needs a display; headless runs never load it.
 
     robot = config.load_robot()
     config = realize(config, robot)

@@ -11,6 +11,9 @@ from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
+import piqp
+from proxsuite import proxqp
+
 
 @dataclass(frozen=True)
 class QpBackend:
@@ -51,16 +54,12 @@ class QpBackend:
 
 def _proxqp_initial_guesses() -> Mapping[str, Any]:
     """ProxQP's ``InitialGuess`` members by name."""
-    from proxsuite import proxqp
-
     members: Mapping[str, Any] = proxqp.InitialGuess.__members__
     return members
 
 
 def _piqp_setting_names() -> frozenset[str]:
     """The names of PIQP's settings (it ignores unknown names silently)."""
-    import piqp
-
     return frozenset(a for a in dir(piqp.DenseSolver().settings) if not a.startswith("_"))
 
 

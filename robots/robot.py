@@ -18,6 +18,7 @@ from robots import description as desc
 from robots.exceptions import InvalidConfiguration, InvalidDescription, UnknownFrame
 from robots.kinematics import Kinematics
 from robots.spec import RobotSpec
+from robots.workcell import workcell_model, workcell_spec
 
 
 class Robot:
@@ -100,8 +101,6 @@ class Robot:
 
     def workcell_spec(self) -> mujoco.MjSpec:
         """A fresh spec of the robot's work cell (table, depth camera, person): :mod:`robots.workcell`."""
-        from robots.workcell import workcell_spec
-
         return workcell_spec(self)
 
     def workcell_model(self) -> mujoco.MjModel:
@@ -111,8 +110,6 @@ class Robot:
         against ~25 ms for a compile), so a caller that edits its model changes no other's.
         """
         if self._workcell is None:
-            from robots.workcell import workcell_model
-
             self._workcell = workcell_model(self)
         return copy.copy(self._workcell)
 

@@ -9,12 +9,12 @@ from pathlib import Path
 import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
-PATH = re.compile(r"(?<![\w./-])((?:robots|tpik|qp_baseline|compare|tests|configs|docs|\.ci)/[\w./-]*\w)")
+PATH = re.compile(r"(?<![\w./-])((?:robots|tpik|qp_baseline|compare|tests|configs|docs|scripts|\.ci)/[\w./-]*\w)")
 MODULE = re.compile(r":(?:mod|func|class|data|meth):`~?((?:robots|tpik|qp_baseline|compare)(?:\.\w+)+)`")
 WRITTEN_BY_THE_READER = {"tpik/tasks/elbow_height_task.py"}  # docs/extending.md has the reader write it
 SOURCES = sorted(
     [ROOT / "README.md", *(ROOT / "docs").rglob("*.md")]
-    + [p for d in ("robots", "tpik", "qp_baseline", "compare", "tests") for p in (ROOT / d).rglob("*.py")]
+    + [p for d in ("robots", "tpik", "qp_baseline", "compare", "scripts", "tests") for p in (ROOT / d).rglob("*.py")]
 )
 
 

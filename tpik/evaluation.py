@@ -44,6 +44,7 @@ import numba
 import numpy as np
 
 from robots import Kinematics, Robot
+from robots.kinematics import warm_up as warm_up_frames
 from tpik.exceptions import InvalidTaskState, TargetNotSet
 from tpik.tasks import JointLimitTask, ObstacleDistanceTask, PositionTask, SetTask, Task, VirtualWallTask
 
@@ -429,8 +430,6 @@ class TaskEvaluation:
 
 def warm_up(nq: int) -> None:
     """Load the compiled pass (and the frame kernels) into this process: no control step pays for it."""
-    from robots.kinematics import warm_up as warm_up_frames
-
     warm_up_frames(nq)
     if evaluate_compiled.signatures:
         return

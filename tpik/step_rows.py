@@ -31,6 +31,7 @@ from tpik.evaluation import (
     SET_SIGMA,
     evaluate_compiled,
 )
+from tpik.evaluation import warm_up as warm_up_evaluation
 
 STAGE_ROWS, STAGE_EVALUATE, STAGE_KINEMATICS = 0, 1, 2
 """Where :func:`tpik_step` starts: from the evaluated buffers, from the frames (the compiled
@@ -241,8 +242,6 @@ def _write_outputs(
 
 def warm_up(nq: int) -> None:
     """Load :func:`tpik_step` (and the shared evaluation) into this process: no control step pays for it."""
-    from tpik.evaluation import warm_up as warm_up_evaluation
-
     warm_up_evaluation(nq)
     if tpik_step.signatures:
         return

@@ -57,8 +57,10 @@ import numpy as np
 import pandas as pd
 
 from compare.analysis.critical_speed_results import CLAIMS_FILE, DETAIL_FILE
-from compare.analysis.metrics import VIOLATION_TOLERANCE, margins, set_task_infos
+from compare.analysis.metrics import VIOLATION_TOLERANCE, margins, set_task_infos, to_jsonable
 from compare.analysis.person_speeds import keyframe_speeds
+from compare.analysis.results import load_steps, load_summary
+from compare.config import load_config
 
 SETTLE_S = 1.0
 """Time after the first obstacle activation before "the arm stops" is measured [s]."""
@@ -153,8 +155,6 @@ class Claim:
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready dict."""
-        from compare.analysis.metrics import to_jsonable
-
         return to_jsonable(
             {"key": self.key, "claim": self.claim, "holds": self.holds, "measured": self.measured, **self.values}
         )
@@ -551,9 +551,6 @@ def check_claims(steps: pd.DataFrame, ctx: ClaimContext) -> list[Claim]:
 
 def claims_for_run(run_dir: Path, methods: Sequence[str] | None = None) -> dict[str, list[Claim]]:
     """The claims per method of a run directory (``config.toml`` + ``steps/``); {} for non-case runs."""
-    from compare.analysis.results import load_steps, load_summary
-    from compare.config import load_config
-
     run_dir = Path(run_dir)
     config, _ = load_config(run_dir / "config.toml")
     ctx = context_from_config(config)
@@ -611,9 +608,6 @@ def claims_report(paths: Sequence[Path], labels: Sequence[str] | None = None) ->
         FileNotFoundError: A path is neither kind of directory.
         ValueError: ``labels`` does not match ``paths``.
     """
-    from compare.analysis.results import load_summary
-    from compare.config import load_config
-
     if labels and len(labels) != len(paths):
         raise ValueError(f"--label: {len(labels)} labels for {len(paths)} results")
     columns: list[tuple[str, dict[str, list[Claim]]]] = []

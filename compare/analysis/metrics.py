@@ -408,20 +408,13 @@ def _other_groups(entries: Sequence[Entry]) -> list[str]:
 
 
 def misses_cell(m: Entry) -> str:
-    """Deadline misses, with the solves kept once the hypervisor's steal was taken out ("+ k steal").
-
-    After ``tpik-compare recheck-misses``: how many misses were re-timed and how many of them
-    the method's own cost at that state reproduced (:mod:`compare.campaign.miss_recheck`).
-    """
+    """Deadline misses, with the solves kept once the hypervisor's steal was taken out ("+ k steal")."""
     excused = m.get("deadline_steal_excused")
     if isinstance(excused, dict):
         excused = excused.get("steps")
     text = str(m.get("deadline_misses", "–"))
     if isinstance(excused, int) and excused > 0:
         text += f" (+{excused} steal)"
-    recheck = m.get("deadline_recheck")  # tpik-compare recheck-misses (compare.campaign.miss_recheck)
-    if isinstance(recheck, dict) and recheck.get("rechecked"):
-        text += f"; re-timed {recheck['rechecked']}: {recheck.get('reproduced', 0)} reproduced"
     return text
 
 

@@ -28,8 +28,10 @@ import pandas as pd
 from matplotlib.axes import Axes
 from matplotlib.figure import Figure
 from matplotlib.lines import Line2D
+from matplotlib.patches import Circle
 
-from compare.analysis.claims import activated
+from compare.analysis.claims import activated, context_from_config
+from compare.analysis.metrics import SetTaskInfo
 from compare.analysis.plot_style import (
     ACTIVE_STYLE,
     PLOTS_DIR,
@@ -40,6 +42,9 @@ from compare.analysis.plot_style import (
     wall_axis,
 )
 from compare.analysis.results import load_steps, load_summary
+from compare.config import ConfigError, load_config
+from compare.sensing.person import Person
+from compare.sensing.scene import load_workcell
 
 log = logging.getLogger(__name__)
 
@@ -161,8 +166,6 @@ def _fig_joints(data: list[tuple[str, pd.DataFrame]], ctx: Any, title: str) -> F
 
 
 def _fig_ee_walls(data: list[tuple[str, pd.DataFrame]], ctx: Any) -> Figure:
-    from compare.analysis.metrics import SetTaskInfo
-
     walls = ctx.group("walls")
     fig, axes = _grid(3, len(data), 2.0)
     for col, (name, steps) in enumerate(data):
@@ -191,9 +194,6 @@ def _fig_ee_walls(data: list[tuple[str, pd.DataFrame]], ctx: Any) -> Figure:
 
 def _fig_ee_path(data: list[tuple[str, pd.DataFrame]], ctx: Any, config: Any) -> Figure:
     """Top view of the EE path while the person is in, the waypoints and the person."""
-    from compare.sensing.person import Person
-    from compare.sensing.scene import load_workcell
-
     fig, axes = figure(1, len(data), height_in=3.8, width_in=max(6.0, 3.6 * len(data)))
     person = Person(
         load_workcell(config.scenario.robot), config.person.keyframes, time_scale=config.scenario.time_scale
@@ -225,8 +225,6 @@ def _fig_ee_path(data: list[tuple[str, pd.DataFrame]], ctx: Any, config: Any) ->
 
 
 def _circle(xy: Sequence[float], r: float, color: str, label: str) -> Any:
-    from matplotlib.patches import Circle
-
     return Circle((xy[0], xy[1]), r, color=color, alpha=0.3, label=label)
 
 
@@ -235,9 +233,6 @@ def paper_figures(results_dir: Path) -> dict[str, Figure]:
 
     Empty for a run that is not a scripted case (or whose ``config.toml`` does not load).
     """
-    from compare.analysis.claims import context_from_config
-    from compare.config import ConfigError, load_config
-
     results_dir = Path(results_dir)
     if not (results_dir / "config.toml").is_file():
         return {}

@@ -22,7 +22,9 @@ from compare.analysis.critical_speed_results import (
     load_critical,
     log_map,
 )
+from compare.analysis.metrics import set_tasks_from_summary
 from compare.analysis.plot_style import PHYSICAL_STYLE, PLOTS_DIR, SAFETY_STYLE, figure, method_colors, save_figure
+from compare.analysis.results import load_summary
 
 __all__ = ["PLOTS_DIR", "plot_critical_speed"]
 
@@ -110,20 +112,15 @@ def _speed(v: float | None, speeds: list[float]) -> str:
 
 
 def _torso_to_hand(x: np.ndarray) -> np.ndarray:
-
     return log_map(np.asarray(x, dtype=float), TORSO_RANGE_MPS, HAND_RANGE_MPS)
 
 
 def _hand_to_torso(x: np.ndarray) -> np.ndarray:
-
     return log_map(np.asarray(x, dtype=float), HAND_RANGE_MPS, TORSO_RANGE_MPS)
 
 
 def _thresholds(out_dir: Path) -> tuple[float | None, float | None]:
     """Obstacle safety and physical thresholds from the first run's summary."""
-    from compare.analysis.metrics import set_tasks_from_summary
-    from compare.analysis.results import load_summary
-
     for run in sorted((out_dir / "runs").glob("*")):
         try:
             summary = load_summary(run)

@@ -9,7 +9,7 @@ A run directory holds::
                               "config_fingerprint", "methods": {...},
                               "replay": {"format", "scenario_file"} (with replay.toml),
                               "errors": {...} (only if a method failed)}
-    steps/<method>.parquet   per-step table (``steps/<method>.csv`` if Parquet is unavailable)
+    steps/<method>.parquet   per-step table (``steps/<method>.csv`` if Parquet cannot encode it)
     plots/*.png              written by :mod:`compare.analysis.plots`
 
 Every file is written atomically (:mod:`compare.analysis.atomic_files`): a killed process leaves
@@ -53,6 +53,7 @@ from typing import Any
 
 import numpy as np
 import pandas as pd
+import pyarrow.parquet as pq
 
 from compare.analysis.atomic_files import (
     atomic_write,
@@ -66,6 +67,7 @@ from compare.analysis.metric import SweepRuns, to_jsonable
 from compare.analysis.metrics import registered_metrics
 from compare.analysis.preflight import check_output_dir
 from compare.analysis.statistics import mcnemar
+from compare.config_hash import describe_differences
 from compare.versions import versions
 
 log = logging.getLogger(__name__)
@@ -168,8 +170,6 @@ def steps_complete(run_dir: Path, entry: Mapping[str, Any]) -> bool:
     rows: int | None
     try:
         if path.suffix == ".parquet":
-            import pyarrow.parquet as pq
-
             rows = int(pq.read_metadata(path).num_rows)
         else:
             rows = len(pd.read_csv(path))
@@ -317,8 +317,6 @@ class ResultsWriter:
                 f"{where} holds results whose configuration cannot be compared (no config hash); {hint}"
             )
         if old_hash != fresh["config_hash"]:
-            from compare.config_hash import describe_differences
-
             old_fp, new_fp = previous.get("config_fingerprint"), fresh["config_fingerprint"]
             what = (
                 describe_differences(old_fp, new_fp)
@@ -416,7 +414,7 @@ class ResultsWriter:
             atomic_write(parquet, lambda tmp: steps.to_parquet(tmp, index=False))
             (steps_dir / f"{stem}.csv").unlink(missing_ok=True)
             return parquet
-        except Exception as exc:  # no pyarrow, or a column it cannot encode: CSV always works
+        except Exception as exc:  # a column Parquet cannot encode: CSV always works
             log.warning("Parquet failed for %s (%s); writing CSV", name, exc)
             parquet.unlink(missing_ok=True)
             csv = steps_dir / f"{stem}.csv"

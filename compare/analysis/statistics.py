@@ -15,6 +15,7 @@
 from __future__ import annotations
 
 from collections.abc import Sequence
+from types import ModuleType
 from typing import Any
 
 import numpy as np
@@ -26,14 +27,21 @@ BOOTSTRAP_RESAMPLES = 2000
 """Resamples of :func:`bootstrap_median_ci`."""
 
 
+def _stats() -> ModuleType:
+    """``scipy.stats``, imported on first use."""
+    # Deferred: it costs ~0.25 s of CPU (measured after compare.run's imports) in every process that
+    # writes a summary, sweep workers included, while only a sweep's aggregation needs it.
+    from scipy import stats
+
+    return stats
+
+
 def rate(count: int, runs: int) -> dict[str, Any]:
     """A share of runs with its Wilson 95 % interval; ``rate`` and ``ci95`` are None when ``runs`` is 0."""
     count, runs = int(count), int(runs)
     if runs <= 0:
         return {"count": count, "runs": 0, "rate": None, "ci95": None}
-    from scipy import stats  # imported here: scipy.stats costs ~1 s at start-up, and workers never need it
-
-    ci = stats.binomtest(count, runs).proportion_ci(confidence_level=CONFIDENCE, method="wilson")
+    ci = _stats().binomtest(count, runs).proportion_ci(confidence_level=CONFIDENCE, method="wilson")
     return {"count": count, "runs": runs, "rate": count / runs, "ci95": [float(ci.low), float(ci.high)]}
 
 
@@ -63,9 +71,7 @@ def mcnemar(a: Sequence[bool], b: Sequence[bool]) -> dict[str, Any]:
     a_only = int(np.count_nonzero(x & ~y))
     b_only = int(np.count_nonzero(~x & y))
     discordant = a_only + b_only
-    from scipy import stats
-
-    p = 1.0 if discordant == 0 else float(stats.binomtest(a_only, discordant, 0.5).pvalue)
+    p = 1.0 if discordant == 0 else float(_stats().binomtest(a_only, discordant, 0.5).pvalue)
     return {
         "runs": int(x.size),
         "a_only": a_only,
@@ -88,9 +94,7 @@ def bootstrap_median_ci(values: Sequence[float] | np.ndarray, seed: int = 0) -> 
         return None
     if np.all(x == x[0]):
         return [float(x[0]), float(x[0])]
-    from scipy import stats
-
-    res = stats.bootstrap(
+    res = _stats().bootstrap(
         (x,),
         np.median,
         confidence_level=CONFIDENCE,

@@ -27,11 +27,16 @@ import pandas as pd
 
 from compare.analysis.metrics import VIOLATION_TOLERANCE
 from compare.analysis.results import RUNS_DIR, SUMMARY_FILE, load_steps
+from compare.config import load_config
+from compare.scenarios.random_scenario import realize
+from compare.sensing.person import Person
+from compare.sensing.person_track import PersonTrack, capsule_margins
+from compare.sensing.scene import load_workcell
+from tpik.tasks import ObstacleDistanceTask
 
 
 def closing_speed(track: Any, point: np.ndarray, t: float, half_window_s: float = 0.05) -> float:
     """Speed at which the person's surface comes toward a fixed ``point`` at time ``t`` [m/s]."""
-    from compare.sensing.person_track import capsule_margins
 
     def dist(tt: float) -> float:
         return float(capsule_margins(point[None, :], *track.at(tt))[0].min())
@@ -48,13 +53,6 @@ def _episodes(margin: np.ndarray) -> list[tuple[int, int]]:
 
 def explain_run(run_dir: Path) -> list[dict[str, Any]]:
     """One row per obstacle violation episode of every method of a run (module docstring)."""
-    from compare.config import load_config
-    from compare.scenarios.random_scenario import realize
-    from compare.sensing.person import Person
-    from compare.sensing.person_track import PersonTrack
-    from compare.sensing.scene import load_workcell
-    from tpik.tasks import ObstacleDistanceTask
-
     run_dir = Path(run_dir)
     summary = json.loads((run_dir / SUMMARY_FILE).read_text(encoding="utf-8"))
     oracle = summary.get("oracle") or {}

@@ -42,6 +42,7 @@ import robots
 from compare.bench.qp_reference import ReferenceEntry
 from compare.bench.qp_states import apply_qp_state
 from compare.bench.solver_cases import case2_hierarchy
+from compare.bench.solvers import build_methods
 from qp_baseline.backends import SUPPORTED_SOLVERS
 from qp_baseline.lexicographic import level_objectives, level_rows
 from robots import Robot
@@ -215,8 +216,6 @@ def run_correctness_bench(
     Returns:
         One record per (method, state), in state order.
     """
-    from compare.bench.solvers import build_methods
-
     robot = robots.load(robots.DEFAULT_ROBOT)
     names = [n for n in method_names if n.startswith("hqp-")]
     for n in method_names:

@@ -46,6 +46,7 @@ import json
 import math
 import os
 import sys
+import time
 import tomllib
 from collections.abc import Sequence
 from dataclasses import asdict, dataclass, field
@@ -56,6 +57,8 @@ os.environ.setdefault("MUJOCO_GL", "egl")
 
 import mujoco  # noqa: E402
 import numpy as np  # noqa: E402
+from matplotlib.backends.backend_agg import FigureCanvasAgg  # noqa: E402
+from matplotlib.figure import Figure  # noqa: E402
 
 import robots  # noqa: E402
 from compare.sensing import (  # noqa: E402
@@ -287,8 +290,6 @@ def run_scenes(
         distance step (one camera; two cameras fused, searches included; mean and max over the
         scenes), the share of scenes where the fusion searched hidden space and its samples.
     """
-    import time
-
     robot = robots.load(robots.DEFAULT_ROBOT)
     cams = cameras_from_config(config)
     if len(cams) < 2:
@@ -479,9 +480,6 @@ def format_markdown(summary: dict[str, Any], causes: dict[str, dict[str, Any]]) 
 
 def plot_records(records: Sequence[PointRecord], path: Path, rho_m: float = 0.5) -> Path:
     """Reading against truth per control point, one camera and two, measured vs assumed (occluded)."""
-    from matplotlib.backends.backend_agg import FigureCanvasAgg
-    from matplotlib.figure import Figure
-
     fig = Figure(figsize=(10.0, 4.6), layout="constrained")
     FigureCanvasAgg(fig)
     axes = fig.subplots(1, 2, sharex=True, sharey=True)

@@ -30,6 +30,11 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+import robots
+from compare.bench.qp_states import apply_qp_state
+from compare.bench.solver_cases import case2_hierarchy
+from compare.methods import make_method
+from qp_baseline.hqp import HqpSolver
 from qp_baseline.level_qp import LevelQp
 from qp_baseline.lexicographic import ReferenceSolutionError, solve_level_qp
 
@@ -198,12 +203,6 @@ def collect_bench_qps(method: str, entries: Sequence[object]) -> list[NamedLevel
     Raises:
         ValueError: ``method`` is not an HQP method.
     """
-    import robots
-    from compare.bench.qp_states import apply_qp_state
-    from compare.bench.solver_cases import case2_hierarchy
-    from compare.methods import make_method
-    from qp_baseline.hqp import HqpSolver
-
     robot = robots.load(robots.DEFAULT_ROBOT)
     solver = make_method(method, robot)
     if not isinstance(solver, HqpSolver):

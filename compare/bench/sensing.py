@@ -45,6 +45,7 @@ import numpy as np  # noqa: E402
 from scipy.spatial import cKDTree  # noqa: E402
 
 import robots  # noqa: E402
+from compare.bench.occlusion import cameras_from_config  # noqa: E402
 from compare.bench.timing import BenchRow, summarize, time_calls  # noqa: E402
 from compare.sensing import (  # noqa: E402
     DepthPipeline,
@@ -162,8 +163,6 @@ def run_two_camera_bench(repeats: int = 200, robot: robots.Robot | None = None) 
         medians) and ``cpu_ratio_vs_one_camera`` (process CPU time: the one that holds on a
         shared machine), from calls alternating with the one-camera counterpart.
     """
-    from compare.bench.occlusion import cameras_from_config
-
     cameras = cameras_from_config(TWO_CAMERA_CONFIG)
     robot = robot or robots.load(robots.DEFAULT_ROBOT)
     model, data, points, q = _bench_scene(robot, load_rig_workcell(robot.name, cameras))

@@ -35,21 +35,21 @@ from __future__ import annotations
 import contextlib
 import math
 from collections.abc import Callable, Mapping, Sequence
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 
 import robots
+from compare.bench.mink_native import MinkCase2
 from compare.bench.solver_cases import apply_state, case2_hierarchy, case2_states
 from compare.bench.timing import BenchRow, summarize, time_calls
+from compare.methods import make_method
 from robots import Robot
 from tpik.exceptions import TargetNotSet
 from tpik.hierarchy import Hierarchy, Level
+from tpik.solver import TpikSettings, TpikSolver
 from tpik.step_result import IkSolver, StepResult
 from tpik.tasks import JointLimitTask, ObstacleDistanceTask, PositionTask, Task, Thresholds, VirtualWallTask
-
-if TYPE_CHECKING:
-    from compare.bench.mink_native import MinkCase2
 
 DT = 0.01
 """Control period of the benchmark steps [s] (100 Hz, as the loop)."""
@@ -64,8 +64,6 @@ def build_methods(
     names: Sequence[str], robot: Robot, settings: Mapping[str, Mapping[str, Any]] | None = None
 ) -> dict[str, IkSolver]:
     """Build the named methods; a method that cannot be built is skipped with a printed note."""
-    from compare.methods import make_method
-
     built: dict[str, IkSolver] = {}
     for name in names:
         try:
@@ -162,8 +160,6 @@ def native_for(robot: Robot, hierarchy: Hierarchy) -> MinkCase2:
 
     Only the numbers are read from the hierarchy (once, untimed); a step is mink alone.
     """
-    from compare.bench.mink_native import MinkCase2
-
     joints, walls, gains, obstacles = [], [], {}, {}
     safety_distance, target = 0.35, None
     for task in hierarchy.tasks:
@@ -349,8 +345,6 @@ def run_candidate_bench(
 
 
 def _candidate_methods(robot: Robot, method_names: Sequence[str]) -> dict[str, IkSolver]:
-    from tpik.solver import TpikSettings, TpikSolver
-
     solvers = build_methods(list(method_names), robot)
     solvers["tpik-exhaustive"] = TpikSolver(robot, TpikSettings(max_exhaustive_candidates=12), name="tpik-exhaustive")
     return solvers

@@ -1,4 +1,4 @@
-"""``tpik-compare bench``: the solver, sensing, plant, loop and QP-correctness benchmarks (DESIGN §7).
+"""``tpik-compare bench``: the solver, sensing and QP-correctness benchmarks (DESIGN §7).
 
 Examples::
 
@@ -8,8 +8,6 @@ Examples::
     tpik-compare bench --only solvers --config configs/panda_case2.toml   # that config's robot and levels
     tpik-compare bench --only correctness --rounds 3 --plot time_vs_correctness.png
     tpik-compare bench --only correctness --export-qps qp_testset/
-    tpik-compare bench --only plant --sweep results/ref40      # plant alone; a sweep's throughput ceiling
-    tpik-compare bench --only loop                             # where a campaign step goes, part by part
 
 :func:`run_bench` prints tables (medians, p95, ratio to ``mink-native`` — the same problem
 written with mink alone — measured in the same interleaved run, and the split of the same calls
@@ -17,9 +15,9 @@ into the QP solver or compiled step against the rest, with :data:`RATIO_CAPTION`
 ``mink`` is the project's adapter, timed beside it) and, with ``json_out``, writes ``{"versions": ..., "command": ...,
 "robot": ..., "results": [row, ...]}`` (DESIGN §7; ``ratio_to_mink`` of a row is against
 ``mink-native``), plus ``correctness`` (every HQP backend against the stored lexicographic
-reference, :mod:`compare.bench.correctness`), ``throughput_ceiling`` (with ``sweep``:
-:mod:`compare.bench.plant`) and ``loop_parts`` (:mod:`compare.bench.loop_parts`) when those
-groups ran.
+reference, :mod:`compare.bench.correctness`) when that group ran. The profiles of the project's
+own loop (the plant alone, the loop's parts) are scripts: ``scripts/plant_bench.py`` and
+``scripts/loop_parts.py`` (docs/benchmarks.md).
 """
 
 from __future__ import annotations
@@ -36,38 +34,26 @@ from rich.console import Console
 from rich.table import Table
 
 from compare.analysis.metric import to_jsonable
-from compare.analysis.results import CONFIG_FILE
 from compare.bench.correctness import HQP_BACKENDS, TOLERANCE, StepRecord, Summary, run_correctness_bench, summarize
 from compare.bench.correctness_plot import plot_time_vs_correctness
-from compare.bench.loop_parts import OWN_SOLVE, LoopRunFailed, loop_parts_rows, run_loop_parts, wrapper_cost_ns
-from compare.bench.plant import read_sweep_solves, run_plant_bench, throughput_ceiling
 from compare.bench.qp_export import collect_bench_qps, export_test_set
 from compare.bench.qp_reference import REFERENCE_FILE, ReferenceMismatch, load_reference
 from compare.bench.sensing import run_sensing_bench
 from compare.bench.solvers import DEFAULT_METHODS, run_candidate_bench, run_solver_bench
 from compare.bench.timing import BenchRow
-from compare.campaign.sweep import seeded_config
 from compare.config import Config, load_config
 from compare.exceptions import CompareError
 from compare.versions import versions
 from robots import DEFAULT_ROBOT
 
-RANDOM_CONFIG = Path(__file__).resolve().parents[2] / "configs" / "random.toml"
-"""The randomized family whose plant the ``plant`` group times by default."""
-
-GROUPS = ("solvers", "sensing", "plant", "loop", "correctness")
+GROUPS = ("solvers", "sensing", "correctness")
 """The benchmark groups, in the order a full run makes them (``only`` picks one)."""
-
-LOOP_METHODS = ("tpik", "hqp-daqp", "mink")
-"""The reference campaign's methods: the ``loop`` group's default."""
-LOOP_SEEDS = (100001, 100002, 100003)
-"""Seeds of the ``loop`` group's timed runs by default (of the reference campaign's 100000–100999)."""
 
 LABELS = {"mink": "mink (project adapter)", "mink-native": "mink-native (reference)"}
 """Table labels; the JSON keeps the method names."""
 
 
-_FLAGS = {"json_out": "--json", "loop_methods": "--loop-method", "loop_seeds": "--loop-seed"}
+_FLAGS = {"json_out": "--json"}
 """Options whose flag is not their field's name (the others: ``--<name-with-dashes>``)."""
 
 
@@ -82,16 +68,11 @@ class BenchOptions:
     Attributes:
         only: One group of :data:`GROUPS`; None = all.
         methods: Solvers group: the methods of the case-2 table.
-        repeats: Timed calls per method and case (plant: steps, at least 200).
+        repeats: Timed calls per method and case.
         json_out: Write the results as JSON to this file (``--json``).
         config: Scenario TOML whose robot, levels (the case-2 hierarchy) and method settings are
             used; None = the paper's case 2 on the default robot.
         max_candidates: Largest |C| of the TPIK-vs-candidates table, 0..12; −1 skips it.
-        family: Plant and loop: the scenario family timed; None = the sweep's ``config.toml``,
-            else ``configs/random.toml``.
-        sweep: Plant: a finished sweep, for its throughput ceiling.
-        loop_methods: Loop: the methods, each alone in its runs.
-        loop_seeds: Loop: the scenario seeds of the timed runs.
         backends: Correctness: the HQP methods judged against the reference.
         rounds: Correctness: timed passes over the reference states.
         tolerance: Correctness: level error within which a level matches the reference.
@@ -110,10 +91,6 @@ class BenchOptions:
     json_out: Path | None = None
     config: Path | None = None
     max_candidates: int = 8
-    family: Path | None = None
-    sweep: Path | None = None
-    loop_methods: tuple[str, ...] = LOOP_METHODS
-    loop_seeds: tuple[int, ...] = LOOP_SEEDS
     backends: tuple[str, ...] = HQP_BACKENDS
     rounds: int = 3
     tolerance: float = TOLERANCE
@@ -138,8 +115,8 @@ class BenchOptions:
             raise BenchError(f"--backends takes hqp-<backend> methods only, got {', '.join(bad)}")
         if not self.export_method.startswith("hqp-"):
             raise BenchError(f"--export-method must be an hqp-<backend> method, got '{self.export_method}'")
-        if not (self.methods and self.loop_methods and self.loop_seeds and self.backends):
-            raise BenchError("--methods, --loop-method, --loop-seed and --backends need at least one value")
+        if not (self.methods and self.backends):
+            raise BenchError("--methods and --backends need at least one value")
 
     def runs(self, group: str) -> bool:
         """Whether ``group`` is part of this run."""
@@ -324,70 +301,6 @@ def _run_correctness(options: BenchOptions, console: Console) -> dict[str, Any]:
     }
 
 
-def plant_config_of(explicit: Path | None, sweep_dir: Path | None) -> Path:
-    """The config whose plant is timed: the one given, else the sweep's own copy, else the random family."""
-    if explicit is not None:
-        return explicit
-    if sweep_dir is not None and (sweep_dir / CONFIG_FILE).is_file():
-        return sweep_dir / CONFIG_FILE
-    return RANDOM_CONFIG
-
-
-def _run_plant(options: BenchOptions, console: Console) -> tuple[BenchRow, dict[str, Any] | None]:
-    """The plant row and, with a sweep, the throughput ceiling."""
-    try:  # the sweep first: a wrong directory is refused before the plant is timed
-        sweep = read_sweep_solves(options.sweep) if options.sweep is not None else None
-    except FileNotFoundError as exc:
-        raise BenchError(str(exc)) from exc
-    plant_config = plant_config_of(options.family, options.sweep)
-    config, _ = load_config(plant_config, {"scenario.sensing": "geometric"})
-    row = run_plant_bench(config, steps=max(options.repeats, 200))
-    console.print(_generic_table([row], f"Plant alone, one control period ({plant_config})"))
-    if sweep is None:
-        return row, None
-    ceiling = {**throughput_ceiling(sweep, row.extra["mean_us"]), "plant_config": str(plant_config)}
-    solves = ", ".join(f"{m} {us:.1f}" for m, us in sweep.mean_solve_us.items())
-    console.print(
-        f"throughput ceiling of {options.sweep}: mean solve per step [µs] {solves} "
-        f"(all {ceiling['mean_solve_all_us']:.1f}) + plant {row.extra['mean_us']:.1f} → "
-        f"{ceiling['ceiling_sim_s_per_cpu_s']:.1f} simulated s per CPU s"
-    )
-    return row, ceiling
-
-
-def _run_loop_parts(options: BenchOptions, console: Console) -> tuple[list[BenchRow], dict[str, Any]]:
-    """The ``loop-step`` rows and the ``loop_parts`` entry."""
-    family = plant_config_of(options.family, options.sweep)
-    config, _ = load_config(family)
-    seeded_config(config, options.loop_seeds[0], list(options.loop_methods))  # the methods checked before any run
-    cost_ns = wrapper_cost_ns()
-    results = []
-    for method in options.loop_methods:
-        console.print(f"loop parts: {method}, seeds {' '.join(map(str, options.loop_seeds))} ({family}) …")
-        try:
-            results.append(run_loop_parts(config, method, list(options.loop_seeds)))
-        except LoopRunFailed as exc:
-            raise BenchError(f"loop parts of {method}: {exc}") from exc
-    rows, entry = loop_parts_rows(results, cost_ns)
-    entry["config"] = str(family)
-    entry["seeds"] = list(options.loop_seeds)
-    table = Table(title=f"Where a control step goes [µs per step, exclusive] ({family.name}, one method per run)")
-    table.add_column("part")
-    for r in results:
-        table.add_column(r.method, justify="right")
-    for label in results[0].parts_us:
-        table.add_row(label if label != OWN_SOLVE else f"  {label}", *(f"{r.parts_us[label]:.1f}" for r in results))
-    table.add_row("[bold]total, profiled", *(f"[bold]{r.total_us:.1f}" for r in results))
-    per_method = entry["methods"]
-    table.add_row(
-        f"  of which timers ({cost_ns:.0f} ns per call)",
-        *(f"{per_method[r.method]['timer_cost_us_per_step']:.1f}" for r in results),
-    )
-    table.add_row("[bold]CPU per step, no timer", *(f"[bold]{r.unprofiled_cpu_us_per_step:.1f}" for r in results))
-    console.print(table)
-    return rows, entry
-
-
 def _run_solvers(options: BenchOptions, config: Config | None, console: Console) -> list[BenchRow]:
     """The case-2 table (the robot, levels and settings of ``config`` when given) and the TPIK-vs-|C| table."""
     robot, description, settings = None, None, None
@@ -407,8 +320,8 @@ def run_bench(options: BenchOptions) -> dict[str, Any]:
     """Run the groups of ``options``, print their tables; write and return the JSON payload.
 
     Raises:
-        BenchError: A group cannot run with the files given (a missing sweep or reference).
-        compare.config.ConfigError: A config or family file is invalid.
+        BenchError: A group cannot run with the files given (a missing reference).
+        compare.config.ConfigError: A config file is invalid.
     """
     config = load_config(options.config)[0] if options.config is not None else None  # refused before any timing
     console = Console(width=max(Console().width, 200))
@@ -431,14 +344,6 @@ def run_bench(options: BenchOptions) -> dict[str, Any]:
         sensing = run_sensing_bench(options.repeats, robot)
         console.print(_generic_table(sensing, "Sensing, one 512×424 frame"))
         rows += sensing
-    if options.runs("plant"):
-        row, ceiling = _run_plant(options, console)
-        rows.append(row)
-        if ceiling is not None:
-            payload["throughput_ceiling"] = ceiling
-    if options.runs("loop"):
-        loop_rows, payload["loop_parts"] = _run_loop_parts(options, console)
-        rows += loop_rows
     if options.runs("correctness"):
         payload["correctness"] = _run_correctness(options, console)
     payload["results"] = [r.to_dict() for r in rows]
@@ -451,14 +356,10 @@ def run_bench(options: BenchOptions) -> dict[str, Any]:
 
 __all__ = [
     "GROUPS",
-    "LOOP_METHODS",
-    "LOOP_SEEDS",
-    "RANDOM_CONFIG",
     "RATIO_CAPTION",
     "BenchError",
     "BenchOptions",
     "correctness_table",
-    "plant_config_of",
     "run_bench",
     "solver_table",
 ]

@@ -20,6 +20,7 @@ from compare.analysis.metrics import to_jsonable
 from compare.analysis.report import markdown_table, write_markdown
 from compare.analysis.results import SWEEP_SUMMARY_FILE, write_json_atomic
 from compare.methods import ABLATION_PREFIX, ablation_methods
+from tpik.solver import DEVIATIONS
 
 ABLATION_FILE = "ablation.json"
 ABLATION_REPORT = "ablation.md"
@@ -43,8 +44,6 @@ def _pair(paired: dict[str, Any], method: str) -> dict[str, Any]:
 
 def ablation_table(sweep_summary: dict[str, Any]) -> dict[str, Any]:
     """Rows of the ablation from a sweep summary (``sweep_summary.json``)."""
-    from tpik.solver import DEVIATIONS
-
     methods = sweep_summary.get("methods") or {}
     paired = sweep_summary.get("paired") or {}
     rows: dict[str, Any] = {}

@@ -30,6 +30,8 @@ from typing import Any
 
 import numpy as np
 import pandas as pd
+from matplotlib.backends.backend_agg import FigureCanvasAgg
+from matplotlib.figure import Figure
 from scipy import stats
 
 from compare.analysis.results import RUNS_DIR, load_steps, load_summary, write_json_atomic
@@ -132,9 +134,6 @@ def _nanmean(x: pd.Series) -> float | None:
 
 def plot_comparison(result: dict[str, Any], path: Path) -> Path:
     """Violation rate (Wilson interval) and time below the physical threshold, one vs two cameras."""
-    from matplotlib.backends.backend_agg import FigureCanvasAgg
-    from matplotlib.figure import Figure
-
     methods = list(result["methods"])
     fig = Figure(figsize=(10.0, 3.6), layout="constrained")
     FigureCanvasAgg(fig)

@@ -54,8 +54,11 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
 import robots
+from compare.analysis.avoidability import has_oracle
+from compare.analysis.claims import claims_for_run
 from compare.analysis.critical_speed_results import (
     CLAIMS_FILE,
     CRITICAL_SPEED_FILE,
@@ -65,7 +68,9 @@ from compare.analysis.critical_speed_results import (
 )
 from compare.analysis.metrics import to_jsonable
 from compare.analysis.person_speeds import resolved_hands
+from compare.analysis.plots_critical import plot_critical_speed
 from compare.analysis.results import is_finished, load_steps, load_summary, run_versions, write_json_atomic
+from compare.campaign.executors import Job, LocalExecutor
 from compare.config import Config, ConfigError, PersonKeyframe, dump_config
 from tpik.tasks import ObstacleDistanceTask
 
@@ -260,8 +265,6 @@ def _plan(
 
 
 def _finished(run: _Run) -> bool:
-    from compare.analysis.avoidability import has_oracle
-
     return is_finished(run.run_dir, run.config.methods.names) and (
         not run.config.oracle.enabled or has_oracle(run.run_dir)
     )
@@ -343,10 +346,6 @@ def run_critical_speed(
     Raises:
         CriticalSpeedError: Not a scripted case, no person motion, or a bad speed / seed count.
     """
-    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
-
-    from compare.campaign.executors import Job, LocalExecutor
-
     if config.scenario.kind not in ("case1", "case2"):
         raise CriticalSpeedError(f"scenario.kind: critical-speed needs a scripted case, got '{config.scenario.kind}'")
     speeds = sorted(set(default_speeds() if speeds is None else [float(v) for v in speeds]))
@@ -455,8 +454,6 @@ def _write_results(
     write_json_atomic(out_dir / DETAIL_FILE, to_jsonable(detail))
     _write_claims(out_dir, result, plan)
     try:
-        from compare.analysis.plots_critical import plot_critical_speed
-
         plot_critical_speed(out_dir)
     except Exception as exc:  # plots must never lose the results
         log.warning("critical-speed plot failed: %s", exc)
@@ -492,8 +489,6 @@ def _write_claims(out_dir: Path, result: dict[str, Any], plan: Sequence[_Run]) -
     When no swept speed held (critical speed ``None``) the claims are measured at the slowest
     swept speed instead, with ``"critical": false``.
     """
-    from compare.analysis.claims import claims_for_run
-
     out: dict[str, Any] = {}
     slowest = min((r.speed for r in plan), default=None)
     for name, entry in result.items():

@@ -32,7 +32,9 @@ from typing import Any
 
 from compare.analysis.atomic_files import write_bytes_atomic
 from compare.analysis.results import CONFIG_FILE, LOCK_FILE, SUMMARY_FILE, clear_run_results, merge_run_summary
+from compare.campaign.realize import realize_with_verdict
 from compare.config import Config, ConfigError
+from compare.run import run_scenario
 
 log = logging.getLogger(__name__)
 
@@ -83,8 +85,6 @@ class SweepExecutor(abc.ABC):
 def run_job(config: Config, config_text: str, run_dir: Path, overwrite: bool = False) -> str | None:
     """Worker body: one seed, no plots, no progress bar; returns an error message or None."""
     os.environ.setdefault("MUJOCO_GL", "egl")
-    from compare.campaign.realize import realize_with_verdict
-    from compare.run import run_scenario
 
     try:
         summary = run_scenario(
@@ -183,7 +183,7 @@ class RayExecutor(SweepExecutor):
 
     def __init__(self, workers: int = 2, address: str | None = None, max_in_flight: int = 64) -> None:
         try:
-            import ray  # noqa: F401
+            import ray  # noqa: F401  # Deferred: Ray is the optional extra 'cluster'
         except ImportError:
             raise ExecutorUnavailable("--executor ray needs Ray: pip install -e '.[cluster]' (ray>=2.9)") from None
         self.workers = max(1, int(workers))
@@ -193,7 +193,7 @@ class RayExecutor(SweepExecutor):
 
     def run(self, jobs: Sequence[Job], done: Done) -> None:
         """Submit every job as a Ray task; write each run's files as it completes."""
-        import ray
+        import ray  # Deferred: Ray is the optional extra 'cluster'
 
         if not jobs:
             return

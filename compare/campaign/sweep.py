@@ -38,7 +38,9 @@ from compare.analysis.atomic_files import remove_stale_temporaries, write_text_a
 from compare.analysis.avoidability import oracle_sweep_summary
 from compare.analysis.exceptions import ResultsConflict
 from compare.analysis.person_speeds import sweep_person_speeds
+from compare.analysis.plots import plot_campaign, plot_sweep
 from compare.analysis.preflight import check_output_dir
+from compare.analysis.report import render_sweep_report
 from compare.analysis.results import (
     CONFIG_FILE,
     PLOTS_DIR,
@@ -66,6 +68,7 @@ from compare.campaign.manifest import (
 )
 from compare.config import Config, import_extensions, parse_config
 from compare.loop.steal_clock import steal_ticks
+from compare.run import expected_run_bytes
 
 log = logging.getLogger(__name__)
 
@@ -190,8 +193,6 @@ def run_sweep(
         jobs, skipped = sweep_jobs(config, config_text, out_dir, n, methods)
         pairs = sum(len(j.config.methods.names) for j in jobs)
         if pairs:
-            from compare.run import expected_run_bytes
-
             per_pair = expected_run_bytes(config, config.load_robot(), 1, plots=False)
             check_output_dir(out_dir, pairs * per_pair, f"{pairs} (run, method) pairs")
         write_manifest(out_dir, manifest)
@@ -272,15 +273,11 @@ def _execute(
     write_json_atomic(out_dir / SWEEP_SUMMARY_FILE, summary)
     if report:
         try:
-            from compare.analysis.plots import plot_campaign, plot_sweep
-
             plot_sweep(out_dir)
             plot_campaign(out_dir)
         except Exception as exc:  # plots must never lose the results
             log.warning("sweep plots failed: %s", exc)
         try:
-            from compare.analysis.report import render_sweep_report
-
             render_sweep_report(out_dir)
         except Exception as exc:
             log.warning("sweep report failed: %s", exc)

@@ -34,7 +34,10 @@ import numpy as np
 from scipy import ndimage
 
 from compare.hardware.exceptions import HardwareError
+from compare.sensing.camera import DepthNoise
 from compare.sensing.frames import CameraModel
+from compare.sensing.renderer import ROBOT_VISUAL_GROUP, DepthCamera
+from compare.sensing.scene import load_workcell, make_data, set_arm_configuration
 
 _PIXEL_M = 1e-5
 """Sensor pixel size used to express pixel intrinsics as MuJoCo's metric ``sensorsize``/``intrinsic``."""
@@ -159,10 +162,6 @@ class ArmRenderer:
     """
 
     def __init__(self, camera: CameraModel) -> None:
-        from compare.sensing.camera import DepthNoise
-        from compare.sensing.renderer import ROBOT_VISUAL_GROUP, DepthCamera
-        from compare.sensing.scene import load_workcell, make_data
-
         self._model = load_workcell()
         set_mujoco_camera(self._model, "depth_camera", camera)
         self._data = make_data(self._model)
@@ -171,8 +170,6 @@ class ArmRenderer:
 
     def render(self, q: np.ndarray) -> np.ndarray:
         """Depth [m] of the arm at joint positions ``q`` [rad] (0 where the arm is not), shape (H, W)."""
-        from compare.sensing.scene import set_arm_configuration
-
         set_arm_configuration(self._model, self._data, np.asarray(q, dtype=float))
         mujoco.mj_kinematics(self._model, self._data)
         return self._renderer.render_depth(self._data, noisy=False)

@@ -25,6 +25,7 @@ from pathlib import Path
 from typing import Any
 
 from compare.hardware.exceptions import HardwareError
+from compare.hardware.ros_env import load_ros
 
 log = logging.getLogger(__name__)
 
@@ -90,11 +91,9 @@ class Recording:
 
 
 def _rosbag() -> Any:
-    from compare.hardware.ros_env import load_ros
-
     load_ros()  # makes Debian's ROS packages importable (rosbag among them)
     try:
-        import rosbag
+        import rosbag  # Deferred: ROS 1 is optional, importable only after load_ros()
     except ImportError as exc:
         raise ReplayError(f"replay needs rosbag ({exc}): run `make hw-deps`") from exc
     return rosbag

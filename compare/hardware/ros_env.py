@@ -124,6 +124,7 @@ def service_class(name: str) -> Any:
     Raises:
         RosUnavailable: genpy/genmsg missing or the definition does not parse.
     """
+    # Deferred: ROS 1 is optional and importable only after _add_debian_path().
     import genmsg
     import genmsg.gentools
     import genmsg.msg_loader
@@ -155,14 +156,14 @@ def load_ros() -> RosApi:
         return _API
     numpy_before = sys.modules.get("numpy")
     _add_debian_path()
-    try:
+    try:  # Deferred: ROS 1 is optional and importable only after _add_debian_path()
         import genpy.dynamic
         import rosgraph
         import rospy
         from sensor_msgs.msg import CameraInfo, Image, JointState
     except ImportError as exc:
         raise RosUnavailable(f"cannot import ROS 1 ({exc}): {INSTALL_HINT}") from exc
-    import numpy
+    import numpy  # Deferred: the numpy seen after ROS's path was added, which the check below compares
 
     if numpy_before is not None and numpy is not numpy_before:  # pragma: no cover - defensive
         raise RosUnavailable("loading ROS replaced the environment's numpy; refusing to go on")

@@ -521,7 +521,7 @@ class RosRobotIO(RobotIO):
             raise DriverServiceError(f"no {name} service (not connected)")
         service, cls = self._services[name]
         rospy = ros.rospy
-        from genpy import MessageException
+        from genpy import MessageException  # Deferred: ROS 1 is optional, importable after load_ros()
 
         # What a failed call raises: a timeout waiting for the service (ROSException), the
         # driver's error (ServiceException), a broken connection (transport errors, socket

@@ -35,14 +35,24 @@ from typing import Any
 import numpy as np
 
 import robots
+from compare.analysis.metrics import compute_summary
 from compare.config import Config
 from compare.hardware.calibration import AlignmentResidual, check_alignment
 from compare.hardware.exceptions import StartRefused
 from compare.hardware.replay import open_recording
 from compare.hardware.ros_io import RosRobotIO
 from compare.hardware.safety import start_problems
+from compare.hardware.sensing import (
+    HardwareDepthSensing,
+    capture_background,
+    load_background,
+    save_background,
+    static_background,
+)
 from compare.loop.closed_loop import ObstacleSource, control_points, run_loop, warm_up_solver
+from compare.loop.deadline import guard_solver
 from compare.methods import make_method
+from compare.run import loop_setup, open_results, run_meta, solver_limit_entry, write_plots
 from tpik.hierarchy import Hierarchy
 from tpik.tasks import ObstacleDistanceTask
 
@@ -96,8 +106,6 @@ def hardware_robot(config: Config) -> robots.Robot:
 
 def make_obstacle_source(config: Config, robot: robots.Robot, io: RosRobotIO) -> ObstacleSource:
     """Depth-space obstacle distance on the live frames: static background, self-filter, distance."""
-    from compare.hardware.sensing import HardwareDepthSensing, capture_background, load_background, static_background
-
     frame = io.read_depth()
     if frame is None:
         raise StartRefused("no depth frame to build the obstacle sensing from")
@@ -122,8 +130,6 @@ def capture_background_file(config: Config, path: Path, duration_s: float) -> fl
     Returns:
         Fraction of pixels that got a background.
     """
-    from compare.hardware.sensing import capture_background, save_background
-
     robot = hardware_robot(config)
     hw = config.hardware.model_copy(update={"startup_timeout_s": max(config.hardware.startup_timeout_s, 5.0)})
     io = RosRobotIO(hw, robot.v_max, config.scenario.dt, use_depth=True, dry_run=True, watch_command_topic=False)
@@ -277,10 +283,6 @@ def run_hardware(
         compare.analysis.exceptions.ResultsError: ``out_dir`` cannot take the results (checked
             before anything is sent to the arm).
     """
-    from compare.analysis.metrics import compute_summary
-    from compare.loop.deadline import guard_solver
-    from compare.run import loop_setup, open_results, run_meta, solver_limit_entry, write_plots
-
     robot = hardware_robot(config)
     sc = config.scenario
     hw = config.hardware

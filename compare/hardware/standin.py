@@ -65,9 +65,15 @@ from compare.hardware.conversions import (  # noqa: E402
 from compare.hardware.driver_model import CONNECTIONS, DriverTiming, KinovaDriverModel, StatePublished  # noqa: E402
 from compare.hardware.ros_env import RosApi, load_ros  # noqa: E402
 from compare.hardware.ros_io import init_node, master_online  # noqa: E402
+from compare.hardware.sensing import save_background  # noqa: E402
 from compare.loop.sim_io import SimRobotIO  # noqa: E402
+from compare.loop.simulation import build_simulation  # noqa: E402
 from compare.scenarios.random_scenario import realize  # noqa: E402
+from compare.sensing.camera import camera_model_from_mujoco  # noqa: E402
 from compare.sensing.frames import CameraModel, DepthFrame  # noqa: E402
+from compare.sensing.pipeline import DepthSensingSettings  # noqa: E402
+from compare.sensing.renderer import DepthCamera  # noqa: E402
+from compare.sensing.scene import load_workcell, make_data  # noqa: E402
 
 log = logging.getLogger("compare.hardware.standin")
 
@@ -96,8 +102,6 @@ class World:
 
 def build_world(config: Config, robot: robots.Robot) -> World:
     """The scenario's simulation (scene, scripted person, raw depth camera) for the stand-in."""
-    from compare.loop.simulation import build_simulation
-
     sc = config.scenario
     q0 = np.array(sc.start_q) if sc.start_q is not None else robot.home.copy()
     sim = build_simulation(config, robot, q0)
@@ -106,9 +110,6 @@ def build_world(config: Config, robot: robots.Robot) -> World:
         renderer = sim.pipeline.renderer
         own = False
     else:
-        from compare.sensing.pipeline import DepthSensingSettings
-        from compare.sensing.renderer import DepthCamera
-
         settings = DepthSensingSettings.from_sensor_config(config.sensor, seed=sc.seed)
         renderer = DepthCamera(io.model, settings.camera, noise=settings.noise, seed=sc.seed)
         own = True
@@ -123,9 +124,6 @@ def build_world(config: Config, robot: robots.Robot) -> World:
 
 def camera_calibration() -> dict[str, list[float]]:
     """The ``[hardware]`` camera pose of the work cell's camera: what a perfect calibration gives."""
-    from compare.sensing.camera import camera_model_from_mujoco
-    from compare.sensing.scene import load_workcell
-
     model = load_workcell()
     t, q = translation_quaternion_from_transform(camera_model_from_mujoco(model).transform_base_to_camera)
     return {"camera_translation_m": list(t), "camera_quaternion_xyzw": list(q)}
@@ -133,10 +131,6 @@ def camera_calibration() -> dict[str, list[float]]:
 
 def write_background(path: Path) -> None:
     """Save the work cell's static scene as a background file: what a perfect capture gives."""
-    from compare.hardware.sensing import save_background
-    from compare.sensing.renderer import DepthCamera
-    from compare.sensing.scene import load_workcell, make_data
-
     model = load_workcell()
     camera = DepthCamera(model)
     try:
@@ -345,7 +339,7 @@ class StandIn:
             self._pub_depth = rospy.Publisher(self.hw.depth_topic, ros.Image, queue_size=2)
             self._pub_info = rospy.Publisher(self.hw.camera_info_topic, ros.CameraInfo, queue_size=2)
         if self._bag_path is not None:
-            import rosbag
+            import rosbag  # Deferred: ROS 1 is optional, importable only after load_ros()
 
             self._bag = rosbag.Bag(str(self._bag_path), "w")
         # Like the driver (roscpp, default hints): no TCP_NODELAY requested. The model is the

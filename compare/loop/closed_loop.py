@@ -104,13 +104,13 @@ def control_points(hierarchy: Hierarchy, robot: Robot) -> tuple[str, ...]:
 def _solver_errors() -> tuple[type[Exception], ...]:
     errors: list[type[Exception]] = [TpikError, HqpError]
     try:
-        from mink.exceptions import MinkError
+        from mink.exceptions import MinkError  # Deferred: optional method (compare.methods)
 
         errors.append(MinkError)
     except ImportError:
         pass
     try:
-        from qpsolvers.exceptions import QPError
+        from qpsolvers.exceptions import QPError  # Deferred: optional method (compare.methods)
 
         errors.append(QPError)
     except ImportError:

@@ -16,6 +16,7 @@ from compare.analysis.metrics import (
     SetTaskInfo,
     compute_summary,
     margins,
+    misses_cell,
     rising_edges,
     set_tasks_from_summary,
     to_jsonable,
@@ -356,3 +357,9 @@ def test_hovering_at_the_threshold_within_tolerance_is_no_violation_but_margin_s
     assert group["violations"] == 0 and group["violation_time_s"] == 0.0
     assert group["safety_margin_min"] == pytest.approx(-0.5e-3)
     assert group["violation_tolerance"] == pytest.approx(1e-3)
+
+
+def test_misses_cell_names_the_steal_excused_solves():
+    assert misses_cell({"deadline_misses": 3, "deadline_steal_excused": {"steps": 1}}) == "3 (+1 steal)"
+    assert misses_cell({"deadline_misses": 0, "deadline_steal_excused": {"steps": 0}}) == "0"
+    assert misses_cell({}) == "–"

@@ -12,11 +12,11 @@ from compare.bench.suite import BenchError, BenchOptions
 def test_the_command_names_only_the_options_that_differ_from_the_defaults():
     assert BenchOptions().command() == "tpik-compare bench"
     options = BenchOptions(
-        only="solvers", methods=("tpik", "mink"), json_out=Path("out dir/b.json"), loop_seeds=(7,), max_candidates=-1
+        only="solvers", methods=("tpik", "mink"), json_out=Path("out dir/b.json"), max_candidates=-1, rounds=2
     )
     assert options.command() == (
         "tpik-compare bench --only solvers --methods tpik --methods mink --json 'out dir/b.json'"
-        " --max-candidates -1 --loop-seed 7"
+        " --max-candidates -1 --rounds 2"
     )
 
 
@@ -30,7 +30,8 @@ def test_the_command_names_only_the_options_that_differ_from_the_defaults():
         ({"tolerance": float("nan")}, "--tolerance"),
         ({"backends": ("hqp-daqp", "mink")}, "--backends"),
         ({"export_method": "tpik"}, "--export-method"),
-        ({"loop_seeds": ()}, "--loop-seed"),
+        ({"methods": ()}, "--methods"),
+        ({"only": "loop"}, "--only"),
     ],
 )
 def test_an_option_out_of_range_is_refused_naming_it(changes, option):
@@ -43,12 +44,9 @@ def test_the_cli_help_states_the_defaults_of_the_suite():
     import typer
 
     from compare.bench.solvers import DEFAULT_METHODS
-    from compare.bench.suite import LOOP_METHODS, LOOP_SEEDS
     from compare.cli import app
 
     params = {p.name: p for p in typer.main.get_command(app).commands["bench"].params}  # type: ignore[attr-defined]
     assert " ".join(DEFAULT_METHODS) in params["methods"].help
-    assert " ".join(LOOP_METHODS) in params["loop_methods"].help
-    assert f"{LOOP_SEEDS[0]}-{LOOP_SEEDS[-1]}" in params["loop_seeds"].help
     assert params["max_candidates"].default == BenchOptions.max_candidates
     assert params["export_method"].default == BenchOptions.export_method

@@ -1,5 +1,5 @@
-"""Where a campaign step goes (compare.bench.loop_parts): exclusive times that add up to the whole,
-timers that always come off, the parts named in the loop as it is, and the bench group."""
+"""Where a campaign step goes (scripts/loop_parts.py): exclusive times that add up to the whole,
+timers that always come off, the parts named in the loop as it is, and the script's command line."""
 
 from __future__ import annotations
 
@@ -7,20 +7,22 @@ import json
 import time
 from pathlib import Path
 
+import loop_parts
 import pandas as pd
 import pytest
-
-from compare.bench import loop_parts
-from compare.bench.loop_parts import (
+from loop_parts import (
     OWN_SOLVE,
     PARTS,
+    PLANT_PART,
+    RANDOM_CONFIG,
     Part,
     PartProfiler,
     check_parts,
+    main,
     run_loop_parts,
     timers,
 )
-from compare.bench.suite import RANDOM_CONFIG
+
 from compare.config import load_config
 
 
@@ -61,7 +63,7 @@ def test_a_part_is_charged_its_time_without_the_timed_parts_it_calls(monkeypatch
 
 def test_a_timed_call_that_raises_is_still_charged_and_the_timers_come_off():
     profiler = PartProfiler()
-    target = loop_parts.Part("fake", "compare.bench.timing", "summarize")
+    target = Part("fake", "compare.bench.timing", "summarize")
     import compare.bench.timing as timing
 
     original = timing.summarize
@@ -113,42 +115,48 @@ def test_the_parts_of_real_runs_add_up_to_the_runs_and_the_own_solve_is_the_step
     assert result.unprofiled_cpu_us_per_step > 0.0 and result.timed_calls_per_step > 10
 
 
-def test_bench_loop_group_writes_its_entry_and_refuses_an_unknown_method(tmp_path):
+def test_on_the_cpu_clock_the_own_solve_is_timed_on_the_methods_solve_and_the_parts_still_add_up(tmp_path):
+    config, _ = load_config(_short_family(tmp_path))
+    result = run_loop_parts(config, "hqp-daqp", [100001], clock="cpu")
+    assert result.total_us == pytest.approx(result.runs_us_per_step, rel=1e-9)
+    assert set(result.parts_us) == {p.label for p in PARTS} | {OWN_SOLVE}
+    assert all(v >= 0.0 for v in result.parts_us.values()), result.parts_us
+    # The solve is most of a step's CPU outside the plant, and no more than the whole step.
+    assert 0.0 < result.parts_us[OWN_SOLVE] < float(result.step_us.mean())
+    assert result.shared_loop_us(0.0) == pytest.approx(
+        result.total_us - result.parts_us[PLANT_PART] - result.parts_us[OWN_SOLVE]
+    )
+
+
+def test_the_script_writes_its_entry_and_refuses_an_unknown_method_in_one_line(tmp_path, capsys):
     family = _short_family(tmp_path)
-    out = tmp_path / "bench.json"
-    from typer.testing import CliRunner
-
-    from compare.cli import app
-
-    argv = ["--only", "loop", "--family", str(family), "--json", str(out)]
-    cli = ["bench", *argv, "--loop-method", "tpik", "--loop-seed", "100001"]  # tpik-compare bench
-    result = CliRunner().invoke(app, cli)
-    assert result.exit_code == 0, result.output
+    out = tmp_path / "loop.json"
+    argv = ["--family", str(family), "--json", str(out), "--seed", "100001"]
+    assert main([*argv, "-m", "tpik"]) == 0
     payload = json.loads(out.read_text())
     (row,) = payload["results"]
     assert (row["name"], row["case"]) == ("loop-step", "tpik")
+    assert payload["command"] == f"python scripts/loop_parts.py {' '.join(argv)} -m tpik"
     entry = payload["loop_parts"]
     assert entry["config"] == str(family) and entry["seeds"] == [100001]
+    assert entry["clock"] == "wall"
     tpik = entry["methods"]["tpik"]
     assert tpik["total_us_per_step"] == pytest.approx(sum(tpik["parts_us_per_step"].values()))
-    refused = CliRunner().invoke(app, ["bench", *argv, "--loop-method", "no-such-method"])
-    assert refused.exit_code == 2 and "no-such-method" in refused.output
-    assert CliRunner().invoke(app, ["bench", "--only", "nothing"]).exit_code == 2
+    assert tpik["shared_loop_us_per_step"] > 0.0
+    capsys.readouterr()
+    assert main([*argv, "-m", "no-such-method"]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("error: ") and "no-such-method" in err
 
 
-def test_a_method_that_fails_in_its_runs_is_one_error_not_a_traceback(tmp_path, monkeypatch):
-    from typer.testing import CliRunner
-
+def test_a_method_that_fails_in_its_runs_is_one_error_not_a_traceback(tmp_path, monkeypatch, capsys):
     import compare.run
-    from compare.cli import app
 
     def broken(*args, **kwargs):
         raise RuntimeError("solver exploded")
 
     monkeypatch.setattr(compare.run, "run_method", broken)
     family = _short_family(tmp_path)
-    argv = ["bench", "--only", "loop", "--family", str(family), "--loop-method", "tpik", "--loop-seed", "100001"]
-    result = CliRunner().invoke(app, argv)
-    assert result.exit_code == 2
-    err = result.stderr
+    assert main(["--family", str(family), "-m", "tpik", "--seed", "100001"]) == 2
+    err = capsys.readouterr().err
     assert "error: loop parts of tpik" in err and "solver exploded" in err and "Traceback" not in err

@@ -1,4 +1,9 @@
-r"""The campaign's plant alone, and the throughput ceiling it leaves with the methods' solves.
+r"""The campaign's plant alone, and the throughput ceiling it leaves with the solves (a profile of the project itself).
+
+Run from the repository root::
+
+    python scripts/plant_bench.py                                   # configs/random.toml's plant, 2000 periods
+    python scripts/plant_bench.py --sweep results/ref40 --json results/plant.json   # and that sweep's ceiling
 
 :func:`run_plant_bench` times one control period of the simulated plant of a randomized sweep
 (``SimRobotIO.wait`` after ``send_velocity``: the scripted person's mocap update, the decoupled
@@ -20,15 +25,26 @@ check, start-up, results) and by two workers sharing a machine.
 
 from __future__ import annotations
 
+import argparse
+import json
+import sys
 import time
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
-from compare.analysis.results import RUNS_DIR, load_steps, load_summary
+from compare.analysis.results import CONFIG_FILE, RUNS_DIR, load_steps, load_summary
 from compare.bench.timing import BenchRow, summarize
-from compare.config import Config
+from compare.config import Config, load_config
+from compare.exceptions import CompareError
+from compare.loop.simulation import build_simulation
+from compare.scenarios.random_scenario import realize
+from compare.versions import versions
+
+RANDOM_CONFIG = Path(__file__).resolve().parents[1] / "configs" / "random.toml"
+"""The scenario family whose plant is timed by default (the reference campaign's)."""
 
 COMMAND_RAD_S = 0.3
 """Largest joint velocity of the random command sequence [rad/s]."""
@@ -44,12 +60,10 @@ def run_plant_bench(config: Config, steps: int = 2000, seed: int = 0) -> BenchRo
         seed: Seed of the command sequence.
 
     Returns:
-        Row ``plant`` / ``<simulation>-<drive>``: median and p95 per period [µs]; ``extra`` holds
-        the mean [µs], the control period [s] and the physics sub-steps per period.
+        Row ``plant`` / ``<simulation>-<drive>``: median and p95 per period [µs] (wall clock);
+        ``extra`` holds the mean [µs], the mean on the thread's CPU clock ``cpu_mean_us`` [µs],
+        the control period [s] and the physics sub-steps per period.
     """
-    from compare.loop.simulation import build_simulation
-    from compare.scenarios.random_scenario import realize
-
     robot = config.load_robot()
     realized = realize(config, robot) if config.scenario.kind == "random" else config
     sc = realized.scenario
@@ -62,13 +76,17 @@ def run_plant_bench(config: Config, steps: int = 2000, seed: int = 0) -> BenchRo
     io = build_simulation(realized, robot, q0).io
     out = np.empty(steps)
     clock = time.perf_counter_ns
+    cpu0 = time.thread_time_ns()
     for k in range(steps):
         t0 = clock()
         io.send_velocity(commands[k])
         io.wait()
         out[k] = (clock() - t0) * 1e-3
+    cpu_us = (time.thread_time_ns() - cpu0) * 1e-3 / steps
     case = f"{sc.simulation}-{sc.drive}"
-    return summarize("plant", case, out, mean_us=float(out.mean()), dt_s=sc.dt, substeps=float(io.substeps))
+    return summarize(
+        "plant", case, out, mean_us=float(out.mean()), cpu_mean_us=cpu_us, dt_s=sc.dt, substeps=float(io.substeps)
+    )
 
 
 @dataclass(frozen=True)
@@ -130,3 +148,60 @@ def throughput_ceiling(solves: SweepSolves, plant_us: float) -> dict[str, float 
         "dt_s": solves.dt_s,
         "ceiling_sim_s_per_cpu_s": solves.dt_s / ((solve_all + plant_us) * 1e-6),
     }
+
+
+def plant_config_of(explicit: Path | None, sweep_dir: Path | None) -> Path:
+    """The config whose plant is timed: the one given, else the sweep's own copy, else the random family."""
+    if explicit is not None:
+        return explicit
+    if sweep_dir is not None and (sweep_dir / CONFIG_FILE).is_file():
+        return sweep_dir / CONFIG_FILE
+    return RANDOM_CONFIG
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Time the plant, and with ``--sweep`` the sweep's ceiling; print them, write ``--json``; the exit code."""
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0], prog="python scripts/plant_bench.py")
+    parser.add_argument(
+        "--family", type=Path, help="Scenario family [the --sweep's config.toml, else configs/random.toml]."
+    )
+    parser.add_argument("--sweep", type=Path, help="A finished sweep, for its throughput ceiling.")
+    parser.add_argument("--steps", type=int, default=2000, help="Timed control periods (at least 200) [2000].")
+    parser.add_argument("--json", type=Path, dest="json_out", help="Write the row and the ceiling as JSON.")
+    args = parser.parse_args(argv)
+    try:  # the sweep first: a wrong directory is refused before the plant is timed
+        sweep = read_sweep_solves(args.sweep) if args.sweep is not None else None
+        family = plant_config_of(args.family, args.sweep)
+        config, _ = load_config(family, {"scenario.sensing": "geometric"})
+    except (FileNotFoundError, CompareError) as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    row = run_plant_bench(config, steps=max(args.steps, 200))
+    print(
+        f"plant alone, one control period ({family}, {row.case}): median {row.median_us:.1f} µs, "
+        f"p95 {row.p95_us:.1f} µs, mean {row.extra['mean_us']:.1f} µs (wall clock); "
+        f"mean {row.extra['cpu_mean_us']:.1f} µs (CPU clock)"
+    )
+    payload: dict[str, object] = {
+        "versions": versions(),
+        "command": " ".join(["python", "scripts/plant_bench.py", *(argv if argv is not None else sys.argv[1:])]),
+        "results": [row.to_dict()],
+    }
+    if sweep is not None:
+        ceiling = {**throughput_ceiling(sweep, row.extra["mean_us"]), "plant_config": str(family)}
+        solves = ", ".join(f"{m} {us:.1f}" for m, us in sweep.mean_solve_us.items())
+        print(
+            f"throughput ceiling of {args.sweep}: mean solve per step [µs] {solves} "
+            f"(all {ceiling['mean_solve_all_us']:.1f}) + plant {row.extra['mean_us']:.1f} → "
+            f"{ceiling['ceiling_sim_s_per_cpu_s']:.1f} simulated s per CPU s"
+        )
+        payload["throughput_ceiling"] = ceiling
+    if args.json_out is not None:
+        args.json_out.parent.mkdir(parents=True, exist_ok=True)
+        args.json_out.write_text(json.dumps(payload, indent=2) + "\n", encoding="utf-8")
+        print(f"wrote {args.json_out}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

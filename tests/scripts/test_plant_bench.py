@@ -1,5 +1,5 @@
-"""The plant benchmark and the throughput ceiling (compare.bench.plant): the ceiling's arithmetic on
-a sweep of known solve times, and the plant row of a real randomized scenario."""
+"""The plant benchmark and the throughput ceiling (scripts/plant_bench.py): the ceiling's arithmetic on
+a sweep of known solve times, the plant row of a real randomized scenario, the script's command line."""
 
 from __future__ import annotations
 
@@ -9,18 +9,9 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 import pytest
-from click.testing import Result
-from typer.testing import CliRunner
+from plant_bench import RANDOM_CONFIG, main, plant_config_of, read_sweep_solves, run_plant_bench, throughput_ceiling
 
-from compare.bench.plant import read_sweep_solves, run_plant_bench, throughput_ceiling
-from compare.bench.suite import RANDOM_CONFIG, plant_config_of
-from compare.cli import app
 from compare.config import load_config
-
-
-def _bench(*args: str) -> Result:
-    """``tpik-compare bench ARGS``."""
-    return CliRunner().invoke(app, ["bench", *args])
 
 
 def _sweep(root: Path, solve_us: dict[str, list[float]], dt: float = 0.01) -> Path:
@@ -57,29 +48,27 @@ def test_plant_row_times_every_period_of_the_dynamic_plant():
     assert (row.name, row.case, row.samples) == ("plant", "dynamic-decoupled", 200)
     assert row.extra["dt_s"] == config.scenario.dt and row.extra["substeps"] >= 1
     assert 0 < row.median_us <= row.p95_us and row.extra["mean_us"] > 0
+    assert 0 < row.extra["cpu_mean_us"] <= 2 * row.extra["mean_us"]
 
 
-def test_bench_cli_writes_the_ceiling_and_refuses_a_directory_without_a_sweep(tmp_path):
+def test_the_script_writes_the_ceiling_and_refuses_a_directory_without_a_sweep(tmp_path, capsys):
     sweep = _sweep(tmp_path / "sweep", {"tpik": [30.0], "hqp-daqp": [150.0]})
-    out = tmp_path / "bench.json"
-    result = _bench("--only", "plant", "--repeats", "200", "--sweep", str(sweep), "--json", str(out))
-    assert result.exit_code == 0, result.output
+    out = tmp_path / "plant.json"
+    argv = ["--steps", "200", "--sweep", str(sweep), "--json", str(out)]
+    assert main(argv) == 0
     payload = json.loads(out.read_text())
-    assert set(payload) == {"versions", "command", "robot", "results", "throughput_ceiling"}  # DESIGN §7 keys kept
-    assert payload["command"] == f"tpik-compare bench --only plant --repeats 200 --json {out} --sweep {sweep}"
+    assert set(payload) == {"versions", "command", "results", "throughput_ceiling"}
+    assert payload["command"] == f"python scripts/plant_bench.py {' '.join(argv)}"
     (row,) = payload["results"]
     assert row["name"] == "plant" and {"name", "case", "median_us", "p95_us"} <= set(row)
     ceiling = payload["throughput_ceiling"]
     assert ceiling["ceiling_sim_s_per_cpu_s"] == pytest.approx(0.01 / ((90.0 + ceiling["plant_us"]) * 1e-6))
-    refused = _bench("--only", "plant", "--repeats", "200", "--sweep", str(tmp_path / "none"))
-    assert refused.exit_code == 2 and refused.stderr.startswith("error: ")
+    capsys.readouterr()
+    assert main(["--steps", "200", "--sweep", str(tmp_path / "none")]) == 2
+    assert capsys.readouterr().err.startswith("error: ")
 
 
 def test_the_plant_timed_for_a_sweep_is_its_own_unless_another_is_given(tmp_path):
-    from typer.testing import CliRunner
-
-    from compare.cli import app
-
     sweep = _sweep(tmp_path / "sweep", {"tpik": [30.0]})
     assert plant_config_of(None, sweep) == RANDOM_CONFIG  # a sweep without its config.toml
     assert plant_config_of(None, None) == RANDOM_CONFIG
@@ -88,15 +77,13 @@ def test_the_plant_timed_for_a_sweep_is_its_own_unless_another_is_given(tmp_path
     (sweep / "config.toml").write_text(text)
     assert plant_config_of(None, sweep) == sweep / "config.toml"
     assert plant_config_of(RANDOM_CONFIG, sweep) == RANDOM_CONFIG
-    out = tmp_path / "bench.json"
-    args = ["bench", "--only", "plant", "--repeats", "10", "--sweep", str(sweep), "--json", str(out)]
-    result = CliRunner().invoke(app, args)
-    assert result.exit_code == 0, result.output
+    out = tmp_path / "plant.json"
+    argv = ["--steps", "10", "--sweep", str(sweep), "--json", str(out)]
+    assert main(argv) == 0
     payload = json.loads(out.read_text())
     assert payload["results"][0]["case"].startswith("kinematic-")  # the sweep's plant, not the default's
     assert payload["throughput_ceiling"]["plant_config"] == str(sweep / "config.toml")
-    result = CliRunner().invoke(app, [*args, "--plant-config", str(RANDOM_CONFIG)])
-    assert result.exit_code == 0, result.output
+    assert main([*argv, "--family", str(RANDOM_CONFIG)]) == 0
     payload = json.loads(out.read_text())
     assert payload["results"][0]["case"] == "dynamic-decoupled"
     assert payload["throughput_ceiling"]["plant_config"] == str(RANDOM_CONFIG)

@@ -1,8 +1,13 @@
-r"""Where a campaign step goes: the closed loop's parts timed one by one.
+r"""Where a campaign step goes: the closed loop's parts timed one by one (a profile of the project itself).
+
+Run from the repository root::
+
+    python scripts/loop_parts.py        # configs/random.toml; tpik, hqp-daqp, mink; seeds 100001-100003
+    python scripts/loop_parts.py -m tpik --seed 100001 --family configs/random.toml --json results/loop_parts.json
 
 :func:`run_loop_parts` runs whole runs of one scenario family, one method at a time, in this
 process (a sweep worker's steady state: one untimed run first loads the kernels and builds the
-caches), with a timer around each named part of the loop (:data:`PARTS`: the plant, the guarded
+caches), with a timer around each named part of the loop (:data:`PARTS`: the plant, the
 solve, sensing, the ground truth, recording, ...). Each part is charged its *exclusive* time:
 the time inside it minus the time inside the parts it calls, so the parts add up to the whole
 run and nothing is counted twice,
@@ -14,7 +19,12 @@ run and nothing is counted twice,
 
 reported per control step (the run's time divided by its steps). The method's own solve comes
 from the run's per-step table (``solve_time_us``, what the loop records) and is taken out of
-the guarded solve's row, which keeps the time-limit guard and its bookkeeping.
+the timed solve's row, which keeps the loop's bookkeeping around the call.
+
+``--clock cpu`` times every part on the thread's CPU clock instead of the wall clock (on a
+machine shared with other processes, a wall-clock part also counts the time the process waited
+for a core); the method's own solve is then timed by a timer on the methods' ``solve``
+(:data:`SOLVE_PARTS`), its warm-up solves included (3 per run of some 2000 steps).
 
 The timers cost time themselves (:func:`wrapper_cost_ns`, measured here on a no-op part): the
 table says how many timed calls a step makes and what they cost, and beside it the same runs'
@@ -25,8 +35,11 @@ always restored.
 
 from __future__ import annotations
 
+import argparse
 import functools
 import importlib
+import json
+import sys
 import tempfile
 import time
 from collections.abc import Callable, Iterator, Sequence
@@ -36,11 +49,25 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from rich.console import Console
+from rich.table import Table
 
+import compare.run
 from compare.analysis.results import load_steps
 from compare.bench.timing import BenchRow, summarize
-from compare.config import Config
+from compare.campaign.sweep import seeded_config
+from compare.config import Config, load_config
 from compare.exceptions import CompareError
+from compare.versions import versions
+
+RANDOM_CONFIG = Path(__file__).resolve().parents[1] / "configs" / "random.toml"
+"""The scenario family timed by default (the reference campaign's)."""
+
+METHODS = ("tpik", "hqp-daqp", "mink")
+"""The reference campaign's methods: the default, each alone in its runs."""
+
+SEEDS = (100001, 100002, 100003)
+"""Seeds of the timed runs by default (of the reference campaign's 100000–100999)."""
 
 
 @dataclass(frozen=True)
@@ -64,14 +91,17 @@ class Part:
 RUN_PART = "per run: scenario, results files"
 """The label of the outermost part (a whole run): its inclusive times are the runs' whole time."""
 
-GUARD_PART = "guarded solve (the method's own call taken out below)"
-"""The label of the guarded solve, whose row keeps all but the method's own call (:data:`OWN_SOLVE`)."""
+GUARD_PART = "timed solve (the method's own call taken out below)"
+"""The label of the timed solve, whose row keeps all but the method's own call (:data:`OWN_SOLVE`)."""
 
 STEP_PART = "the step's own code"
 """The label whose calls are the control steps (their inclusive times give the step's median)."""
 
+PLANT_PART = "plant (person, drive, MuJoCo sub-steps)"
+"""The label of the simulated plant (what a step costs besides the loop and the method)."""
+
 PARTS: tuple[Part, ...] = (
-    Part("plant (person, drive, MuJoCo sub-steps)", "compare.loop.sim_io", "SimRobotIO.wait"),
+    Part(PLANT_PART, "compare.loop.sim_io", "SimRobotIO.wait"),
     Part(GUARD_PART, "compare.loop.closed_loop", "timed_solve"),
     Part("kinematics snapshot", "robots.robot", "Robot.kinematics"),
     Part("sensing gate (obstacle source, ISO/TS 15066 monitor)", "compare.loop.sensing_gate", "SensingGate.step"),
@@ -94,8 +124,18 @@ PARTS: tuple[Part, ...] = (
 )
 """The parts, in table order; parts with the same label are added up."""
 
-OWN_SOLVE = "the method's own solve (solve_time_us)"
-"""The row of the method's own call, taken out of the guarded solve's."""
+OWN_SOLVE = "the method's own solve"
+"""The row of the method's own call, taken out of the timed solve's."""
+
+SOLVE_PARTS: tuple[Part, ...] = (
+    Part(OWN_SOLVE, "tpik.solver", "TpikSolver.solve"),
+    Part(OWN_SOLVE, "qp_baseline.hqp", "HqpSolver.solve"),
+    Part(OWN_SOLVE, "qp_baseline.mink_peer", "MinkSolver.solve"),
+)
+"""On the CPU clock: the methods' own ``solve``, timed where the loop calls it."""
+
+CLOCKS = {"wall": "perf_counter_ns", "cpu": "thread_time_ns"}
+"""What a part is timed on: the name of the ``time`` function [ns] (read when a timer is made)."""
 
 
 @dataclass
@@ -108,15 +148,16 @@ class _Tally:
 class PartProfiler:
     """Exclusive time per labelled part (module docstring); nested timed calls are subtracted."""
 
-    def __init__(self, keep_inclusive: Sequence[str] = ()) -> None:
+    def __init__(self, keep_inclusive: Sequence[str] = (), clock: str = "wall") -> None:
         self.tallies: dict[str, _Tally] = {}
         self._children = [0]  # time inside timed parts, per open timed call (outermost: unused)
         self._keep = set(keep_inclusive)
+        self.clock = clock
 
     def wrap(self, label: str, fn: Callable[..., Any]) -> Callable[..., Any]:
         """``fn`` with its calls charged to ``label``."""
         tally = self.tallies.setdefault(label, _Tally())
-        children, clock = self._children, time.perf_counter_ns
+        children, clock = self._children, getattr(time, CLOCKS[self.clock])
         inclusive = tally.inclusive_ns if label in self._keep else None
 
         @functools.wraps(fn)
@@ -180,7 +221,7 @@ def timers(profiler: PartProfiler, parts: Sequence[Part] = PARTS) -> Iterator[No
             setattr(owner, name, original)
 
 
-def wrapper_cost_ns(calls: int = 20_000) -> float:
+def wrapper_cost_ns(calls: int = 20_000, clock: str = "wall") -> float:
     """What one timed call adds to a run [ns]: a no-op part inside a timed parent, against the bare loop."""
 
     def noop() -> None:
@@ -192,7 +233,7 @@ def wrapper_cost_ns(calls: int = 20_000) -> float:
 
     samples = []
     for _ in range(5):
-        profiler = PartProfiler()
+        profiler = PartProfiler(clock=clock)
         child, parent = profiler.wrap("child", noop), profiler.wrap("parent", loop)
         t0 = time.perf_counter_ns()
         loop(noop)
@@ -211,7 +252,7 @@ class LoopParts:
     Attributes:
         method: The method.
         parts_us: Exclusive time per control step by part [µs] (table order; the method's own
-            solve in :data:`OWN_SOLVE`, out of the guarded solve's row).
+            solve in :data:`OWN_SOLVE`, out of the timed solve's row).
         steps: Control steps of the timed runs.
         timed_calls_per_step: Timer calls per step (per-run parts spread over the steps).
         step_us: Inclusive time of each control step, the plant not included [µs].
@@ -232,6 +273,15 @@ class LoopParts:
         """Sum of the parts per step [µs] (the profiled runs' whole time)."""
         return float(sum(self.parts_us.values()))
 
+    def shared_loop_us(self, timer_cost_us: float) -> float:
+        """What the shared loop costs per step [µs]: the profiled total without plant, own solve and timers."""
+        return self.total_us - self.parts_us[PLANT_PART] - self.parts_us[OWN_SOLVE] - timer_cost_us
+
+    @property
+    def unprofiled_shared_loop_us(self) -> float:
+        """The CPU per step without timers, less the plant and the own solve as profiled [µs]."""
+        return self.unprofiled_cpu_us_per_step - self.parts_us[PLANT_PART] - self.parts_us[OWN_SOLVE]
+
 
 def _own_solve_us(out_dir: Path, method: str) -> float:
     return float(load_steps(out_dir, method, columns=["solve_time_us"])["solve_time_us"].sum())
@@ -242,22 +292,22 @@ class LoopRunFailed(CompareError):
 
 
 def _run(config: Config, out: Path) -> None:
-    from compare.run import run_scenario
-
-    summary = run_scenario(config, out, progress=False, make_plots=False, overwrite=True)
+    # Looked up on the module at each call: the timed run reaches the timer put on it.
+    summary = compare.run.run_scenario(config, out, progress=False, make_plots=False, overwrite=True)
     errors = summary.get("errors") or {}
     if errors:
         what = "; ".join(f"{m}: {e}" for m, e in errors.items())
         raise LoopRunFailed(f"the run of seed {config.scenario.seed} failed ({what})")
 
 
-def run_loop_parts(config: Config, method: str, seeds: Sequence[int]) -> LoopParts:
+def run_loop_parts(config: Config, method: str, seeds: Sequence[int], clock: str = "wall") -> LoopParts:
     """Time the loop's parts on runs of ``config`` with ``method`` alone (module docstring).
 
     Args:
         config: A scenario or a ``kind = "random"`` family.
         method: The method driving the arm.
         seeds: Scenario seeds of the timed runs; one untimed run of the first seed comes before.
+        clock: ``wall`` or ``cpu`` (:data:`CLOCKS`).
 
     Returns:
         :class:`LoopParts` of the timed runs.
@@ -265,20 +315,19 @@ def run_loop_parts(config: Config, method: str, seeds: Sequence[int]) -> LoopPar
     Raises:
         LoopRunFailed: A run's method ended in an error.
     """
-    from compare.campaign.sweep import seeded_config
-
     configs = [seeded_config(config, int(s), [method]) for s in seeds]
     with tempfile.TemporaryDirectory(prefix="loop-parts-") as tmp:
         root = Path(tmp)
         _run(configs[0], root / "warm")
         cpu = 0.0
-        profiler = PartProfiler(keep_inclusive=(STEP_PART, RUN_PART))
+        profiler = PartProfiler(keep_inclusive=(STEP_PART, RUN_PART), clock=clock)
+        timed_parts = PARTS + SOLVE_PARTS if clock == "cpu" else PARTS
         own_solve_us = 0.0
         for k, cfg in enumerate(configs):  # each seed unprofiled (the CPU a sweep worker spends), then timed
             t0 = time.process_time()
             _run(cfg, root / f"plain{k}")
             cpu += time.process_time() - t0
-            with timers(profiler):
+            with timers(profiler, timed_parts):
                 _run(cfg, root / f"timed{k}")
             own_solve_us += _own_solve_us(root / f"timed{k}", method)
     step_tally = profiler.tallies[STEP_PART]
@@ -286,7 +335,9 @@ def run_loop_parts(config: Config, method: str, seeds: Sequence[int]) -> LoopPar
     parts: dict[str, float] = {}
     for label in dict.fromkeys(p.label for p in PARTS):  # table order, each label once
         parts[label] = profiler.tallies[label].exclusive_ns * 1e-3 / steps
-        if label == GUARD_PART:
+        if label == GUARD_PART and clock == "cpu":  # timed apart: already out of this row
+            parts[OWN_SOLVE] = profiler.tallies[OWN_SOLVE].exclusive_ns * 1e-3 / steps
+        elif label == GUARD_PART:
             parts[OWN_SOLVE] = own_solve_us / steps
             parts[label] -= own_solve_us / steps
     calls = sum(t.calls for t in profiler.tallies.values())
@@ -302,7 +353,7 @@ def run_loop_parts(config: Config, method: str, seeds: Sequence[int]) -> LoopPar
 
 
 def loop_parts_rows(results: Sequence[LoopParts], cost_ns: float) -> tuple[list[BenchRow], dict[str, Any]]:
-    """The ``bench --json`` rows and the ``loop_parts`` entry of the methods' loop parts.
+    """The JSON rows and the ``loop_parts`` entry of the methods' loop parts.
 
     Rows: name ``loop-step``, case the method, the inclusive time of a step without the plant.
     Entry: per method, its parts, totals and the timers' cost.
@@ -327,6 +378,8 @@ def loop_parts_rows(results: Sequence[LoopParts], cost_ns: float) -> tuple[list[
                 "timed_calls_per_step": r.timed_calls_per_step,
                 "timer_cost_us_per_step": r.timed_calls_per_step * cost_ns * 1e-3,
                 "unprofiled_cpu_us_per_step": r.unprofiled_cpu_us_per_step,
+                "shared_loop_us_per_step": r.shared_loop_us(r.timed_calls_per_step * cost_ns * 1e-3),
+                "unprofiled_shared_loop_us_per_step": r.unprofiled_shared_loop_us,
             }
             for r in results
         },
@@ -334,17 +387,80 @@ def loop_parts_rows(results: Sequence[LoopParts], cost_ns: float) -> tuple[list[
     return rows, entry
 
 
-__all__ = [
-    "GUARD_PART",
-    "OWN_SOLVE",
-    "PARTS",
-    "LoopParts",
-    "LoopRunFailed",
-    "Part",
-    "PartProfiler",
-    "check_parts",
-    "loop_parts_rows",
-    "run_loop_parts",
-    "timers",
-    "wrapper_cost_ns",
-]
+def loop_parts_table(results: Sequence[LoopParts], entry: dict[str, Any], cost_ns: float, title: str) -> Table:
+    """The parts per method as a table [µs per step]: exclusive times, their total, the timers, the CPU without them."""
+    table = Table(title=title)
+    table.add_column("part")
+    for r in results:
+        table.add_column(r.method, justify="right")
+    for label in results[0].parts_us:
+        table.add_row(label if label != OWN_SOLVE else f"  {label}", *(f"{r.parts_us[label]:.1f}" for r in results))
+    table.add_row("[bold]total, profiled", *(f"[bold]{r.total_us:.1f}" for r in results))
+    per_method = entry["methods"]
+    table.add_row(
+        f"  of which timers ({cost_ns:.0f} ns per call)",
+        *(f"{per_method[r.method]['timer_cost_us_per_step']:.1f}" for r in results),
+    )
+    table.add_row("[bold]CPU per step, no timer", *(f"[bold]{r.unprofiled_cpu_us_per_step:.1f}" for r in results))
+    table.add_row(
+        "[bold]shared loop: total − plant − own solve − timers",
+        *(f"[bold]{per_method[r.method]['shared_loop_us_per_step']:.1f}" for r in results),
+    )
+    table.add_row(
+        "  the same from the CPU per step, no timer",
+        *(f"{r.unprofiled_shared_loop_us:.1f}" for r in results),
+    )
+    return table
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Time the loop's parts of every method given; print the table, write ``--json``; the exit code."""
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0], prog="python scripts/loop_parts.py")
+    parser.add_argument("--family", type=Path, default=RANDOM_CONFIG, help="Scenario family [configs/random.toml].")
+    parser.add_argument(
+        "-m", "--method", action="append", dest="methods", help="A method, alone in its runs (repeatable)."
+    )
+    parser.add_argument("--seed", action="append", type=int, dest="seeds", help="Seed of a timed run (repeatable).")
+    parser.add_argument("--clock", choices=tuple(CLOCKS), default="wall", help="What the parts are timed on [wall].")
+    parser.add_argument("--json", type=Path, dest="json_out", help="Write the rows and the parts as JSON.")
+    args = parser.parse_args(argv)
+    methods, seeds = tuple(args.methods or METHODS), tuple(args.seeds or SEEDS)
+    try:
+        config, _ = load_config(args.family)
+        seeded_config(config, seeds[0], list(methods))  # the methods checked before any run
+        cost_ns = wrapper_cost_ns(clock=args.clock)
+        console = Console(width=max(Console().width, 160))
+        results = []
+        for method in methods:
+            console.print(f"loop parts: {method}, seeds {' '.join(map(str, seeds))} ({args.family}) …")
+            try:
+                results.append(run_loop_parts(config, method, list(seeds), args.clock))
+            except LoopRunFailed as exc:
+                raise LoopRunFailed(f"loop parts of {method}: {exc}") from exc
+    except CompareError as exc:  # a config, a method or a run that failed: one line
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    rows, entry = loop_parts_rows(results, cost_ns)
+    entry["config"] = str(args.family)
+    entry["seeds"] = list(seeds)
+    entry["clock"] = args.clock
+    title = (
+        f"Where a control step goes [µs per step, exclusive, {args.clock} clock] "
+        f"({args.family.name}, one method per run)"
+    )
+    console.print(loop_parts_table(results, entry, cost_ns, title))
+    if args.json_out is not None:
+        payload = {
+            "versions": versions(),
+            "command": " ".join(["python", "scripts/loop_parts.py", *(argv if argv is not None else sys.argv[1:])]),
+            "results": [r.to_dict() for r in rows],
+            "loop_parts": entry,
+        }
+        args.json_out.parent.mkdir(parents=True, exist_ok=True)
+        args.json_out.write_text(json.dumps(payload, indent=2) + "\n", encoding="utf-8")
+        console.print(f"wrote {args.json_out}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,10 @@
+"""The tests of ``scripts/``: its modules importable by name, as ``python scripts/<name>.py`` runs them."""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+SCRIPTS = Path(__file__).resolve().parents[2] / "scripts"
+if str(SCRIPTS) not in sys.path:
+    sys.path.insert(0, str(SCRIPTS))
