@@ -12,6 +12,10 @@ Add your own with :func:`register` and a :class:`RobotSpec` (docs/robots.md).
 
 from __future__ import annotations
 
+from robots.kernel_cache import use_kernel_cache
+
+use_kernel_cache()  # before any kernel is compiled: robots.kinematics is the first
+
 from robots.exceptions import (
     InvalidConfiguration,
     InvalidDescription,
