@@ -304,10 +304,12 @@ def test_a_sweep_killed_at_random_points_and_resumed_ends_with_the_results_of_an
     env = {**os.environ, "PYTHONPATH": str(ROOT), "MUJOCO_GL": "egl"}
     env.pop(FAULT_ENV, None)
     reference = tmp_path / "reference"
-    start = time.perf_counter()
     uninterrupted = subprocess.run(_sweep_command(reference), env=env, capture_output=True, text=True, timeout=300)
-    took = time.perf_counter() - start  # this machine's time for the whole sweep: the timer's scale
     assert uninterrupted.returncode == 0, uninterrupted.stderr
+    start = time.perf_counter()  # timed again with the kernels compiled and cached, as the killed runs find them
+    again = subprocess.run(_sweep_command(tmp_path / "again"), env=env, capture_output=True, text=True, timeout=300)
+    took = time.perf_counter() - start  # this machine's time for the whole sweep: the timer's scale
+    assert again.returncode == 0, again.stderr
     out = tmp_path / "killed"
     rng = np.random.default_rng(22)
     kills: list[str] = []
