@@ -118,7 +118,7 @@ stops at the report in qpbenchmark 2.7.1 (it expects the ``default`` group), so 
 
 _TEST_SET_SCRIPT = f'''#!/usr/bin/env python3
 # SPDX-License-Identifier: Apache-2.0
-# SPDX-FileCopyrightText: tpik-compare contributors
+# SPDX-FileCopyrightText: the tpik-compare authors
 """HQP cascade test set: hard level QPs of a hierarchical-QP inverse-kinematics cascade (README.md).
 
 Run from this directory (qpbenchmark {QPBENCHMARK_VERSION}):

@@ -1,4 +1,4 @@
-"""``tpik-compare bench``: the solver, sensing, plant, loop and QP-correctness benchmarks (DESIGN §7).
+"""``tpik-compare bench``: the solver, sensing, plant, loop and QP-correctness benchmarks (docs/design.md §7).
 
 Examples::
 
@@ -14,7 +14,7 @@ Examples::
 :func:`run_bench` prints tables (medians, p95, ratio to ``mink-native`` — the same problem
 written with mink alone — measured in the same interleaved run; ``mink`` is the project's
 adapter, timed beside it) and, with ``json_out``, writes ``{"versions": ..., "command": ...,
-"robot": ..., "results": [row, ...]}`` (DESIGN §7; ``ratio_to_mink`` of a row is against
+"robot": ..., "results": [row, ...]}`` (docs/design.md §7; ``ratio_to_mink`` of a row is against
 ``mink-native``), plus ``correctness`` (every HQP backend against the stored lexicographic
 reference, :mod:`compare.bench.correctness`), ``throughput_ceiling`` (with ``sweep``:
 :mod:`compare.bench.plant`) and ``loop_parts`` (:mod:`compare.bench.loop_parts`) when those

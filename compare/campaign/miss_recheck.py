@@ -1,6 +1,6 @@
 r"""Re-time the deadline misses of a sweep: the method's cost at that state, or the machine's pause?
 
-A deadline miss (DESIGN §3: a solve over the time limit, after warm-up) is measured on the
+A deadline miss (docs/design.md §3: a solve over the time limit, after warm-up) is measured on the
 solving thread's CPU clock. On a virtual machine that clock also runs while the hypervisor holds
 the virtual CPU without counting it as steal (``docs/benchmarks.md``, "Deadline misses and the
 VM's CPU clock"): such a pause lands on whatever code runs, and a solve it lands on reads as late

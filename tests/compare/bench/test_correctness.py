@@ -164,7 +164,7 @@ def test_bench_cli_writes_the_correctness_section_csv_and_plot(tmp_path):
     )
     assert result.exit_code == 0, result.output
     payload = json.loads(out.read_text())
-    assert {"versions", "command", "results", "correctness"} <= set(payload)  # DESIGN §7 keys kept
+    assert {"versions", "command", "results", "correctness"} <= set(payload)  # docs/design.md §7 keys kept
     corr = payload["correctness"]
     assert corr["reference"]["fingerprint"] and corr["tolerance"] > 0
     by_set = {s["states"]: s for s in corr["summaries"]}

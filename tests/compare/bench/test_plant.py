@@ -65,7 +65,7 @@ def test_bench_cli_writes_the_ceiling_and_refuses_a_directory_without_a_sweep(tm
     result = _bench("--only", "plant", "--repeats", "200", "--sweep", str(sweep), "--json", str(out))
     assert result.exit_code == 0, result.output
     payload = json.loads(out.read_text())
-    assert set(payload) == {"versions", "command", "robot", "results", "throughput_ceiling"}  # DESIGN §7 keys kept
+    assert set(payload) == {"versions", "command", "robot", "results", "throughput_ceiling"}  # design.md §7 keys
     assert payload["command"] == f"tpik-compare bench --only plant --repeats 200 --json {out} --sweep {sweep}"
     (row,) = payload["results"]
     assert row["name"] == "plant" and {"name", "case", "median_us", "p95_us"} <= set(row)
