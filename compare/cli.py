@@ -1,4 +1,4 @@
-"""``tpik-compare``: run scenarios, sweeps, plots, benchmarks, replays and the viewer (DESIGN §7).
+"""``tpik-compare``: run scenarios, sweeps, plots, benchmarks, replays and the viewer (docs/design.md §7).
 
 User mistakes (bad config, unknown method, missing directory) print one line on stderr
 and exit with code 2; no traceback. Every command gets that for the error roots of the
@@ -690,7 +690,7 @@ def replay(
 
 @app.command()
 def bench(
-    json_out: Annotated[Path | None, typer.Option("--json", help="Write results as JSON (DESIGN §7).")] = None,
+    json_out: Annotated[Path | None, typer.Option("--json", help="Write results as JSON (docs/design.md §7).")] = None,
     repeats: Annotated[int, typer.Option(min=10, help="Timed calls per case.")] = 300,
     only: Annotated[str | None, typer.Option(help="solvers | sensing | correctness (default all).")] = None,
     methods: Annotated[

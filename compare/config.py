@@ -1,4 +1,4 @@
-"""Scenario configuration: TOML → validated, typed objects (DESIGN §7).
+"""Scenario configuration: TOML → validated, typed objects (docs/design.md §7).
 
 Every mistake a user can make in a config file (unknown key, wrong type, impossible
 threshold, unknown method or QP solver, bad solver setting) becomes one :class:`ConfigError`
@@ -154,7 +154,7 @@ class PersonConfig(_Strict):
 
 
 class CameraConfig(_Strict):
-    """One depth camera of ``[[sensor.cameras]]`` (``compare.sensing.rig``; DESIGN §4).
+    """One depth camera of ``[[sensor.cameras]]`` (``compare.sensing.rig``; docs/design.md §4).
 
     A camera named like one of the scene's (``depth_camera``) keeps every value the MJCF gives
     and overrides only what is set here; any other name adds a camera to the scene and needs
@@ -618,7 +618,7 @@ class OracleConfig(_Strict):
     Witnesses that know the scripted person's future drive the same plant under the same limits:
     one that keeps every safety threshold labels the run ``avoidable``; when none does, a
     reachability certificate may prove it ``unavoidable``; otherwise it is ``undecided``
-    (DESIGN §5, §7). Every method's obstacle violations are counted under the run's label.
+    (docs/design.md §5, §7). Every method's obstacle violations are counted under the run's label.
 
     Attributes:
         enabled: Compute the verdict for each run (``summary.json`` gets ``oracle`` and every

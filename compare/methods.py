@@ -1,4 +1,4 @@
-"""Registry of the IK methods a scenario can compare, looked up by name (DESIGN §3).
+"""Registry of the IK methods a scenario can compare, looked up by name (docs/design.md §3).
 
 Names:
 

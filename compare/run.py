@@ -1,4 +1,4 @@
-"""Run one scenario with every selected method and write the results (DESIGN §5–7)."""
+"""Run one scenario with every selected method and write the results (docs/design.md §5–7)."""
 
 from __future__ import annotations
 

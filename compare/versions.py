@@ -1,4 +1,4 @@
-"""Versions of the project, of every solver package and of the machine: stamped on every result (DESIGN §6)."""
+"""Versions of the project, of every solver package and of the machine: stamped on every result (docs/design.md §6)."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-r"""Correctness certificate of one QP answer, judged as qpbenchmark judges a solver.
+r"""Correctness certificate of one QP answer: qpbenchmark's residuals and a bound on the distance to the optimum.
 
 The QP is the qpsolvers form
 

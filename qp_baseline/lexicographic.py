@@ -1,6 +1,6 @@
 r"""Independent lexicographic reference of the HQP cascade, solved to high accuracy.
 
-The problem is the one :mod:`qp_baseline.hqp` solves (DESIGN §3 "HQP"), written again from the
+The problem is the one :mod:`qp_baseline.hqp` solves (docs/design.md §3 "HQP"), written again from the
 tasks, without any of the cascade's implementation choices: no null-space elimination, no
 dropped rows, no unconstrained shortcut, no min-norm level option. Level :math:`k` (highest
 first) is one QP on :math:`x = [\dot q;\ w_k]` with explicit slacks:

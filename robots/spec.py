@@ -2,7 +2,7 @@
 
 A :class:`RobotSpec` is everything :func:`robots.register` needs to add a robot. The description
 file (MJCF or URDF) is the single source of truth for the kinematics, read by MuJoCo *and*
-pinocchio; the spec only names frames and gives what the file cannot say (DESIGN §4):
+pinocchio; the spec only names frames and gives what the file cannot say (docs/design.md §4):
 
 * which frame is the end effector and which frames are the default obstacle control points;
 * the home configuration (a keyframe of an MJCF, or joint values);

@@ -82,7 +82,7 @@ def test_the_new_task_holds_the_elbow_under_every_method(held, method, jaco_mode
     assert steps["active:elbow_height"].any()
     assert z.min() < MIN_HEIGHT_M + 0.01
     assert m["waypoints_reached"] == 2
-    assert m["joint_limits"] is not None and m["walls"] is None  # the DESIGN §7 keys stay
+    assert m["joint_limits"] is not None and m["walls"] is None  # the docs/design.md §7 keys stay
 
 
 @pytest.mark.slow

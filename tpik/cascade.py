@@ -396,7 +396,7 @@ def search_modes(
     admissibility_tol: float,
     max_exhaustive: int,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, int, int, int, float]:
-    r"""One control step's mode search (DESIGN §3, paper eqs. 4–9), from the stacked rows to q̇.
+    r"""One control step's mode search (docs/design.md §3, paper eqs. 4–9), from the stacked rows to q̇.
 
     Modes are enumerated level-major (the first level's candidate subsets vary slowest, each
     level's subsets in binary order), so ties are broken the same way on every machine.

@@ -1,4 +1,4 @@
-"""Priority hierarchy: an ordered list of levels, each holding one or more tasks (DESIGN §2)."""
+"""Priority hierarchy: an ordered list of levels, each holding one or more tasks (docs/design.md §2)."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-r"""The one control reference every method receives (DESIGN §3): :math:`r = \dot\sigma_d + K\tilde\sigma`.
+r"""The one control reference every method receives (docs/design.md §3): :math:`r = \dot\sigma_d + K\tilde\sigma`.
 
 Every solver of the project — TPIK (:mod:`tpik.solver`), the HQP cascade and the mink peer
 (:mod:`qp_baseline`) — takes the reference of a task from here, so no method gets a different
@@ -67,7 +67,7 @@ def rate_bounds(
 
 @dataclass(frozen=True)
 class ControlReference:
-    r"""The reference of every task for one method (DESIGN §3, "One control reference").
+    r"""The reference of every task for one method (docs/design.md §3, "One control reference").
 
     Attributes:
         gain_cap: Cap every gain at ``1/dt`` (default). The same default for every method.
@@ -111,7 +111,7 @@ def unmet_set_rates(
 ) -> list[str]:
     r"""Set-based tasks, at or past an activation threshold, whose reference rate ``qdot`` misses.
 
-    The one definition of "a constraint not met" of the step status (DESIGN §3), applied to every
+    The one definition of "a constraint not met" of the step status (docs/design.md §3), applied to every
     method's command by the closed loop: a task past its upper activation threshold needs
     :math:`J\dot q \le \dot\sigma_u` and one past its lower threshold
     :math:`J\dot q \ge \dot\sigma_l` (HQP's rows): inside its safety set it may approach the

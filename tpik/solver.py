@@ -1,6 +1,6 @@
 r"""The paper's analytic solver: set-based task-priority inverse kinematics (Di Lillo et al., sec. II).
 
-One control step (DESIGN §3):
+One control step (docs/design.md §3):
 
 1. Every task is evaluated once at ``kin``. Equality tasks give the CLIK reference of eq. (2),
    :math:`x = \dot\sigma_d + K\tilde\sigma`. A set-based task whose σ is past an activation
@@ -26,7 +26,7 @@ One control step (DESIGN §3):
    task is "active": in the hard random campaign the EE went 7.5 mm past a wall this way
    (seed 759: wall reference −0.0038 m/s, NSB rate −0.0306 m/s). Compensated, the inserted
    task's rate is its reference :math:`K(\sigma_s-\sigma)` whenever the levels above leave it
-   the freedom, so it converges to its threshold and never crosses it (DESIGN §3 step 2; the
+   the freedom, so it converges to its threshold and never crosses it (docs/design.md §3 step 2; the
    pure eq. 4 stays available with ``compensate_set_tasks = false``).
 
    :math:`N_{1,k}` is the exact (undamped) projector onto the null space of the augmented
@@ -39,7 +39,7 @@ One control step (DESIGN §3):
    :math:`J_A\dot q_S \le K(\sigma_{s,u} - \sigma) < 0` (resp.
    :math:`\ge K(\sigma_{s,l} - \sigma) > 0`): a person walking into a still arm must not be
    left out. S = C is always admissible.
-4. Among admissible modes, ``selection = "largest_norm"`` (the paper and DESIGN §3 step 4)
+4. Among admissible modes, ``selection = "largest_norm"`` (the paper and docs/design.md §3 step 4)
    takes the one of largest :math:`\|\dot q_S\|` (the least restricted motion, Moe et al. 2016;
    ties go to the mode with fewer active tasks); the default ``"fewest_active"`` takes the one
    with the fewest active tasks (ties to the largest norm): a task is released as soon as the
@@ -127,7 +127,7 @@ class TpikSettings:
 
     Attributes:
         variant: ``"nsb"`` (eq. 4, default) or ``"ss"`` (Siciliano–Slotine, compensated).
-        selection: Rule among admissible modes. ``"largest_norm"`` (the paper, DESIGN §3 step 4,
+        selection: Rule among admissible modes. ``"largest_norm"`` (the paper, docs/design.md §3 step 4,
             Moe et al. 2016): largest :math:`\|\dot q_S\|`, ties to fewer active tasks.
             ``"fewest_active"`` (default; a literal reading of eqs. 8–9: release a task as soon
             as the solution without it is admissible): fewest active tasks, ties to the largest
@@ -281,7 +281,7 @@ PAPER_SETTINGS: dict[str, Any] = {
 }
 """``tpik-paper``: eq. 4 at every level, the largest-norm mode admissible by eqs. 8–9 alone, the
 damping of sec. II-A with σ* = ‖σ̃‖/‖q̇‖_max, no gain cap; every mode tried up to 12 candidates
-(all 12 set tasks of case 2; DESIGN §3 allows the greedy search only as a documented shortcut)."""
+(all 12 set tasks of case 2; docs/design.md §3 allows the greedy search only as a documented shortcut)."""
 
 
 def _check_number(key: str, value: object, allow_zero: bool = False) -> None:

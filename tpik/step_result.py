@@ -1,4 +1,4 @@
-"""What every solver returns for one control step, and the interface they share (DESIGN §2–3)."""
+"""What every solver returns for one control step, and the interface they share (docs/design.md §2–3)."""
 
 from __future__ import annotations
 

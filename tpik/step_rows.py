@@ -1,7 +1,7 @@
 r"""TPIK's rows of one step from the shared task evaluation, and the mode search, in one compiled call.
 
 From the buffers of :class:`tpik.evaluation.TaskEvaluation` this stacks, level by level, the
-rows TPIK can use (DESIGN §3 step 1): every equality row with its CLIK reference
+rows TPIK can use (docs/design.md §3 step 1): every equality row with its CLIK reference
 :math:`x = \dot\sigma_d + K\tilde\sigma` (eq. 2), then every *candidate* set task (σ past an
 activation threshold) with the rate of the safety threshold it crossed,
 :math:`x = K(\sigma_s - \sigma) + f` (eq. 7, f the task's rate feed-forward), K = min(gain, 1/dt) with the gain cap

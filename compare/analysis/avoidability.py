@@ -1,4 +1,4 @@
-"""Obstacle violations by the run's verdict: avoidable, unavoidable or undecided (DESIGN §7).
+"""Obstacle violations by the run's verdict: avoidable, unavoidable or undecided (docs/design.md §7).
 
 Per run, the verdict (``summary.json["oracle"]``, :mod:`compare.campaign.verdict`) labels the
 scenario ``avoidable`` (a witness that knew the person's future kept every safety threshold:

@@ -1,4 +1,4 @@
-r"""The paper's claims of Sec. IV, checked one by one on a run's per-step table (DESIGN §5).
+r"""The paper's claims of Sec. IV, checked one by one on a run's per-step table (docs/design.md §5).
 
 Each claim is a function of the per-step table (columns in :mod:`compare.analysis.metrics`), the
 set tasks' thresholds and the person's timeline from the scenario's keyframes. A set task

@@ -1,6 +1,6 @@
 """A per-run metric, declared once and read by every output (:class:`Metric`).
 
-A metric is one entry of a method's ``summary.json`` (DESIGN §6–7). Its :class:`Metric` says
+A metric is one entry of a method's ``summary.json`` (docs/design.md §6–7). Its :class:`Metric` says
 
 - ``compute(run)``: the entry, from the run's per-step table (:class:`RunSteps`); ``None`` for an
   entry the run writes from elsewhere (the fault injector, the time limit, the ISO monitor),

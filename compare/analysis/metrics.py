@@ -1,4 +1,4 @@
-r"""Per-run metrics (DESIGN §6) computed from the per-step table of the closed loop.
+r"""Per-run metrics (docs/design.md §6) computed from the per-step table of the closed loop.
 
 The per-step table is a :class:`pandas.DataFrame` with one row per control step:
 
@@ -87,17 +87,17 @@ from compare.analysis.statistics import bootstrap_median_ci
 from tpik.hierarchy import Hierarchy
 
 GROUPS: tuple[str, ...] = ("joint_limits", "walls", "obstacles")
-"""The DESIGN §7 set-task groups, always in ``summary.json`` (``None`` when the run has none).
+"""The docs/design.md §7 set-task groups, always in ``summary.json`` (``None`` when the run has none).
 
 Every group, these and any other a set task names (:attr:`tpik.tasks.SetTask.group`, e.g. a
 new safety task's), is also under ``"groups"``: ``summary["groups"][<group>]`` (:func:`task_groups`).
 """
 
 GROUP_HEADERS = {"joint_limits": "joint margin [rad]", "walls": "wall margin [m]", "obstacles": "obstacle margin [m]"}
-"""Run-table headers of the DESIGN §7 groups (another group: ``<group> margin``)."""
+"""Run-table headers of the docs/design.md §7 groups (another group: ``<group> margin``)."""
 
 STATUSES = ("ok", "degraded", "failed")
-"""Step statuses, the same for every method (DESIGN §3)."""
+"""Step statuses, the same for every method (docs/design.md §3)."""
 
 
 def set_task_infos(hierarchy: Hierarchy) -> tuple[SetTaskInfo, ...]:
@@ -221,7 +221,7 @@ def _group_metrics(per_task: dict[str, dict[str, Any]], tasks: list[SetTaskInfo]
         "physical_margin_min": min(physical_mins) if physical_mins else None,
         "violations": int(sum(r["violations"] for r in rows)),
         "violation_time_s": float(np.count_nonzero(any_safety) * dt),
-        # Extras (not part of the DESIGN §7 contract).
+        # Extras (not part of the docs/design.md §7 contract).
         "physical_violations": int(sum(r["physical_violations"] for r in rows)),
         "physical_violation_time_s": float(np.count_nonzero(any_physical) * dt),
         "worst_task": worst[1] if worst else None,
@@ -703,7 +703,7 @@ BUILTIN_METRICS: tuple[Metric, ...] = (
         lambda run: _per_rate(run, run.shared(_toggles)),
         aggregate=lambda runs: {"activation_toggles_per_s_median": runs.stat("activation_toggles_per_s", "median")},
     ),
-    # One accounting for every method (DESIGN §3, §7).
+    # One accounting for every method (docs/design.md §3, §7).
     Metric(
         "status_steps",
         "",
@@ -767,7 +767,7 @@ BUILTIN_METRICS: tuple[Metric, ...] = (
         aggregate=_total("warmup_steps"),
         sweep_columns=(Column("warm-up solves", lambda e: str(e.get("warmup_steps", "–")), section="accounting"),),
     ),
-    # Extras (beyond DESIGN §7).
+    # Extras (beyond docs/design.md §7).
     Metric("steps", "", len, aggregate=_total("steps")),
     Metric("dt", "s", lambda run: run.dt, flatten=_EXTRA),
     Metric("sim_time_s", "s", lambda run: float(run.meta.sim_time_s)),
@@ -879,7 +879,7 @@ for _metric in BUILTIN_METRICS:
 
 
 def compute_summary(steps: pd.DataFrame, meta: RunMeta, waypoint_tolerance_m: float = 0.02) -> dict[str, Any]:
-    """Metrics of one run for ``summary.json["methods"][meta.method]`` (DESIGN §6–7).
+    """Metrics of one run for ``summary.json["methods"][meta.method]`` (docs/design.md §6–7).
 
     Every registered metric with a ``compute`` (:func:`registered_metrics`), in registration
     order. Rows whose ``t`` is NaN (steps the loop could not fill) are dropped first.
@@ -890,7 +890,7 @@ def compute_summary(steps: pd.DataFrame, meta: RunMeta, waypoint_tolerance_m: fl
         waypoint_tolerance_m: EE error below which a waypoint counts as reached [m].
 
     Returns:
-        JSON-ready dict. The DESIGN §7 keys (``solve_time_us``, ``realtime_factor``,
+        JSON-ready dict. The docs/design.md §7 keys (``solve_time_us``, ``realtime_factor``,
         ``joint_limits``, ``walls``, ``obstacles``, ``min_obstacle_distance_m``, ``ee_error_m``,
         ``failures``, ``fallbacks``, ``activation_toggles_per_s``, and the step accounting
         ``status_steps`` {ok, degraded, failed}, ``fallback_steps``, ``time_below_physical_s``

@@ -1,6 +1,6 @@
 """Human-readable views of results: a run's table for the terminal, a sweep's Markdown report.
 
-They read only ``summary.json`` / ``sweep_summary.json`` (DESIGN §7), and show the columns of the
+They read only ``summary.json`` / ``sweep_summary.json`` (docs/design.md §7), and show the columns of the
 registered metrics (:mod:`compare.analysis.metric`); the sweep report links the PNGs of
 :mod:`compare.analysis.plots`.
 """
@@ -88,7 +88,7 @@ def markdown_table(headers: list[str], rows: list[list[str]]) -> str:
 
 
 _ACCOUNTING_NOTE = (
-    "Every step of every method by the same rules (DESIGN §3): failed = no usable command (a solver-domain"
+    "Every step of every method by the same rules (docs/design.md §3): failed = no usable command (a solver-domain"
     " error, a backend's no-solution, a command the loop's guard refused: the fallback acts); degraded = the"
     " solver reports a relaxation (slack, level given up, damping, velocity scaling) or its command misses the"
     " reference rate of a set task at or past an activation threshold; ok otherwise. Deadline: the control"

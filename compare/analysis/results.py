@@ -1,4 +1,4 @@
-"""Results directories: ``summary.json``, per-step tables, sweeps (DESIGN §7).
+"""Results directories: ``summary.json``, per-step tables, sweeps (docs/design.md §7).
 
 A run directory holds::
 

@@ -1,4 +1,4 @@
-"""Statistics of a sweep (DESIGN §7): rates with Wilson intervals, paired McNemar tests, bootstrap medians.
+"""Statistics of a sweep (docs/design.md §7): rates with Wilson intervals, paired McNemar tests, bootstrap medians.
 
 * :func:`rate` — a share of runs as ``{"count": k, "runs": n, "rate": k/n, "ci95": [lo, hi]}``,
   the Wilson score interval (``scipy.stats.binomtest(...).proportion_ci(method="wilson")``),

@@ -1,7 +1,10 @@
-r"""Timing versus correctness of every HQP backend, judged as qpbenchmark judges a QP solver.
+r"""Timing versus correctness of every HQP backend: two verdicts, the project's and qpbenchmark's.
 
 Every HQP method runs one control step on every state of the stored reference
-(:mod:`compare.bench.qp_reference`: the case-2 states and the random set) and its command is
+(:mod:`compare.bench.qp_reference`: the case-2 states and the random set), and each step gets two
+verdicts, reported side by side:
+
+**Lexicographic correctness** (the project's own test, of the command): the step's command is
 compared with the reference cascade, level by level, in the level's residual norm
 :math:`\rho_k = \sqrt{f_k}` [task units / s] (:func:`qp_baseline.lexicographic.level_objectives`):
 
@@ -17,14 +20,22 @@ level dropped, or a level kept without a certificate (``extras["levels_dropped"]
 ``extras["levels_uncertified"]``). A wrong step that is not flagged is **silent**: the failure
 the certificate exists to prevent (the acceptance is zero silent steps).
 
-Per method and state set: success rate (correct / states, with its Wilson 95 % interval), flagged,
-silent and false-flag counts, the worst level error, the qpbenchmark residuals of the level QPs
-the backend solved (primal residual, dual residual, duality gap: the largest over the step's
-levels, as certified), and the step time (kinematics + solve, as the case-2 bench). Methods are
-timed interleaved: ``rounds`` passes over all states, each state's methods in a rotating order,
-so a slow phase of a shared machine hits every method alike. The correctness of a step is taken
-from the first pass (later passes are timing only; a method's warm start then comes from the
-state before, as in the first pass).
+**qpbenchmark's criterion** (of the level QPs): qpbenchmark counts a QP as solved when the primal
+residual, the dual residual and the duality gap are all below its tolerance. A step meets it
+when every level QP its backend solved does, at :data:`QPBENCHMARK_TOLERANCE` (qpbenchmark's
+``mid_accuracy``), with the residuals of the answer the cascade accepted and the multipliers its
+certificate used (the largest over the step's levels). Steps that sent no QP to the backend are
+left out of this rate. A step can be lexicographically correct and fail this criterion (a dual
+residual of 1e-4 with an optimal answer) and, at a level the certificate flags, the other way.
+
+Per method and state set: both rates (correct / states and qpbenchmark-solved / steps with a
+backend QP, each with its Wilson 95 % interval), flagged, silent and false-flag counts, the worst
+level error, the residuals (primal residual, dual residual, duality gap: median, p95 and worst),
+and the step time (kinematics + solve, as the case-2 bench). Methods are timed interleaved:
+``rounds`` passes over all states, each state's methods in a rotating order, so a slow phase of a
+shared machine hits every method alike. The verdicts of a step are taken from the first pass
+(later passes are timing only; a method's warm start then comes from the state before, as in the
+first pass).
 """
 
 from __future__ import annotations
@@ -56,6 +67,11 @@ Ten times the cascade's own certificate tolerance (1e-6): a level within toleran
 above may shift the optimum of the levels below by a little more than 1e-6 (the strict optimum's
 conditioning); real errors are far above it (0.11 m/s for an OSQP level drop, 2.1e-5 m/s
 for the ProxQP one)."""
+
+QPBENCHMARK_TOLERANCE = 1e-6
+"""qpbenchmark's ``mid_accuracy`` tolerance on the primal residual, dual residual and duality gap.
+
+Also the tolerance of the cascade's certificate (:mod:`qp_baseline.certificate`)."""
 
 HQP_BACKENDS = tuple(f"hqp-{name}" for name in SUPPORTED_SOLVERS)
 """Default methods of the correctness bench (every supported QP backend)."""
@@ -152,6 +168,13 @@ class StepRecord:
     def silent(self) -> bool:
         """Wrong and not flagged."""
         return not self.correct and not self.flagged
+
+    def qpbenchmark_solved(self, tol: float = QPBENCHMARK_TOLERANCE) -> bool:
+        """Whether the step meets qpbenchmark's criterion: residuals and duality gap all below ``tol``.
+
+        False for a step whose residuals are NaN (no backend QP, or none certified).
+        """
+        return all(v < tol for v in (self.primal_residual, self.dual_residual, self.duality_gap))
 
 
 def state_set(name: str) -> str:
@@ -257,11 +280,35 @@ def wilson(count: int, total: int) -> tuple[float, float]:
     return (float(ci.low), float(ci.high))
 
 
+def _rate(count: int, total: int) -> dict[str, Any]:
+    """``{"count", "runs", "rate", "ci95"}`` with the Wilson interval."""
+    return {
+        "count": count,
+        "runs": total,
+        "rate": count / total if total else math.nan,
+        "ci95": list(wilson(count, total)),
+    }
+
+
 def _quantiles(values: Iterable[float]) -> dict[str, float | None]:
-    arr = np.array([v for v in values if math.isfinite(v)])
+    """Median and p95 of the finite values; ``max`` the worst, inf included; ``non_finite`` the infinite ones.
+
+    (In JSON an infinite ``max`` is ``null``; ``non_finite`` > 0 says that it was infinite.)
+    """
+    given = np.array([v for v in values if not math.isnan(v)], dtype=float)
+    arr = given[np.isfinite(given)]
+    non_finite = float(given.size - arr.size)
+    if not given.size:
+        return {"median": None, "p95": None, "max": None, "non_finite": 0.0}
+    worst = float(given.max())
     if not arr.size:
-        return {"median": None, "p95": None, "max": None}
-    return {"median": float(np.median(arr)), "p95": float(np.percentile(arr, 95)), "max": float(arr.max())}
+        return {"median": None, "p95": None, "max": worst, "non_finite": non_finite}
+    return {
+        "median": float(np.median(arr)),
+        "p95": float(np.percentile(arr, 95)),
+        "max": worst,
+        "non_finite": non_finite,
+    }
 
 
 @dataclass
@@ -272,8 +319,9 @@ class Summary:
         name: Method.
         states: ``case2`` or ``random``.
         count: States.
-        correct: Correct states (match or better).
-        success_rate: ``{"count", "runs", "rate", "ci95"}`` (DESIGN §7 rate form, Wilson interval).
+        correct: Correct states (match or better): the lexicographic verdict.
+        success_rate: ``{"count", "runs", "rate", "ci95"}`` of ``correct`` (the rate form of
+            ``sweep_summary.json``, docs/design.md §7, with its Wilson interval).
         flagged: Flagged states.
         silent: Wrong and not flagged.
         false_flags: Correct but flagged.
@@ -281,9 +329,12 @@ class Summary:
         levels_dropped: Sum over states.
         levels_uncertified: Sum over states.
         worst_level_error: Largest :math:`e_k` over states.
-        primal_residual: Quantiles over the steps with a backend QP.
+        primal_residual: Median, p95 and worst (``max``) over the steps with a backend QP.
         dual_residual: Likewise.
         duality_gap: Likewise.
+        qpbenchmark_success: ``{"count", "runs", "rate", "ci95"}`` of the steps with a backend QP
+            whose level QPs all meet qpbenchmark's criterion at ``qpbenchmark_tolerance``.
+        qpbenchmark_tolerance: Its tolerance (:data:`QPBENCHMARK_TOLERANCE`).
         time_us: Step time quantiles over states [µs].
         qp_calls_per_step: Mean backend QPs per step.
         retries: Retried level QPs, summed.
@@ -307,6 +358,8 @@ class Summary:
     time_us: dict[str, float | None] = field(default_factory=dict)
     qp_calls_per_step: float = 0.0
     retries: int = 0
+    qpbenchmark_success: dict[str, Any] = field(default_factory=dict)
+    qpbenchmark_tolerance: float = QPBENCHMARK_TOLERANCE
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready."""
@@ -323,7 +376,6 @@ def summarize(records: Sequence[StepRecord]) -> list[Summary]:
     for method, sset in keys:
         rs = [r for r in records if r.method == method and r.state_set == sset]
         n, k = len(rs), sum(r.correct for r in rs)
-        lo, hi = wilson(k, n)
         with_qp = [r for r in rs if r.qp_calls > 0]
         out.append(
             Summary(
@@ -331,7 +383,7 @@ def summarize(records: Sequence[StepRecord]) -> list[Summary]:
                 states=sset,
                 count=n,
                 correct=k,
-                success_rate={"count": k, "runs": n, "rate": k / n if n else math.nan, "ci95": [lo, hi]},
+                success_rate=_rate(k, n),
                 flagged=sum(r.flagged for r in rs),
                 silent=sum(r.silent for r in rs),
                 false_flags=sum(r.correct and r.flagged for r in rs),
@@ -345,6 +397,7 @@ def summarize(records: Sequence[StepRecord]) -> list[Summary]:
                 time_us=_quantiles(r.time_us for r in rs),
                 qp_calls_per_step=float(np.mean([r.qp_calls for r in rs])) if rs else 0.0,
                 retries=sum(r.retries for r in rs),
+                qpbenchmark_success=_rate(sum(r.qpbenchmark_solved() for r in with_qp), len(with_qp)),
             )
         )
     return out

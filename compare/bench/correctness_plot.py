@@ -1,4 +1,4 @@
-"""The "timing vs correctness" figure of the QP backends (DESIGN §7 plots)."""
+"""The "timing vs correctness" figure of the QP backends (docs/design.md §7 plots)."""
 
 from __future__ import annotations
 

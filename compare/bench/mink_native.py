@@ -1,6 +1,6 @@
 r"""``mink-native``: the paper's case-2 problem written with mink's API alone.
 
-The reference of every "× mink" ratio of ``tpik-compare bench`` (DESIGN §7). No project class is
+The reference of every "× mink" ratio of ``tpik-compare bench`` (docs/design.md §7). No project class is
 involved in a step: no task objects, no hierarchy, no pinocchio; only mink's ``Configuration``,
 a ``FrameTask`` for the EE position, ``ConfigurationLimit`` and ``VelocityLimit``, one custom
 ``Limit`` for the safety thresholds (joint limits 2, 4, 6, six EE walls, the obstacle distance of

@@ -101,7 +101,7 @@ def apply_state(hierarchy: Hierarchy, state: BenchState) -> None:
 
 
 def active_set_tasks(hierarchy: Hierarchy, robot: Robot, q: np.ndarray) -> list[str]:
-    """Names of the set tasks past an activation threshold at ``q`` (candidate set of DESIGN §3)."""
+    """Names of the set tasks past an activation threshold at ``q`` (candidate set of docs/design.md §3)."""
     kin = robot.kinematics(q)
     names = []
     for task in hierarchy.set_tasks:

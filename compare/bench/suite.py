@@ -1,4 +1,4 @@
-"""``tpik-compare bench``: the solver, sensing and QP-correctness benchmarks (DESIGN §7).
+"""``tpik-compare bench``: the solver, sensing and QP-correctness benchmarks (docs/design.md §7).
 
 Examples::
 
@@ -13,7 +13,7 @@ Examples::
 written with mink alone — measured in the same interleaved run, and the split of the same calls
 into the QP solver or compiled step against the rest, with :data:`RATIO_CAPTION` under each;
 ``mink`` is the project's adapter, timed beside it) and, with ``json_out``, writes ``{"versions": ..., "command": ...,
-"robot": ..., "results": [row, ...]}`` (DESIGN §7; ``ratio_to_mink`` of a row is against
+"robot": ..., "results": [row, ...]}`` (docs/design.md §7; ``ratio_to_mink`` of a row is against
 ``mink-native``), plus ``correctness`` (every HQP backend against the stored lexicographic
 reference, :mod:`compare.bench.correctness`) when that group ran. The profiles of the project's
 own loop (the plant alone, the loop's parts) are scripts: ``scripts/plant_bench.py`` and
@@ -77,7 +77,7 @@ class BenchOptions:
         rounds: Correctness: timed passes over the reference states.
         tolerance: Correctness: level error within which a level matches the reference.
         plot: Correctness: write the time-vs-correctness figure (PNG/SVG).
-        csv: Correctness: one row per (state, backend), qpbenchmark-style.
+        csv: Correctness: one row per (state, backend): qpbenchmark's residual columns and both verdicts.
         export_qps: Correctness: write the level QPs of the reference states as a qpbenchmark test set.
         export_method: The HQP method whose cascade poses the exported QPs.
 
@@ -197,27 +197,43 @@ def _generic_table(rows: list[BenchRow], title: str) -> Table:
 
 
 def correctness_table(summaries: list[Summary], title: str) -> Table:
-    """Rich table of :class:`~compare.bench.correctness.Summary` rows."""
+    """Rich table of :class:`~compare.bench.correctness.Summary` rows: both verdicts side by side.
+
+    "lexicographic" judges the command against the reference cascade (the project's test, with the
+    Wilson 95 % interval of its rate); "qpbenchmark" judges the level QPs by qpbenchmark's criterion
+    (primal residual, dual residual and duality gap below its tolerance), beside the worst
+    residuals and gap over the steps.
+    """
     table = Table(title=title)
     for col in (
         "backend",
         "states",
-        "correct",
-        "rate % [95 % CI]",
+        "lexicographic correct",
+        "95 % CI [%]",
         "flagged",
         "silent",
         "worst e_k",
-        "primal p95",
-        "dual p95",
-        "gap p95",
-        "median [µs]",
-        "p95 [µs]",
-        "QPs/step",
+        "qpbenchmark solved",  # its tolerance: correctness_legend, printed below the table
+        "worst primal",
+        "worst dual",
+        "worst gap",
+        "median µs",
+        "p95 µs",
+        "QPs per step",
     ):
-        table.add_column(col, justify="left" if col in ("backend", "states") else "right")
+        left = col in ("backend", "states")
+        table.add_column(col, justify="left" if left else "right", no_wrap=left)
 
-    def sci(value: float | None) -> str:
-        return "" if value is None or not math.isfinite(value) else f"{value:.1e}"
+    def sci(quantiles: dict[str, Any]) -> str:
+        value = quantiles.get("max")
+        if value is None and quantiles.get("non_finite"):
+            return "inf"  # read back from JSON, where an infinite value is null
+        if value is None or math.isnan(value):
+            return ""
+        return "inf" if math.isinf(value) else f"{value:.1e}"
+
+    def percent(rate: dict[str, Any]) -> str:
+        return "" if not rate or not rate["runs"] else f"{100 * rate['rate']:.1f} %"
 
     for s in summaries:
         lo, hi = s.success_rate["ci95"]
@@ -225,13 +241,14 @@ def correctness_table(summaries: list[Summary], title: str) -> Table:
             s.name,
             f"{s.states} ({s.count})",
             str(s.correct),
-            f"{100 * s.success_rate['rate']:.1f} [{100 * lo:.1f}, {100 * hi:.1f}]",
+            f"{100 * lo:.3g}–{100 * hi:.3g}",
             str(s.flagged),
             str(s.silent),
-            sci(s.worst_level_error),
-            sci(s.primal_residual.get("p95")),
-            sci(s.dual_residual.get("p95")),
-            sci(s.duality_gap.get("p95")),
+            f"{s.worst_level_error:.1e}",
+            percent(s.qpbenchmark_success),
+            sci(s.primal_residual),
+            sci(s.dual_residual),
+            sci(s.duality_gap),
             _fmt(s.time_us.get("median")),
             _fmt(s.time_us.get("p95")),
             f"{s.qp_calls_per_step:.2f}",
@@ -239,8 +256,25 @@ def correctness_table(summaries: list[Summary], title: str) -> Table:
     return table
 
 
+def correctness_legend(summaries: list[Summary]) -> str:
+    """What the two verdicts of :func:`correctness_table` are, printed below it."""
+    tol = summaries[0].qpbenchmark_tolerance if summaries else 0.0
+    return (
+        "lexicographic correct: the command matches or beats the reference cascade, level by level "
+        "(the project's test; 95 % CI: Wilson interval of its rate). qpbenchmark solved: every level QP "
+        f"of the step has primal residual, dual residual and duality gap below {tol:g} (qpbenchmark's "
+        "criterion); worst: the largest over the steps."
+    )
+
+
 def _write_records_csv(records: list[StepRecord], path: Path) -> None:
-    """qpbenchmark-style results table: problem, solver, settings, runtime, found, residuals, plus our verdict."""
+    """One row per (state, backend) with qpbenchmark's column names where they apply, and both verdicts.
+
+    ``problem`` is the state and ``runtime`` the whole control step [s] (kinematics, every level
+    QP, the certificate), not one QP as in qpbenchmark's results; the residuals are the worst of
+    the step's level QPs; ``qpbenchmark_solved`` is qpbenchmark's criterion on them
+    (:data:`~compare.bench.correctness.QPBENCHMARK_TOLERANCE`), ``verdict`` the lexicographic one.
+    """
     rows = [
         {
             "problem": r.state,
@@ -251,6 +285,7 @@ def _write_records_csv(records: list[StepRecord], path: Path) -> None:
             "primal_residual": r.primal_residual,
             "dual_residual": r.dual_residual,
             "duality_gap": r.duality_gap,
+            "qpbenchmark_solved": r.qpbenchmark_solved(),
             "state_set": r.state_set,
             "status": r.status,
             "verdict": r.verdict,
@@ -283,15 +318,20 @@ def _run_correctness(options: BenchOptions, console: Console) -> dict[str, Any]:
             f"(tolerance {options.tolerance:g}, {options.rounds} interleaved rounds)",
         )
     )
+    console.print(correctness_legend(summaries))
     if options.plot is not None:
         console.print(f"wrote {plot_time_vs_correctness(summaries, records, options.plot, options.tolerance)}")
     if options.csv is not None:
         _write_records_csv(records, options.csv)
         console.print(f"wrote {options.csv}")
     if options.export_qps is not None:
-        problems = collect_bench_qps(options.export_method, entries)
-        export_test_set(problems, options.export_qps, options.command())
-        console.print(f"wrote {len(problems)} level QPs of {options.export_method} to {options.export_qps}")
+        export = export_test_set(
+            collect_bench_qps(options.export_method, entries), options.export_qps, options.command()
+        )
+        console.print(
+            f"wrote {len(export.problems)} hard level QPs (of {len(export.candidates)} candidates) "
+            f"posed by {options.export_method} to {options.export_qps}"
+        )
     data = json.loads(REFERENCE_FILE.read_text(encoding="utf-8"))
     return {
         "tolerance": options.tolerance,

@@ -11,7 +11,7 @@ import numpy as np
 
 @dataclass(frozen=True)
 class BenchRow:
-    """One benchmark line (the ``results`` entries of ``bench --json``, DESIGN §7).
+    """One benchmark line (the ``results`` entries of ``bench --json``, docs/design.md §7).
 
     Attributes:
         name: Method or pipeline stage (``tpik``, ``hqp-daqp``, ``mink``, ``depth-distance``, ...).
@@ -30,7 +30,7 @@ class BenchRow:
     extra: dict[str, float]
 
     def to_dict(self) -> dict[str, object]:
-        """JSON-ready dict with the DESIGN §7 keys first."""
+        """JSON-ready dict with the docs/design.md §7 keys first."""
         return asdict(self)
 
 

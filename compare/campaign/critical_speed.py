@@ -17,7 +17,7 @@ every motion in time by up to ±``shift_s`` (a different phase of the arm's own 
 Per method, the *critical speed* for a threshold (safety or physical, of the obstacle tasks) is the
 highest swept speed at which every run at that speed and at every slower one kept every control
 point beyond it (ground truth, the metrics' 1 mm tolerance); ``None`` when even the slowest speed
-failed, the top speed when none failed. ``DIR/critical_speed.json`` (DESIGN §7)::
+failed, the top speed when none failed. ``DIR/critical_speed.json`` (docs/design.md §7)::
 
     {method: {"safety_mps": v, "physical_mps": v, "curve": [[speed_mps, min_distance_m], ...]}}
 

@@ -1,4 +1,4 @@
-r"""A clairvoyant reference controller: what the best-informed arm could have done (DESIGN §5, §7).
+r"""A clairvoyant reference controller: what the best-informed arm could have done (docs/design.md §5, §7).
 
 The person in a simulated scenario follows scripted keyframes and does not react to the arm, so
 their whole future motion is known in advance. The oracle uses it: a receding-horizon optimiser

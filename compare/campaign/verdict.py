@@ -1,6 +1,6 @@
 """The verdict of a run: could any motion of the arm have kept the person beyond the safety threshold?
 
-Each run of a scenario with a scripted person gets one label (DESIGN §5, §7):
+Each run of a scenario with a scripted person gets one label (docs/design.md §5, §7):
 
 * ``avoidable``: a *witness* (:mod:`compare.campaign.witness`) — a policy that knows the person's
   future and drives the same plant under the same limits — kept every obstacle, joint-limit and

@@ -1,4 +1,4 @@
-"""The closed loop shared by every method, in simulation and on hardware (DESIGN §4, §7).
+"""The closed loop shared by every method, in simulation and on hardware (docs/design.md §4, §7).
 
 One control step (period ``dt``, 100 Hz in the paper):
 
@@ -24,7 +24,7 @@ frozen frame is caught within half a period plus one control period of being ove
 older rule stays as a second guard: no good update for ``max_sensing_age_s`` → safe stop.
 
 Every method runs this same code on the same scenario, seed and sensing, and every step is
-classified by the same rules (DESIGN §3): FAILED when the solver reports it or raises one of its
+classified by the same rules (docs/design.md §3): FAILED when the solver reports it or raises one of its
 package's own errors (:data:`SOLVER_ERRORS`: a backend's no-solution, a task that cannot be
 evaluated); DEGRADED when the solver reports it (a slack used, a level given up, damping, the
 velocity scaled) or when its command misses the reference rate of a set-based task at or past an

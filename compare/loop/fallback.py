@@ -1,4 +1,4 @@
-r"""The command guard and fallback policy of the closed loop (DESIGN §3).
+r"""The command guard and fallback policy of the closed loop (docs/design.md §3).
 
 A step's command is sent only when the solve succeeded and the velocity is finite and within
 the limits, :math:`|\dot q_i| \le \dot q_{\max,i}(1 + 10^{-6}) + 10^{-9}` (:func:`guard`).
@@ -87,7 +87,7 @@ class FallbackPolicy:
         else:
             reason = guard(np.asarray(qdot, dtype=float), self._v_max, self._limits)
         if reason is not None:
-            return self._fallback(t, reason), reason, SolveStatus.FAILED  # no usable command (DESIGN §3)
+            return self._fallback(t, reason), reason, SolveStatus.FAILED  # no usable command (docs/design.md §3)
         command = np.array(qdot, dtype=float)
         self._last_safe, self._last_safe_t = command, t
         if self._since is not None:

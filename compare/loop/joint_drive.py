@@ -1,6 +1,6 @@
 """Joint drives of the simulated arm: how a velocity command becomes joint torque.
 
-The solvers command joint velocities (DESIGN §4). What the arm does with them is the plant's
+The solvers command joint velocities (docs/design.md §4). What the arm does with them is the plant's
 business, and it decides how far a held constraint is overshot in ``dynamic`` simulation:
 
 * ``servo`` — the MJCF's own actuators: one P-only velocity servo per joint,

@@ -1,4 +1,4 @@
-"""The sensing gate of the closed loop: when to sense, which updates to trust, when to stop (DESIGN §4).
+"""The sensing gate of the closed loop: when to sense, which updates to trust, when to stop (docs/design.md §4).
 
 At the sensing rate (30 Hz) the gate asks the obstacle source for the closest obstacle point of
 each control point and hands the readings to the obstacle tasks; between updates the latest

@@ -1,4 +1,4 @@
-r"""Randomized scenarios drawn from a seed (DESIGN §5, "beyond the paper").
+r"""Randomized scenarios drawn from a seed (docs/design.md §5, "beyond the paper").
 
 :func:`realize` turns a config of kind ``random`` into a concrete one: start pose, waypoints,
 person path and speed, sensor noise and dropout all come from ``numpy.random.default_rng(seed)``,

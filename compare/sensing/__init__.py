@@ -1,4 +1,4 @@
-"""Simulated depth sensing and obstacle distance (paper sec. III; DESIGN §4).
+"""Simulated depth sensing and obstacle distance (paper sec. III; docs/design.md §4).
 
 Scene: the robot's work cell (``robots/workcell/``: arm on its table, Kinect-v2-like depth
 camera, capsule person on mocap bodies; :meth:`robots.Robot.workcell_model`). Two sensing modes with one result type

@@ -1,4 +1,4 @@
-r"""Fusion of several depth cameras into one obstacle reading per control point (DESIGN §4).
+r"""Fusion of several depth cameras into one obstacle reading per control point (docs/design.md §4).
 
 Each camera :math:`c` sorts every point :math:`X` of space (its depth along the optical axis
 :math:`z_c(X)`, its nearest pixel :math:`q`, the filtered depth :math:`f_c(q)` and the raw

@@ -53,7 +53,7 @@ class Intrinsics:
 
 
 KINECT_V2 = Intrinsics((512, 424), (365.5, 365.5), (255.0, 205.0), (0.5, 4.5))
-"""The Kinect v2 depth stream (DESIGN §4): the default of a camera added to the scene."""
+"""The Kinect v2 depth stream (docs/design.md §4): the default of a camera added to the scene."""
 
 
 class CameraLike(Protocol):

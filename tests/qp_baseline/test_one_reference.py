@@ -1,4 +1,4 @@
-"""One control reference (DESIGN §3): TPIK, HQP and mink receive the same r for the same hierarchy and state.
+"""One control reference (docs/design.md §3): TPIK, HQP and mink receive the same r for the same hierarchy and state.
 
 The references are :class:`tpik.reference.ControlReference`'s formulas; TPIK and the QP methods'
 set rows compute them in compiled code from the shared task evaluation (:mod:`tpik.evaluation`).

@@ -1,6 +1,6 @@
 """``tpik-paper`` against an independent re-implementation of the paper's algorithm, and the deviations.
 
-The reference below is written from the paper (sec. II, eqs. 2–9 and sec. II-A) and DESIGN §3
+The reference below is written from the paper (sec. II, eqs. 2–9 and sec. II-A) and docs/design.md §3
 step by step with NumPy's SVD, in joint space, without any code of ``tpik``: CLIK references
 without a gain cap (eq. 2), every subset of the candidate set tasks inserted at its own level with
 σ_d the crossed safety threshold (eq. 7), the NSB cascade of eq. 4 with exact null-space projectors

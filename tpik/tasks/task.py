@@ -1,4 +1,4 @@
-"""The shared task interface (DESIGN §2): equality tasks, set-based tasks, their value objects."""
+"""The shared task interface (docs/design.md §2): equality tasks, set-based tasks, their value objects."""
 
 from __future__ import annotations
 

@@ -35,7 +35,7 @@ REQUIRED_KEYS = {
     "failures",
     "fallbacks",
     "activation_toggles_per_s",
-    # One accounting for every method (DESIGN §7).
+    # One accounting for every method (docs/design.md §7).
     "status_steps",
     "fallback_steps",
     "time_below_physical_s",

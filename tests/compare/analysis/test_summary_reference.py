@@ -1,4 +1,4 @@
-"""``summary.json`` and ``sweep_summary.json`` keep their keys and values (DESIGN §7).
+"""``summary.json`` and ``sweep_summary.json`` keep their keys and values (docs/design.md §7).
 
 The files in ``reference/`` were written by the code at commit d25a909, before the metrics moved
 into a registry (``compare.analysis.metric``), with::
@@ -125,7 +125,7 @@ def test_the_sweep_aggregation_of_the_reference_runs_is_unchanged(tmp_path: Path
 
 
 def test_the_reference_files_hold_every_design_key() -> None:
-    """The references are worth comparing against: DESIGN §7's keys are in them, not all empty."""
+    """The references are worth comparing against: docs/design.md §7's keys are in them, not all empty."""
     summary = json.loads((REFERENCE / "faults_run.json").read_text(encoding="utf-8"))
     tpik = summary["methods"]["tpik"]
     for key in ("solve_time_us", "joint_limits", "obstacles", "ee_error_m", "status_steps", "iso15066", "faults"):

@@ -13,6 +13,7 @@ from typer.testing import CliRunner
 
 from compare.bench.correctness import (
     HQP_BACKENDS,
+    QPBENCHMARK_TOLERANCE,
     StepRecord,
     compare_levels,
     judge_step,
@@ -93,6 +94,23 @@ def test_summary_counts_silent_flagged_and_false_flags():
     assert s.time_us["median"] == pytest.approx(100.0)
 
 
+def test_qpbenchmarks_criterion_is_reported_beside_the_lexicographic_verdict():
+    records = [
+        _record(state="a"),  # correct, residuals 1e-9: qpbenchmark-solved at 1e-6
+        _record(state="b", dual_residual=3e-4),  # correct, but a dual residual above tolerance
+        _record(state="c", duality_gap=math.inf),  # infinite gap: the worst gap is inf
+        _record(state="d", verdict="worse", level=1, worst_error=0.1),  # wrong, residuals small
+        _record(state="e", qp_calls=0, primal_residual=math.nan, dual_residual=math.nan, duality_gap=math.nan),
+    ]
+    (s,) = summarize(records)
+    assert s.correct == 4
+    assert s.qpbenchmark_success["runs"] == 4 and s.qpbenchmark_success["count"] == 2  # "e" sent no QP
+    assert s.qpbenchmark_tolerance == QPBENCHMARK_TOLERANCE == 1e-6
+    assert s.dual_residual["max"] == pytest.approx(3e-4) and s.duality_gap["max"] == math.inf
+    assert s.duality_gap["non_finite"] == 1 and s.duality_gap["median"] == pytest.approx(1e-9)
+    assert not records[4].qpbenchmark_solved()
+
+
 def test_a_dropped_level_is_a_flag_and_an_unflagged_wrong_answer_is_silent(reference, jaco):
     entry = reference[10]
     hierarchy = case2_hierarchy(jaco)
@@ -146,13 +164,15 @@ def test_bench_cli_writes_the_correctness_section_csv_and_plot(tmp_path):
     )
     assert result.exit_code == 0, result.output
     payload = json.loads(out.read_text())
-    assert {"versions", "command", "results", "correctness"} <= set(payload)  # DESIGN §7 keys kept
+    assert {"versions", "command", "results", "correctness"} <= set(payload)  # docs/design.md §7 keys kept
     corr = payload["correctness"]
     assert corr["reference"]["fingerprint"] and corr["tolerance"] > 0
     by_set = {s["states"]: s for s in corr["summaries"]}
     assert by_set["case2"]["count"] == 3 and by_set["random"]["count"] >= 200
     assert by_set["random"]["silent"] == 0 and by_set["random"]["name"] == "hqp-daqp"
     assert set(by_set["random"]["success_rate"]) == {"count", "runs", "rate", "ci95"}
+    assert set(by_set["random"]["qpbenchmark_success"]) == {"count", "runs", "rate", "ci95"}
+    assert by_set["random"]["qpbenchmark_tolerance"] == QPBENCHMARK_TOLERANCE
     with open(tmp_path / "steps.csv", newline="") as fh:
         rows = list(csv.DictReader(fh))
     assert len(rows) == by_set["case2"]["count"] + by_set["random"]["count"]
@@ -165,6 +185,8 @@ def test_bench_cli_writes_the_correctness_section_csv_and_plot(tmp_path):
         "primal_residual",
         "dual_residual",
         "duality_gap",
+        "qpbenchmark_solved",
+        "verdict",
     } <= set(rows[0])
     assert (tmp_path / "tvc.png").stat().st_size > 10_000
 
