@@ -717,7 +717,13 @@ def bench(
         Path | None, typer.Option("--plot", help="Correctness: write the time-vs-correctness figure.")
     ] = None,
     csv_out: Annotated[
-        Path | None, typer.Option("--csv", help="Correctness: one row per (state, backend), qpbenchmark-style.")
+        Path | None,
+        typer.Option(
+            "--csv",
+            help=(
+                "Correctness: one row per (state, backend): the residuals as qpbenchmark names them and both verdicts."
+            ),
+        ),
     ] = None,
     export_qps: Annotated[
         Path | None,
