@@ -21,7 +21,7 @@ from compare.replay.overlay import OverlayStyle, PanelInfo, PanelSource, draw_pa
 from compare.replay.run_data import ReplayRun
 from compare.replay.scene import ReplayScene, ViewPoint, default_view
 from compare.sensing.geometric_distance import closest_on_capsules
-from compare.sensing.renderer import planes_as_boxes
+from compare.sensing.renderer import close_offscreen, open_offscreen, planes_as_boxes
 
 MARKER_RADIUS_M = 0.035
 """Radius of a control point's sphere [m]."""
@@ -57,11 +57,9 @@ class PanelRenderer:
         edges = np.linspace(0, width, n + 1).round().astype(int)
         self.rects = [mujoco.MjrRect(int(a), 0, int(b - a), height) for a, b in zip(edges[:-1], edges[1:], strict=True)]
         self.full = mujoco.MjrRect(0, 0, width, height)
-        self._gl = mujoco.GLContext(width, height)
-        self._gl.make_current()
         scale = mujoco.mjtFontScale.mjFONTSCALE_150 if height >= 600 else mujoco.mjtFontScale.mjFONTSCALE_100
-        self._ctx: mujoco.MjrContext | None = mujoco.MjrContext(model, scale)
-        mujoco.mjr_setBuffer(mujoco.mjtFramebuffer.mjFB_OFFSCREEN, self._ctx)
+        self._gl, ctx = open_offscreen(model, width, height, scale)
+        self._ctx: mujoco.MjrContext | None = ctx
         self._scn = mujoco.MjvScene(model, maxgeom=1000)
         for flag in ("mjRND_SHADOW", "mjRND_REFLECTION", "mjRND_SKYBOX", "mjRND_HAZE", "mjRND_FOG"):
             self._scn.flags[getattr(mujoco.mjtRndFlag, flag)] = 0  # costly in software, not needed to read the scene
@@ -71,7 +69,7 @@ class PanelRenderer:
         self._sources = [PanelSource(run, m) for m in run.methods]
         activation = [th.safety_lower + th.activation_margin for th in run.obstacle_thresholds().values()]
         full_bar_m = max([run.config.sensor.rho_m, *(1.5 * a for a in activation)])
-        self.style = OverlayStyle.for_height(height, full_bar_m, label_width_px(self._ctx, run.control_points))
+        self.style = OverlayStyle.for_height(height, full_bar_m, label_width_px(ctx, run.control_points))
         view_height = height - self.style.strip_px(len(run.control_points))
         self.view = view or default_view(run, self.scene.person, self.rects[0].width / view_height)
         self.view.apply(self._camera)
@@ -142,10 +140,8 @@ class PanelRenderer:
     def close(self) -> None:
         """Free the GL resources (idempotent)."""
         if self._ctx is not None:
-            self._gl.make_current()
-            self._ctx.free()
+            close_offscreen(self._gl, self._ctx)
             self._ctx = None
-            self._gl.free()
 
     def __enter__(self) -> PanelRenderer:
         return self

@@ -62,6 +62,24 @@ def planes_as_boxes(scene: mujoco.MjvScene, viewer_m: np.ndarray, reach_m: float
         g.pos[:] = g.pos - _PLANE_BOX_HALF_THICKNESS_M * normal
 
 
+def open_offscreen(
+    model: mujoco.MjModel, width: int, height: int, font_scale: mujoco.mjtFontScale
+) -> tuple[mujoco.GLContext, mujoco.MjrContext]:
+    """A current GL context of ``width`` x ``height`` px and a MuJoCo render context drawing offscreen."""
+    gl = mujoco.GLContext(width, height)
+    gl.make_current()
+    ctx = mujoco.MjrContext(model, font_scale)
+    mujoco.mjr_setBuffer(mujoco.mjtFramebuffer.mjFB_OFFSCREEN, ctx)
+    return gl, ctx
+
+
+def close_offscreen(gl: mujoco.GLContext, ctx: mujoco.MjrContext) -> None:
+    """Free what :func:`open_offscreen` made (the render context first, with its GL context current)."""
+    gl.make_current()
+    ctx.free()
+    gl.free()
+
+
 class DepthCamera:
     """Renders depth frames of one MuJoCo camera, with optional noise and dropout.
 
@@ -101,11 +119,9 @@ class DepthCamera:
                 f"camera '{camera}' is {w}x{h} px but the offscreen buffer is "
                 f"{model.vis.global_.offwidth}x{model.vis.global_.offheight}: raise visual/global offwidth/offheight"
             )
-        self._gl = mujoco.GLContext(w, h)
-        self._gl.make_current()
-        self._ctx: mujoco.MjrContext | None = mujoco.MjrContext(model, mujoco.mjtFontScale.mjFONTSCALE_100)
-        mujoco.mjr_setBuffer(mujoco.mjtFramebuffer.mjFB_OFFSCREEN, self._ctx)
-        self._ctx.readDepthMap = mujoco.mjtDepthMap.mjDEPTH_ZEROFAR
+        self._gl, ctx = open_offscreen(model, w, h, mujoco.mjtFontScale.mjFONTSCALE_100)
+        self._ctx: mujoco.MjrContext | None = ctx
+        ctx.readDepthMap = mujoco.mjtDepthMap.mjDEPTH_ZEROFAR
         self._scene = mujoco.MjvScene(model, maxgeom=max_geom)
         # Flat ID colours, no shadows/reflections/skybox: only the depth buffer matters.
         flags = self._scene.flags
@@ -205,10 +221,8 @@ class DepthCamera:
     def close(self) -> None:
         """Free the GL resources (idempotent)."""
         if self._ctx is not None:
-            self._gl.make_current()
-            self._ctx.free()
+            close_offscreen(self._gl, self._ctx)
             self._ctx = None
-            self._gl.free()
 
     def __enter__(self) -> DepthCamera:
         return self
