@@ -20,7 +20,6 @@ import logging
 import os
 import shlex
 import sys
-import tomllib
 from collections.abc import Callable
 from pathlib import Path
 from typing import TYPE_CHECKING, Annotated, Any, TypeVar
@@ -215,10 +214,13 @@ def _select_methods(cfg: Config, methods: list[str] | None) -> Config:
     return parse_config(data)
 
 
-def _with_oracle(
+def _with_options(
     overrides: dict[str, object], oracle: bool | None, prediction: str | None = None, sets: list[str] | None = None
 ) -> dict[str, object]:
     """``overrides`` with --oracle, --prediction and every --set KEY=VALUE (a bad one: exit 2)."""
+    # Deferred: start-up cost (module docstring).
+    from compare.config import override_value
+
     if oracle is not None:
         overrides["oracle.enabled"] = oracle
     if prediction is not None:
@@ -227,11 +229,7 @@ def _with_oracle(
         key, sep, text = item.partition("=")
         if not sep or not key.strip() or not text.strip():
             _fail(f"--set: KEY=VALUE expected, got '{item}'")
-        try:
-            value: object = tomllib.loads(f"v = {text.strip()}")["v"]
-        except tomllib.TOMLDecodeError:
-            value = text.strip()  # a bare word: a string
-        overrides[key.strip()] = value
+        overrides[key.strip()] = override_value(text)
     return overrides
 
 
@@ -263,7 +261,7 @@ def run(
     from compare.config import ConfigError, load_config
     from compare.run import run_scenario
 
-    overrides = _with_oracle(_overrides(duration, time_scale, sensing, simulation, drive), oracle, prediction, sets)
+    overrides = _with_options(_overrides(duration, time_scale, sensing, simulation, drive), oracle, prediction, sets)
     try:
         cfg, text = load_config(config, overrides)
         cfg = _select_methods(cfg, methods)
@@ -347,7 +345,7 @@ def sweep(
 
     overrides = _overrides(duration, time_scale, sensing or "geometric", simulation, drive, seed)
     try:
-        cfg, text = load_config(config, _with_oracle(overrides, oracle, prediction, sets))
+        cfg, text = load_config(config, _with_options(overrides, oracle, prediction, sets))
     except ConfigError as exc:
         _fail(str(exc))
         return
@@ -403,7 +401,7 @@ def critical_speed(
     from compare.campaign.critical_speed import run_critical_speed
     from compare.config import ConfigError, load_config
 
-    overrides = _with_oracle(
+    overrides = _with_options(
         _overrides(duration, time_scale, sensing or "geometric", simulation, drive), oracle, prediction, sets
     )
     try:

@@ -1070,6 +1070,14 @@ def _resolve_extension_files(data: dict[str, Any], base: Path) -> None:
         ]
 
 
+def override_value(text: str) -> Any:
+    """The value of a command-line override ``KEY=VALUE``: a TOML value, a bare word as a string."""
+    try:
+        return tomllib.loads(f"v = {text.strip()}")["v"]
+    except tomllib.TOMLDecodeError:
+        return text.strip()
+
+
 def load_config(path: str | Path, overrides: dict[str, Any] | None = None) -> tuple[Config, str]:
     """Read and validate a TOML config file; returns the config and its TOML text.
 

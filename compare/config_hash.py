@@ -12,6 +12,7 @@ with the method (:func:`method_settings`), not in the hash.
 
 from __future__ import annotations
 
+import functools
 import hashlib
 import json
 import math
@@ -57,8 +58,9 @@ def config_fingerprint(config: Config) -> dict[str, Any]:
     return out
 
 
+@functools.cache
 def _section_defaults(section: str) -> dict[str, Any]:
-    """The fingerprint keys of ``section`` at its defaults."""
+    """The fingerprint keys of ``section`` at its defaults (computed once; callers only compare)."""
     out: dict[str, Any] = {}
     default = Config.model_fields[section].default_factory()  # type: ignore[misc]
     _flatten(_plain(default.model_dump(mode="python")), section, out)

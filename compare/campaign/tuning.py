@@ -18,7 +18,6 @@ from __future__ import annotations
 import itertools
 import json
 import math
-import tomllib
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
@@ -27,6 +26,7 @@ from compare.analysis.metric import fmt_number, rate_with_ci
 from compare.analysis.metrics import to_jsonable
 from compare.analysis.report import markdown_table, write_markdown
 from compare.analysis.results import SWEEP_SUMMARY_FILE, write_json_atomic
+from compare.config import override_value
 from compare.exceptions import CompareError
 
 TUNING_FILE = "tuning.json"
@@ -63,17 +63,10 @@ def parse_grid(items: Sequence[str]) -> dict[str, list[Any]]:
             raise GridError(f"--grid: KEY=V1,V2,... expected, got '{item}'")
         if key in grid:
             raise GridError(f"--grid: '{key}' given twice")
-        grid[key] = [_toml_value(v) for v in values]
+        grid[key] = [override_value(v) for v in values]
     if not grid:
         raise GridError("--grid: at least one KEY=V1,V2,... is needed")
     return grid
-
-
-def _toml_value(text: str) -> Any:
-    try:
-        return tomllib.loads(f"v = {text}")["v"]
-    except tomllib.TOMLDecodeError:
-        return text  # a bare word: a string
 
 
 def grid_points(grid: Mapping[str, Sequence[Any]]) -> list[dict[str, Any]]:
