@@ -459,11 +459,13 @@ def paper_claims(
     methods: MethodsOpt = None,
     configs: Annotated[Path, typer.Option(help="Folder of the case configs.")] = Path("configs"),
     quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress bars.")] = False,
+    prediction: PredictionOpt = None,
+    sets: SetOpt = None,
 ) -> None:
     """Run the paper's case studies (and their paper-paced variants) and print the claims of Sec. IV per method.
 
     The same tables as README.md's, regenerated on this code (compare/campaign/paper_claims.py);
-    runs already in --out with the same config are reused.
+    runs already in --out with the same config are reused. --prediction and --set apply to every case.
     """
     # Deferred: start-up cost (module docstring).
     from compare.campaign.paper_claims import CASES, claims_details, claims_json, claims_tables, run_paper_claims
@@ -475,7 +477,15 @@ def paper_claims(
         return
     picked = seeds or [0]
     try:
-        results = run_paper_claims(configs, out, picked, methods, progress=not quiet, announce=typer.echo)
+        results = run_paper_claims(
+            configs,
+            out,
+            picked,
+            methods,
+            progress=not quiet,
+            announce=typer.echo,
+            overrides=_with_options({}, None, prediction, sets),
+        )
     except (ConfigError, ResultsError) as exc:
         _fail(str(exc))
         return

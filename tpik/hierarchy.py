@@ -66,10 +66,6 @@ class Hierarchy:
         except KeyError:
             raise TaskDefinitionError(f"no task named '{name}'; tasks: {', '.join(self._by_name)}") from None
 
-    def tasks_of_type(self, kind: type[Task]) -> list[Task]:
-        """Tasks that are instances of ``kind``."""
-        return [t for t in self._by_name.values() if isinstance(t, kind)]
-
     def __iter__(self) -> Iterator[Level]:
         return iter(self.levels)
 

@@ -14,7 +14,7 @@ A run directory already holding every method's results of the same config text i
 from __future__ import annotations
 
 import json
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -78,6 +78,7 @@ def run_paper_claims(
     methods: Sequence[str] | None = None,
     progress: bool = True,
     announce: Callable[[str], None] | None = None,
+    overrides: Mapping[str, object] | None = None,
 ) -> dict[str, dict[str, dict[str, ClaimRuns]]]:
     """Run every config of :data:`CASES` for every seed and measure the claims.
 
@@ -88,6 +89,7 @@ def run_paper_claims(
         methods: Methods (default: each config's own).
         progress: Progress bars of the runs.
         announce: Called with a line before each run.
+        overrides: Dotted config keys set in every case (``{"prediction.mode": "estimated"}``).
 
     Returns:
         ``{case kind: {variant: {method: {claim key: ClaimRuns}}}}``.
@@ -95,7 +97,7 @@ def run_paper_claims(
     out: dict[str, dict[str, dict[str, dict[str, list[Claim]]]]] = {}
     for name, variant in CASES:
         for seed in seeds:
-            config, text = load_config(Path(config_dir) / name, {"scenario.seed": int(seed)})
+            config, text = load_config(Path(config_dir) / name, {**(overrides or {}), "scenario.seed": int(seed)})
             if methods:
                 config = config.model_copy(
                     update={"methods": config.methods.model_copy(update={"names": list(methods)})}

@@ -11,15 +11,21 @@ setup ran, from each run's ``summary.json`` (ground-truth distances):
   also given over the ``avoidable`` runs only;
 * **joint / wall**: runs with a joint-limit or wall safety violation, and their worst margins;
 * **mission**: the mean end-effector error over the run and the waypoints reached, paired against
-  the baseline with the Wilcoxon signed-rank test; the time below the physical obstacle threshold.
+  the baseline with the Wilcoxon signed-rank test; the time to each waypoint (``time_to_waypoint_s``,
+  segment *k* of a seed against segment *k* of the same seed in the baseline: the run's mean over the
+  segments both reached, Wilcoxon on those means; and the segments only one of the two reached);
+  the time below the physical obstacle threshold;
+* **speed**: the held share against the person's peak torso speed (``person.max_speed_mps``, the
+  walking speed the run realised), in speed bins with their Wilson intervals
+  (:func:`held_by_speed`; ``setups_speed.png`` draws it).
 
 Run::
 
     python -m compare.campaign.setups results/predicted-off:off results/predicted-estimated:estimated \
         --out docs/campaign-predicted
 
-(``DIR:LABEL``; the label defaults to the directory's name.) Writes ``setups.json`` and
-``setups.md``.
+(``DIR:LABEL``; the label defaults to the directory's name.) Writes ``setups.json``,
+``setups.md`` and ``setups_speed.png``.
 """
 
 from __future__ import annotations
@@ -34,6 +40,8 @@ import numpy as np
 import pandas as pd
 from scipy import stats
 
+from compare.analysis.atomic_files import write_text_atomic
+from compare.analysis.plots_setups import SPEED_PLOT, plot_held_by_speed
 from compare.analysis.results import RUNS_DIR, load_summary, write_json_atomic
 from compare.analysis.statistics import mcnemar, rate
 
@@ -51,7 +59,12 @@ COLUMNS = [
     "ee_error_mean",
     "waypoints",
     "physical_time_s",
+    "waypoint_times",
+    "torso_speed_mps",
 ]
+
+SPEED_BINS = 4
+"""Bins of the held-vs-speed view: quantiles of the baseline's torso speeds (equal run counts)."""
 
 
 def _number(value: Any) -> float:
@@ -74,6 +87,7 @@ def sweep_runs(sweep_dir: Path) -> pd.DataFrame:
         except (OSError, ValueError):
             continue
         label = (summary.get("oracle") or {}).get("label")
+        speeds = (summary.get("person") or {}).get("max_speed_mps") or {}
         for method, m in (summary.get("methods") or {}).items():
             joints, walls = m.get("joint_limits") or {}, m.get("walls") or {}
             rows.append(
@@ -89,6 +103,8 @@ def sweep_runs(sweep_dir: Path) -> pd.DataFrame:
                     "ee_error_mean": _number((m.get("ee_error_m") or {}).get("mean")),
                     "waypoints": _number(m.get("waypoints_reached")),
                     "physical_time_s": _number((m.get("obstacles") or {}).get("physical_violation_time_s")),
+                    "waypoint_times": [_number(t) for t in m.get("time_to_waypoint_s") or []],
+                    "torso_speed_mps": _number(speeds.get("torso")),
                 }
             )
     return pd.DataFrame(rows, columns=COLUMNS)
@@ -112,7 +128,60 @@ def _min(x: np.ndarray) -> float | None:
     return float(x.min()) if x.size else None
 
 
-def _setup_entry(rows: pd.DataFrame, base: pd.DataFrame, avoidable: np.ndarray) -> dict[str, Any]:
+def waypoint_time_pairs(this: pd.Series, base: pd.Series) -> dict[str, Any]:
+    """Time to each waypoint, seed by seed against the baseline (module docstring).
+
+    Args:
+        this: Per seed, the list of each segment's time to reach [s] (NaN: never reached).
+        base: The same for the baseline, seeds in the same order.
+
+    Returns:
+        ``{"seeds", "mean_s", "baseline_mean_s", "wilcoxon_p", "only_this", "only_baseline"}``:
+        the seeds with a segment both reached, the mean over them of the per-seed mean times, the
+        Wilcoxon p on the per-seed means (None under two seeds), and the segments only one reached.
+    """
+    mine: list[float] = []
+    theirs: list[float] = []
+    only_this = only_base = 0
+    for a, b in zip(this, base, strict=True):
+        both = [(x, y) for x, y in zip(a, b, strict=False) if np.isfinite(x) and np.isfinite(y)]
+        only_this += sum(np.isfinite(x) and not np.isfinite(y) for x, y in zip(a, b, strict=False))
+        only_base += sum(np.isfinite(y) and not np.isfinite(x) for x, y in zip(a, b, strict=False))
+        if both:
+            mine.append(float(np.mean([x for x, _ in both])))
+            theirs.append(float(np.mean([y for _, y in both])))
+    x, y = np.asarray(mine), np.asarray(theirs)
+    return {
+        "seeds": int(x.size),
+        "mean_s": _mean(x),
+        "baseline_mean_s": _mean(y),
+        "wilcoxon_p": _wilcoxon(x, y),
+        "only_this": int(only_this),
+        "only_baseline": int(only_base),
+    }
+
+
+def speed_edges(speeds: np.ndarray, bins: int = SPEED_BINS) -> list[float]:
+    """Bin edges at the quantiles of the finite ``speeds`` [m/s] (fewer bins when values repeat)."""
+    finite_speeds = speeds[np.isfinite(speeds)]
+    if finite_speeds.size == 0:
+        return []
+    return sorted({float(e) for e in np.quantile(finite_speeds, np.linspace(0.0, 1.0, bins + 1))})
+
+
+def held_by_speed(rows: pd.DataFrame, edges: list[float]) -> list[dict[str, Any]]:
+    """Held share per speed bin ``[edges[i], edges[i+1]]`` (the last bin closed): ``{"low", "high", "held"}``."""
+    speeds = rows["torso_speed_mps"].to_numpy(float)
+    held = rows["held"].to_numpy(dtype=bool)
+    out = []
+    for k, (low, high) in enumerate(zip(edges[:-1], edges[1:], strict=True)):
+        last = k == len(edges) - 2
+        inside = (speeds >= low) & ((speeds <= high) if last else (speeds < high))
+        out.append({"low": low, "high": high, "held": rate(int(held[inside].sum()), int(inside.sum()))})
+    return out
+
+
+def _setup_entry(rows: pd.DataFrame, base: pd.DataFrame, avoidable: np.ndarray, edges: list[float]) -> dict[str, Any]:
     """One setup of one method, paired seed by seed with the baseline's rows."""
     held = rows["held"].to_numpy(dtype=bool)
     base_held = base["held"].to_numpy(dtype=bool)
@@ -132,6 +201,8 @@ def _setup_entry(rows: pd.DataFrame, base: pd.DataFrame, avoidable: np.ndarray) 
         "waypoints_mean": _mean(wp),
         "waypoints_vs_baseline_wilcoxon_p": _wilcoxon(wp, base_wp),
         "physical_time_s_mean": _mean(rows["physical_time_s"].to_numpy(float)),
+        "waypoint_time": waypoint_time_pairs(rows["waypoint_times"], base["waypoint_times"]),
+        "held_by_torso_speed": held_by_speed(rows, edges),
     }
 
 
@@ -159,10 +230,11 @@ def compare_setups(setups: list[tuple[str, Path]]) -> dict[str, Any]:
             continue
         base = per[baseline].loc[seeds]
         avoidable = (base["label"] == "avoidable").to_numpy(dtype=bool)
+        edges = speed_edges(base["torso_speed_mps"].to_numpy(float))
         out["methods"][str(method)] = {
             "paired_runs": len(seeds),
             "seeds": [int(seeds[0]), int(seeds[-1])],
-            "setups": {label: _setup_entry(p.loc[seeds], base, avoidable) for label, p in per.items()},
+            "setups": {label: _setup_entry(p.loc[seeds], base, avoidable, edges) for label, p in per.items()},
         }
     return out
 
@@ -185,8 +257,9 @@ def render_markdown(result: dict[str, Any]) -> str:
         "(McNemar on held, Wilcoxon on the mission cost).",
         "",
         "| method | setup | runs | held (Wilson 95 %) | held, avoidable runs | only this / only baseline (p) "
-        "| joint / wall violations (worst margin) | mean EE error [m] (p) | waypoints (p) |",
-        "|---|---|---|---|---|---|---|---|---|",
+        "| joint / wall violations (worst margin) | mean EE error [m] (p) | waypoints (p) "
+        "| time to a waypoint [s] (p; reached only here / only baseline) |",
+        "|---|---|---|---|---|---|---|---|---|---|",
     ]
     for method, m in result["methods"].items():
         for label, e in m["setups"].items():
@@ -205,9 +278,46 @@ def render_markdown(result: dict[str, Any]) -> str:
             lines.append(
                 f"| `{method}` | {label} | {m['paired_runs']} | {_pct(e['held'])} | {_pct(e['held_avoidable'])} "
                 f"| {paired} | {jw} | {_num(e['ee_error_mean_m'], '.3f')}{ee_p} "
-                f"| {_num(e['waypoints_mean'], '.2f')}{wp_p} |"
+                f"| {_num(e['waypoints_mean'], '.2f')}{wp_p} | {_waypoint_time_cell(e, label == result['baseline'])} |"
             )
+    lines += _speed_lines(result)
     return "\n".join(lines) + "\n"
+
+
+def _waypoint_time_cell(entry: dict[str, Any], baseline: bool) -> str:
+    wt = entry.get("waypoint_time") or {}
+    if baseline:
+        return _num(wt.get("baseline_mean_s"), ".2f")
+    return (
+        f"{_num(wt.get('mean_s'), '.2f')} ({_num(wt.get('wilcoxon_p'), '.2g')}; "
+        f"{wt.get('only_this', 0)} / {wt.get('only_baseline', 0)})"
+    )
+
+
+def _speed_lines(result: dict[str, Any]) -> list[str]:
+    """The held share per bin of the person's peak torso speed, a row per (method, setup)."""
+    first = next(iter(result["methods"].values()), None)
+    if first is None:
+        return []
+    bins = next(iter(first["setups"].values())).get("held_by_torso_speed") or []
+    if not bins:
+        return []
+    header = " | ".join(f"{b['low']:.2f}–{b['high']:.2f} m/s" for b in bins)
+    lines = [
+        "",
+        "Held share by the person's peak torso speed (bins: quantiles of the baseline's speeds; "
+        "runs held / runs in the bin):",
+        "",
+        f"| method | setup | {header} |",
+        "|---|---|" + "---|" * len(bins),
+    ]
+    for method, m in result["methods"].items():
+        for label, e in m["setups"].items():
+            cells = " | ".join(
+                f"{_pct(b['held'])} ({b['held']['count']}/{b['held']['runs']})" for b in e["held_by_torso_speed"]
+            )
+            lines.append(f"| `{method}` | {label} | {cells} |")
+    return lines
 
 
 def _parse(spec: str) -> tuple[str, Path]:
@@ -234,7 +344,8 @@ def main(argv: list[str] | None = None) -> int:
     args.out.mkdir(parents=True, exist_ok=True)
     write_json_atomic(args.out / RESULT, result)
     text = render_markdown(result)
-    (args.out / REPORT).write_text(text, encoding="utf-8")
+    write_text_atomic(args.out / REPORT, text)
+    plot_held_by_speed(result, args.out / SPEED_PLOT)
     print(text, end="")
     return 0
 

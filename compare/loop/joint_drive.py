@@ -75,41 +75,20 @@ class DecoupledVelocityDrive:
         self._mass = np.zeros((model.nv, model.nv))
         model.opt.disableflags |= mujoco.mjtDisableBit.mjDSBL_ACTUATION
 
-    def torque(self, model: mujoco.MjModel, data: mujoco.MjData, command: np.ndarray) -> np.ndarray:
-        """τ [N·m] for ``command`` [rad/s] at ``data``'s state (after ``mj_step1``).
+    def step(self, model: mujoco.MjModel, data: mujoco.MjData, command: np.ndarray, substeps: int) -> None:
+        """Advance ``substeps`` physics steps, recomputing the torque τ [N·m] before each.
 
-        The command is clipped to the velocity limits (the servos' ``ctrlrange``) first, as the
-        servo drive's MuJoCo actuators do. When τ would exceed a joint's torque limit, the
+        The command [rad/s] is clipped to the velocity limits (the servos' ``ctrlrange``) first,
+        as the servo drive's MuJoCo actuators do. When τ would exceed a joint's torque limit, the
         acceleration demand a = λ (q̇_c − q̇) is scaled down as a whole, τ = (M + hD) s a + c + D q̇
         with the largest s ∈ [0, 1] that fits every limit: the joints slow down together and a
         joint commanded to stay still still gets zero acceleration. Only when c + D q̇ alone
-        exceeds a limit (s = 0) is τ clipped per joint.
+        exceeds a limit (s = 0) is τ clipped per joint. The last sub-step's τ stays in
+        ``data.qfrc_applied``.
         """
-        tau = np.zeros(self.nq)
-        self._torque_into(model, data, np.clip(command, self._ctrl_lo, self._ctrl_hi), tau)
-        return tau
-
-    def _torque_into(self, model: mujoco.MjModel, data: mujoco.MjData, qd_c: np.ndarray, out: np.ndarray) -> None:
-        mujoco.mj_fullM(model, data, self._mass)
-        _drive_torque(
-            qd_c,
-            data.qvel,
-            data.qfrc_bias,
-            data.qfrc_gravcomp,
-            self._mass,
-            self._damping,
-            self._step_s,
-            self.bandwidth_rad_s,
-            self._tau_max,
-            out,
-        )
-
-    def step(self, model: mujoco.MjModel, data: mujoco.MjData, command: np.ndarray, substeps: int) -> None:
-        """Advance ``substeps`` physics steps, recomputing the torque before each."""
         qd_c = np.minimum(np.maximum(command, self._ctrl_lo), self._ctrl_hi)  # np.clip, without its overhead
         applied = data.qfrc_applied[: self.nq]
-        # :meth:`_torque_into` inlined, its arrays looked up once: ``data``'s arrays are views of
-        # fixed MuJoCo buffers, so the same ones serve every sub-step.
+        # ``data``'s arrays are views of fixed MuJoCo buffers: looked up once, they serve every sub-step.
         qvel, bias, gravcomp, mass = data.qvel, data.qfrc_bias, data.qfrc_gravcomp, self._mass
         damping, h, lam, tau_max = self._damping, self._step_s, self.bandwidth_rad_s, self._tau_max
         step1, step2, full_mass = mujoco.mj_step1, mujoco.mj_step2, mujoco.mj_fullM

@@ -262,10 +262,6 @@ class Person:
         """Keyframe times after ``time_scale`` [s]."""
         return [float(t) for t in self._times]
 
-    def hanging_hand(self, position: tuple[float, float], yaw: float, side: str) -> np.ndarray:
-        """Hand centre of a relaxed arm for a torso at ``position`` with heading ``yaw`` [m]."""
-        return np.array(self._hanging(float(position[0]), float(position[1]), float(yaw), side))
-
     def _hanging(self, x: float, y: float, yaw: float, side: str) -> list[float]:
         mirror = 1.0 if side == "r" else -1.0
         reach = self._lengths[side][0] + self._lengths[side][1] - _HANG_SHORTFALL_M
@@ -339,11 +335,6 @@ class Person:
             out[side] = (sh, elbow, wrist, wrist + lh * fore)
         return out
 
-    def arm_points(self, t: float, side: str) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        """Shoulder, elbow, wrist and hand end of arm ``side`` (``"r"``/``"l"``) at time ``t`` [m]."""
-        points = self._arms(self.keys_at([t]))[side]
-        return points[0][0], points[1][0], points[2][0], points[3][0]
-
     def capsule_ends(self, times: np.ndarray | Sequence[float]) -> CapsuleEnds:
         """Every capsule at each of ``times`` [s], from the keyframes alone (no MuJoCo data)."""
         keys = self.keys_at(times)
@@ -411,18 +402,6 @@ class Person:
         data.mocap_quat[self._mocap_index] = quat
 
     __call__ = apply
-
-    def hide(self, data: mujoco.MjData) -> None:
-        """Park the person out of sight in ``data`` (whatever its keyframes)."""
-        key = np.array([self._resolve(PersonKeyframe(0.0, PARKED_POSITION))])
-        saved, saved_times = self._keys, self._times
-        self._keys, self._times = key, np.zeros(1)
-        try:
-            pos, quat = self.mocap_poses([0.0])
-        finally:
-            self._keys, self._times = saved, saved_times
-        data.mocap_pos[self._mocap_index] = pos[0]
-        data.mocap_quat[self._mocap_index] = quat[0]
 
     def __repr__(self) -> str:
         span = f"{self._times[0]:.1f}-{self._times[-1]:.1f} s" if self._present else "parked"

@@ -189,9 +189,9 @@ def test_tasks_without_frames_use_the_robot_s_ee_and_control_points():
     ]
     config = parse_config(data)
     hierarchy = config.build_hierarchy(config.load_robot())
-    assert [t.frame for t in hierarchy.tasks_of_type(ObstacleDistanceTask)] == [
+    assert [t.frame for t in hierarchy.tasks if isinstance(t, ObstacleDistanceTask)] == [
         "forearm_link",
         "wrist_2_link",
         "wrist_3_link",
     ]
-    assert [t.frame for t in hierarchy.tasks_of_type(PositionTask)] == ["tool0"]
+    assert [t.frame for t in hierarchy.tasks if isinstance(t, PositionTask)] == ["tool0"]

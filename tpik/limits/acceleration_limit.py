@@ -47,9 +47,5 @@ class AccelerationLimit(Limit):
         """Remember the commanded velocity: the next step's box is centred on it."""
         self.previous = np.array(qdot, dtype=float)
 
-    def reset(self) -> None:
-        """Forget the past: the next step starts from rest."""
-        self.previous = np.zeros(self.a_max.shape[0])
-
     def __repr__(self) -> str:
         return f"AccelerationLimit(a_max={self.a_max.tolist()})"

@@ -11,8 +11,17 @@ from compare.analysis.results import sweep_run_dir
 from compare.campaign.setups import compare_setups, main
 
 
-def _sweep(root: Path, held: dict[int, bool], ee: float, label: str | None = "avoidable") -> Path:
-    """A sweep of one method whose run of seed s held the threshold when ``held[s]``."""
+def _sweep(
+    root: Path,
+    held: dict[int, bool],
+    ee: float,
+    label: str | None = "avoidable",
+    times: dict[int, list[float | None]] | None = None,
+) -> Path:
+    """A sweep of one method whose run of seed s held the threshold when ``held[s]``.
+
+    The person's torso peaks at 1 + 0.1·s m/s; ``times[s]`` is the run's time to each waypoint.
+    """
     for k, (seed, ok) in enumerate(sorted(held.items())):
         run = sweep_run_dir(root, k)
         run.mkdir(parents=True)
@@ -22,8 +31,10 @@ def _sweep(root: Path, held: dict[int, bool], ee: float, label: str | None = "av
             "walls": {"violations": int(k == 0), "safety_margin_min": -0.002 if k == 0 else 0.01},
             "ee_error_m": {"mean": ee + 0.001 * k, "final": 0.0},
             "waypoints_reached": 2,
+            "time_to_waypoint_s": (times or {}).get(seed, [1.0, 2.0]),
         }
-        summary = {"seed": seed, "methods": {"tpik": method}, "oracle": {"label": label}}
+        person = {"max_speed_mps": {"torso": 1.0 + 0.1 * seed, "hand": 3.0}}
+        summary = {"seed": seed, "methods": {"tpik": method}, "oracle": {"label": label}, "person": person}
         (run / "summary.json").write_text(json.dumps(summary), encoding="utf-8")
     return root
 
@@ -54,3 +65,29 @@ def test_no_verdict_no_avoidable_rate_and_bad_input_is_one_line(tmp_path: Path, 
     assert main([f"{a}:x", f"{b}:x", "--out", str(tmp_path / "out")]) == 2
     assert main([f"{a}:a", f"{b}:b", "--out", str(tmp_path / "out")]) == 0
     assert "| `tpik` | b | 2 |" in (tmp_path / "out" / "setups.md").read_text(encoding="utf-8")
+
+
+def test_time_to_waypoint_paired_and_reached_only_once(tmp_path: Path) -> None:
+    base_times = {s: [1.0, 2.0, None] for s in range(6)}
+    slower = {s: [1.5, None, 3.0] if s == 0 else [1.5, 2.5, None] for s in range(6)}  # +0.5 s on every segment
+    off = _sweep(tmp_path / "off", {s: True for s in range(6)}, ee=0.2, times=base_times)
+    on = _sweep(tmp_path / "on", {s: True for s in range(6)}, ee=0.2, times=slower)
+    wt = compare_setups([("off", off), ("on", on)])["methods"]["tpik"]["setups"]["on"]["waypoint_time"]
+    assert wt["seeds"] == 6
+    assert wt["mean_s"] - wt["baseline_mean_s"] == pytest.approx(0.5)
+    assert wt["wilcoxon_p"] < 0.05  # slower on every seed
+    assert (wt["only_this"], wt["only_baseline"]) == (1, 1)  # seed 0: segment 2 here, segment 1 there
+
+
+def test_held_by_speed_bins_and_plot(tmp_path: Path) -> None:
+    off = _sweep(tmp_path / "off", {s: False for s in range(8)}, ee=0.2)
+    on = _sweep(tmp_path / "on", {s: s < 4 for s in range(8)}, ee=0.2)  # holds the four slowest
+    result = compare_setups([("off", off), ("on", on)])
+    bins = result["methods"]["tpik"]["setups"]["on"]["held_by_torso_speed"]
+    assert sum(b["held"]["runs"] for b in bins) == 8  # every run in exactly one bin
+    assert bins[0]["held"]["rate"] == 1.0 and bins[-1]["held"]["rate"] == 0.0
+    assert bins[0]["low"] == pytest.approx(1.0) and bins[-1]["high"] == pytest.approx(1.7)
+    assert main([f"{off}:off", f"{on}:on", "--out", str(tmp_path / "out")]) == 0
+    report = (tmp_path / "out" / "setups.md").read_text(encoding="utf-8")
+    assert "peak torso speed" in report and "(2/2)" in report
+    assert (tmp_path / "out" / "setups_speed.png").stat().st_size > 0

@@ -27,6 +27,16 @@ def _io(jaco: robots.Robot, drive: str, q0: np.ndarray | None = None, bandwidth:
     )
 
 
+def _torque(drive: DecoupledVelocityDrive, model: mujoco.MjModel, data: mujoco.MjData, cmd: np.ndarray) -> np.ndarray:
+    """τ the drive applies at ``data``'s state: one sub-step, then the state put back (``mj_step1`` redone)."""
+    qpos, qvel, time = data.qpos.copy(), data.qvel.copy(), data.time
+    drive.step(model, data, cmd, 1)
+    tau = data.qfrc_applied[: drive.nq].copy()
+    data.qpos[:], data.qvel[:], data.time = qpos, qvel, time
+    mujoco.mj_step1(model, data)
+    return tau
+
+
 def test_torque_is_the_inverse_dynamics_law_computed_by_pinocchio(jaco: robots.Robot) -> None:
     """(M + hD) λ (q̇_c − q̇) + c + D q̇, M = CRBA (with armature), c = RNEA(q, q̇, 0) − g(q) of pinocchio.
 
@@ -43,8 +53,7 @@ def test_torque_is_the_inverse_dynamics_law_computed_by_pinocchio(jaco: robots.R
         cmd = qd + rng.uniform(-0.1, 0.1, jaco.nq)
         data.qpos[:] = q
         data.qvel[:] = qd
-        mujoco.mj_step1(model, data)
-        tau = drive.torque(model, data, cmd)
+        tau = _torque(drive, model, data, cmd)
         M = pin.crba(pm, pd, q)
         M = np.triu(M) + np.triu(M, 1).T  # pinocchio fills the upper triangle
         coriolis = pin.rnea(pm, pd, q, qd, np.zeros(jaco.nq)) - pin.computeGeneralizedGravity(pm, pd, q)
@@ -63,12 +72,12 @@ def test_at_a_torque_limit_the_acceleration_is_scaled_for_all_joints(jaco: robot
     cmd = 0.9 * jaco.v_max * np.array([1, -1, 1, -1, 1, -1, 1])
     data.qpos[:] = jaco.home
     data.qvel[:] = -cmd  # a reversal
-    mujoco.mj_step1(model, data)
     unlimited = DecoupledVelocityDrive(mujoco.MjModel.from_xml_path(str(jaco.spec.description)), jaco.nq, 250.0)
     unlimited._tau_max = np.full(jaco.nq, np.inf)
-    tau, free = drive.torque(model, data, cmd), unlimited.torque(model, data, cmd)
+    qvel = data.qvel.copy()
+    tau, free = _torque(drive, model, data, cmd), _torque(unlimited, model, data, cmd)
     assert np.any(np.abs(free) > limit), "the command must saturate a joint for this test"
-    hold = data.qfrc_bias[: jaco.nq] - data.qfrc_gravcomp[: jaco.nq] + model.dof_damping[: jaco.nq] * data.qvel
+    hold = data.qfrc_bias[: jaco.nq] - data.qfrc_gravcomp[: jaco.nq] + model.dof_damping[: jaco.nq] * qvel
     scale = (tau - hold) / (free - hold)
     np.testing.assert_allclose(scale, scale[0], rtol=1e-9)
     assert 0.0 < scale[0] < 1.0
