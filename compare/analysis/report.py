@@ -90,14 +90,14 @@ def summary_markdown(summary: dict[str, Any]) -> str:
     return markdown_table(headers, rows)
 
 
-def markdown_table(headers: list[str], rows: list[list[str]]) -> str:
-    """A Markdown table (first column left-aligned, the others right-aligned; "|" escaped)."""
+def markdown_table(headers: list[str], rows: list[list[str]], right: bool = True) -> str:
+    """A Markdown table (first column left-aligned, the others right-aligned unless not ``right``; "|" escaped)."""
 
     def esc(cell: str) -> str:
         return cell.replace("|", "\\|")
 
     lines = ["| " + " | ".join(esc(h) for h in headers) + " |"]
-    lines.append("|" + "|".join("---" if i == 0 else "---:" for i in range(len(headers))) + "|")
+    lines.append("|" + "|".join("---:" if i and right else "---" for i in range(len(headers))) + "|")
     lines += ["| " + " | ".join(esc(c) for c in row) + " |" for row in rows]
     return "\n".join(lines)
 
