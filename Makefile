@@ -9,7 +9,7 @@ STAMP   = $(VENV)/.installed.$(subst $(comma),-,$(EXTRAS))
 comma  := ,
 export MUJOCO_GL ?= egl
 
-.PHONY: install system-deps hw-deps demo demo-cameras test lint format docs bench clean
+.PHONY: install system-deps hw-deps demo demo-cameras test lint format docs docs-figures bench clean
 
 # Headless MuJoCo rendering needs EGL + Mesa; installed from Debian only when missing.
 system-deps:
@@ -91,6 +91,11 @@ test: lint
 # docs/config.md from the config models (tests/compare/test_config_doc.py fails when it is stale).
 docs: install
 	$(PY) -m compare.config_doc
+
+# The result tables of README.md and docs/ between <!-- figures:NAME --> markers, from the results files
+# committed in docs/ (tests/test_readme_figures.py fails when one is stale).
+docs-figures: install
+	$(PY) -m compare.analysis.readme_figures
 
 bench: install
 	$(VENV)/bin/tpik-compare bench

@@ -250,7 +250,7 @@ def run(
     prediction: PredictionOpt = None,
     sets: SetOpt = None,
 ) -> None:
-    """Run one scenario with every selected method; write summary.json, per-step tables, plots.
+    """Run one scenario with every selected method; write summary.json, per-step tables, plots, report.md.
 
     An --out that already holds results of the same scenario and config gets these methods added
     (the others' results are kept); a different config, or a method it already has finished
@@ -296,6 +296,7 @@ def _print_summary(summary: dict[str, object], out_dir: Path) -> None:
         console = Console(width=160)  # a log or a pipe: one line per method
     console.print(summary_table(summary, narrow=console.width < 140))
     console.print(f"results: {out_dir}/summary.json   plots: {out_dir}/plots/")
+    console.print(f"report:  {out_dir}/report.md")
 
 
 @app.command()
@@ -590,12 +591,14 @@ def tune(
 
 @app.command()
 def plot(results: Annotated[Path, typer.Argument(help="A run or sweep results directory.")]) -> None:
-    """Draw the plots of a finished run (summary.json) or sweep (runs/)."""
+    """Draw the plots of a finished run (summary.json; its report.md then links them) or sweep (runs/)."""
     # Deferred: start-up cost (module docstring).
     from compare.analysis.plots import plot_campaign, plot_run, plot_sweep
+    from compare.analysis.run_report import render_run_report
 
     if (results / "summary.json").is_file():
         paths = plot_run(results)
+        render_run_report(results)
     elif (results / "runs").is_dir():
         paths = plot_sweep(results) + plot_campaign(results)
     else:

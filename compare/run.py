@@ -18,6 +18,7 @@ from compare.analysis.avoidability import split_obstacle_violations
 from compare.analysis.metrics import RunMeta, compute_summary, set_task_infos
 from compare.analysis.person_speeds import part_max_speeds
 from compare.analysis.results import ResultsWriter
+from compare.analysis.run_report import render_run_report
 from compare.config import Config, dump_config
 from compare.config_hash import config_fingerprint, config_hash, method_settings
 from compare.loop.closed_loop import LoopOutput, ObstacleSource, control_points, run_loop, warm_up_solver
@@ -287,11 +288,14 @@ def run_scenario(
     make_plots: bool = True,
     overwrite: bool = False,
     prepare: Prepare = realize_only,
+    report: bool = True,
 ) -> dict[str, Any]:
     """Run every method of ``config`` on the same scenario; results survive a crash of one method.
 
     ``prepare`` realizes the scenario and may compute its verdict (``summary.json["oracle"]``;
     :func:`compare.campaign.realize.realize_with_verdict` does when ``[oracle] enabled``).
+    ``report``: write ``report.md`` after the results and plots
+    (:func:`~compare.analysis.run_report.render_run_report`; the runs of a sweep have none).
 
     ``out_dir`` is checked before the first step (:func:`open_results`): results already there
     of the same scenario and configuration get these methods added; anything else is refused
@@ -333,6 +337,8 @@ def run_scenario(
                 log.info("%s done in %.1f s", method, time.perf_counter() - t0)
         if make_plots:
             write_plots(Path(out_dir))
+        if report:
+            render_run_report(Path(out_dir), config)
         return writer.summary
 
 

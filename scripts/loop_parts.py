@@ -293,7 +293,7 @@ class LoopRunFailed(CompareError):
 
 def _run(config: Config, out: Path) -> None:
     # Looked up on the module at each call: the timed run reaches the timer put on it.
-    summary = compare.run.run_scenario(config, out, progress=False, make_plots=False, overwrite=True)
+    summary = compare.run.run_scenario(config, out, progress=False, make_plots=False, overwrite=True, report=False)
     errors = summary.get("errors") or {}
     if errors:
         what = "; ".join(f"{m}: {e}" for m, e in errors.items())

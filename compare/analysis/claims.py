@@ -60,7 +60,7 @@ from compare.analysis.critical_speed_results import CLAIMS_FILE, DETAIL_FILE
 from compare.analysis.metrics import VIOLATION_TOLERANCE, margins, set_task_infos, to_jsonable
 from compare.analysis.person_speeds import keyframe_speeds
 from compare.analysis.results import load_steps, load_summary
-from compare.config import load_config
+from compare.config import Config, load_config
 
 SETTLE_S = 1.0
 """Time after the first obstacle activation before "the arm stops" is measured [s]."""
@@ -133,6 +133,11 @@ class ClaimContext:
     def group(self, name: str) -> list[TaskBand]:
         """The tasks of one group."""
         return [t for t in self.tasks if t.group == name]
+
+    @property
+    def run_time_needed_s(self) -> float:
+        """The run time the claims read: to :data:`DEACTIVATION_GRACE_S` after the person's last keyframe [s]."""
+        return self.person.t_gone + DEACTIVATION_GRACE_S
 
 
 @dataclass(frozen=True)
@@ -549,10 +554,19 @@ def check_claims(steps: pd.DataFrame, ctx: ClaimContext) -> list[Claim]:
     return [check(steps, ctx) for check in checks]
 
 
-def claims_for_run(run_dir: Path, methods: Sequence[str] | None = None) -> dict[str, list[Claim]]:
-    """The claims per method of a run directory (``config.toml`` + ``steps/``); {} for non-case runs."""
+def claims_for_run(
+    run_dir: Path, methods: Sequence[str] | None = None, config: Config | None = None
+) -> dict[str, list[Claim]]:
+    """The claims per method of a run directory (``steps/``); {} for non-case runs.
+
+    Args:
+        run_dir: The run directory.
+        methods: The methods (default: those of its ``summary.json``).
+        config: The run's config (default: the directory's ``config.toml``).
+    """
     run_dir = Path(run_dir)
-    config, _ = load_config(run_dir / "config.toml")
+    if config is None:
+        config, _ = load_config(run_dir / "config.toml")
     ctx = context_from_config(config)
     if ctx is None:
         return {}

@@ -1,4 +1,4 @@
-"""Human-readable views of results: a run's table for the terminal, a sweep's Markdown report.
+"""Human-readable views of results: a run's table (terminal and Markdown), a sweep's Markdown report.
 
 They read only ``summary.json`` / ``sweep_summary.json`` (docs/design.md §7), and show the columns of the
 registered metrics (:mod:`compare.analysis.metric`); the sweep report links the PNGs of
@@ -75,14 +75,29 @@ def summary_table(summary: dict[str, Any], narrow: bool = False) -> Table:
     return table
 
 
-def markdown_table(headers: list[str], rows: list[list[str]]) -> str:
-    """A Markdown table (first column left-aligned, the others right-aligned; "|" escaped)."""
+def summary_markdown(summary: dict[str, Any]) -> str:
+    """Markdown form of :func:`summary_table`: the same columns and cells, one row per method.
+
+    A failed method's row reads ``failed: <message>`` (first line of the message).
+    """
+    methods: dict[str, dict[str, Any]] = summary.get("methods") or {}
+    columns = _run_columns(list(methods.values()))
+    headers = ["method", *[column.header for column in columns]]
+    rows = [[name, *[column.cell(m) for column in columns]] for name, m in methods.items()]
+    for name, message in (summary.get("errors") or {}).items():
+        first = str(message).strip().splitlines()[0] if str(message).strip() else "unknown error"
+        rows.append([name, f"failed: {first}", *[""] * (len(headers) - 2)])
+    return markdown_table(headers, rows)
+
+
+def markdown_table(headers: list[str], rows: list[list[str]], right: bool = True) -> str:
+    """A Markdown table (first column left-aligned, the others right-aligned unless not ``right``; "|" escaped)."""
 
     def esc(cell: str) -> str:
         return cell.replace("|", "\\|")
 
     lines = ["| " + " | ".join(esc(h) for h in headers) + " |"]
-    lines.append("|" + "|".join("---" if i == 0 else "---:" for i in range(len(headers))) + "|")
+    lines.append("|" + "|".join("---:" if i and right else "---" for i in range(len(headers))) + "|")
     lines += ["| " + " | ".join(esc(c) for c in row) + " |" for row in rows]
     return "\n".join(lines)
 

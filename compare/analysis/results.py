@@ -11,6 +11,8 @@ A run directory holds::
                               "errors": {...} (only if a method failed)}
     steps/<method>.parquet   per-step table (``steps/<method>.csv`` if Parquet cannot encode it)
     plots/*.png              written by :mod:`compare.analysis.plots`
+    report.md                the results table, links to the plots, a case config's claims
+                             (:mod:`compare.analysis.run_report`)
 
 Every file is written atomically (:mod:`compare.analysis.atomic_files`): a killed process leaves
 the old file or the new one. A method's per-step table is written before the ``summary.json``
@@ -83,6 +85,7 @@ REPLAY_FORMAT = 1
 SWEEP_SUMMARY_FILE = "sweep_summary.json"
 SWEEP_RUNS_FILE = "sweep_runs.csv"
 SWEEP_REPORT_FILE = "sweep_report.md"
+RUN_REPORT_FILE = "report.md"
 MANIFEST_FILE = "sweep_manifest.json"
 LOCK_FILE = ".tpik-compare.lock"
 

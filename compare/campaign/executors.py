@@ -95,6 +95,7 @@ def run_job(config: Config, config_text: str, run_dir: Path, overwrite: bool = F
             make_plots=False,
             overwrite=overwrite,
             prepare=realize_with_verdict,
+            report=False,
         )
     except Exception as exc:  # keep the sweep going; the run is retried on the next invocation
         return f"{type(exc).__name__}: {exc}"

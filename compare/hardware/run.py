@@ -36,6 +36,7 @@ import numpy as np
 
 import robots
 from compare.analysis.metrics import compute_summary
+from compare.analysis.run_report import render_run_report
 from compare.config import Config
 from compare.hardware.calibration import AlignmentResidual, check_alignment
 from compare.hardware.exceptions import StartRefused
@@ -251,7 +252,7 @@ def run_hardware(
     replay: Path | None = None,
     overwrite: bool = False,
 ) -> dict[str, Any]:
-    """Drive the arm through ROS with one method; write results like a simulated run.
+    """Drive the arm through ROS with one method; write results like a simulated run (``report.md`` included).
 
     Args:
         config: Validated configuration (scenario, hierarchy, methods' settings, ``[hardware]``).
@@ -393,6 +394,7 @@ def run_hardware(
         writer.add_method(method, summary, steps)
         if make_plots:
             write_plots(Path(out_dir))
+        render_run_report(Path(out_dir), config)
         return writer.summary
 
 

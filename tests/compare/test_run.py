@@ -18,6 +18,7 @@ from typer.testing import CliRunner
 
 from compare.cli import app
 from tests.compare.analysis.test_metrics import REQUIRED_KEYS
+from tests.compare.analysis.test_run_report import assert_table_is_the_summary
 
 CONFIGS = Path(__file__).resolve().parents[2] / "configs"
 SAFETY_TOL = {"joint_limits": 2e-3, "walls": 2e-3}
@@ -162,10 +163,16 @@ def _invoke(config: str, out: Path, *extra: str):
 
 
 def test_one_method_then_another_into_one_directory_keeps_both(tmp_path):
-    """The first command pair of a run added to: the second run adds its method, the first stays as it was."""
+    """The first command pair of a run added to: the second run adds its method, the first stays as it was.
+
+    Each run writes report.md: the table of every method in summary.json, and no claim checked on
+    a run shorter than the person's visit.
+    """
     out = tmp_path / "R"
     first = _invoke("case1.toml", out, "-m", "tpik")
     assert first.exit_code == 0, first.output
+    assert f"report:  {out}/report.md" in first.output
+    assert_table_is_the_summary(out)
     tpik_table = out / "steps" / "tpik.parquet"
     before = (tpik_table.read_bytes(), json.loads((out / "summary.json").read_text())["methods"]["tpik"])
     second = _invoke("case1.toml", out, "-m", "hqp-daqp")
@@ -175,6 +182,9 @@ def test_one_method_then_another_into_one_directory_keeps_both(tmp_path):
     assert (tpik_table.read_bytes(), summary["methods"]["tpik"]) == before
     assert summary["methods"]["hqp-daqp"]["steps_file"] == "steps/hqp-daqp.parquet"
     assert (out / "steps" / "hqp-daqp.parquet").is_file()
+    assert_table_is_the_summary(out)
+    report = (out / "report.md").read_text()
+    assert "Not checked for tpik, hqp-daqp: the run covers 0.3 s, the claims read it to 59 s" in report
 
 
 def test_a_run_that_would_replace_or_mix_results_is_one_line_and_exit_2(tmp_path):
