@@ -26,6 +26,7 @@ from pathlib import Path
 from typing import Any, NoReturn
 
 from compare.analysis.atomic_files import write_text_atomic
+from compare.analysis.claims_tables import claims_markdown
 from compare.analysis.report import markdown_table
 from compare.exceptions import CompareError
 
@@ -178,6 +179,8 @@ class Figure:
 FIGURES: tuple[Figure, ...] = (
     Figure("fair-campaign", "docs/campaign-fair/sweep_summary.json", fair_campaign_table),
     Figure("predicted-campaign", "docs/campaign-predicted/setups.json", prediction_table),
+    Figure("paper-claims", "docs/separating/claims.json", claims_markdown),
+    Figure("paper-claims-predicted", "docs/separating/claims-predicted.json", claims_markdown),
 )
 
 

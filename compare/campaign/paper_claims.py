@@ -20,6 +20,7 @@ from pathlib import Path
 from typing import Any
 
 from compare.analysis.claims import Claim, claims_for_run
+from compare.analysis.claims_tables import claims_markdown
 from compare.analysis.results import CONFIG_FILE, SUMMARY_FILE
 from compare.campaign.realize import realize_with_verdict
 from compare.config import Config, load_config
@@ -32,9 +33,6 @@ CASES: tuple[tuple[str, str], ...] = (
     ("case2_paper.toml", "paper-paced"),
 )
 """The configs run, and the column each gives in the tables."""
-
-VARIANTS = ("case config", "paper-paced")
-"""The two halves of every cell, in order."""
 
 
 @dataclass(frozen=True)
@@ -122,33 +120,11 @@ def run_paper_claims(
 
 def claims_tables(results: dict[str, dict[str, dict[str, ClaimRuns]]], seeds: Sequence[int]) -> str:
     """One Markdown table per case: rows the claims, columns the methods, cells ``case config / paper-paced``."""
-    lines: list[str] = []
-    for kind, variants in results.items():
-        methods = list(dict.fromkeys(m for per in variants.values() for m in per))
-        rows: dict[str, str] = {}
-        for per in variants.values():
-            for claims in per.values():
-                for key, runs in claims.items():
-                    rows.setdefault(key, runs.claims[0].claim)
-        if lines:
-            lines.append("")
-        lines.append(f"| {kind} claim | " + " | ".join(methods) + " |")
-        lines.append("|---|" + "---|" * len(methods))
-        for key, text in rows.items():
-            cells = []
-            for method in methods:
-                marks = []
-                for variant in VARIANTS:
-                    runs = variants.get(variant, {}).get(method, {}).get(key)
-                    marks.append("–" if runs is None else "✓" if runs.holds else "✗")
-                cells.append(" / ".join(marks))
-            lines.append(f"| {text} | " + " | ".join(cells) + " |")
     seed_text = ", ".join(str(s) for s in seeds)
-    lines += [
-        "",
-        f"(each cell: the case config / the paper-paced variant; ✓ = held in the run of every seed ({seed_text}))",
-    ]
-    return "\n".join(lines)
+    return (
+        claims_markdown(claims_json(results))
+        + f"\n\n(each cell: the case config / the paper-paced variant; ✓ = held in the run of every seed ({seed_text}))"
+    )
 
 
 def claims_details(results: dict[str, dict[str, dict[str, ClaimRuns]]]) -> str:
