@@ -14,6 +14,7 @@ Raises :class:`ConfigDocError` for a key without a meaning: every key is documen
 
 from __future__ import annotations
 
+import argparse
 import dataclasses
 import inspect
 import math
@@ -313,9 +314,14 @@ def render() -> str:
 
 def main(argv: list[str] | None = None) -> int:
     """Write ``docs/config.md`` (``--check``: only compare, exit 1 when it is out of date)."""
-    args = sys.argv[1:] if argv is None else argv
+    parser = argparse.ArgumentParser(
+        prog="python -m compare.config_doc",
+        description=f"Write {DOC_PATH.name} from the configuration models.",
+    )
+    parser.add_argument("--check", action="store_true", help="write nothing; exit 1 when the file is out of date")
+    args = parser.parse_args(argv)
     text = render()
-    if "--check" in args:
+    if args.check:
         current = DOC_PATH.read_text(encoding="utf-8") if DOC_PATH.is_file() else ""
         if current != text:
             print(f"{DOC_PATH} is out of date: python -m compare.config_doc", file=sys.stderr)

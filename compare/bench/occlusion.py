@@ -506,17 +506,25 @@ def plot_records(records: Sequence[PointRecord], path: Path, rho_m: float = 0.5)
 
 def main(argv: list[str] | None = None) -> int:
     """Run the bench (``--help``)."""
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--scenes", type=int, default=150)
-    parser.add_argument("--seed", type=int, default=1000)
-    parser.add_argument("--config", type=Path, default=DEFAULT_CONFIG)
+    parser = argparse.ArgumentParser(
+        prog="python -m compare.bench.occlusion",
+        description=__doc__.split("\n\n")[0],
+        formatter_class=argparse.ArgumentDefaultsHelpFormatter,
+    )
+    parser.add_argument("--scenes", type=int, default=150, help="random scenes")
+    parser.add_argument("--seed", type=int, default=1000, help="seed of the first scene")
+    parser.add_argument("--config", type=Path, default=DEFAULT_CONFIG, help="two-camera scenario TOML")
     parser.add_argument("--noise", type=float, default=0.0, help="depth noise std [m]")
-    parser.add_argument("--dropout", type=float, default=0.0)
-    parser.add_argument("--tolerance", type=float, default=None, help="fusion tolerance [m]")
-    parser.add_argument("--step", type=float, default=None, help="fusion step [m]")
-    parser.add_argument("--json", type=Path, default=None)
+    parser.add_argument("--dropout", type=float, default=0.0, help="share of pixels without a return")
+    parser.add_argument("--tolerance", type=float, default=None, help="fusion tolerance [m] (default: the fusion's)")
+    parser.add_argument("--step", type=float, default=None, help="fusion step [m] (default: the fusion's)")
+    parser.add_argument("--json", type=Path, default=None, help="write the summary here")
     parser.add_argument("--plot", type=Path, default=None, help="write the reading-vs-truth figure (PNG)")
     args = parser.parse_args(argv)
+    if not args.config.is_file():
+        parser.error(f"--config: {args.config} is not a file")
+    if args.scenes < 1:
+        parser.error(f"--scenes must be at least 1, got {args.scenes}")
     fusion = FusionSettings(
         **{k: v for k, v in (("tolerance_m", args.tolerance), ("step_m", args.step)) if v is not None}
     )

@@ -30,9 +30,9 @@ Run: ``MUJOCO_GL=egl .venv/bin/python -m compare.bench.sensing [repeats]``.
 
 from __future__ import annotations
 
+import argparse
 import math
 import os
-import sys
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -289,10 +289,17 @@ def format_table(rows: list[BenchRow]) -> str:
 
 
 def main(argv: list[str] | None = None) -> None:
-    """Print the sensing table (optional argument: repeats)."""
-    args = sys.argv[1:] if argv is None else argv
-    repeats = int(args[0]) if args else 200
-    rows = run_sensing_bench(repeats)
+    """Print the sensing table (``python -m compare.bench.sensing [REPEATS]``; ``--help``)."""
+    parser = argparse.ArgumentParser(
+        prog="python -m compare.bench.sensing",
+        description="Time the depth pipeline's stages (render, self-filter, distance) and the geometric source.",
+        formatter_class=argparse.ArgumentDefaultsHelpFormatter,
+    )
+    parser.add_argument("repeats", type=int, nargs="?", default=200, help="timed calls per stage")
+    args = parser.parse_args(argv)
+    if args.repeats < 1:
+        parser.error(f"repeats must be at least 1, got {args.repeats}")
+    rows = run_sensing_bench(args.repeats)
     info = versions()
     print(f"python {info.get('python')}, mujoco {info.get('mujoco')}, numpy {info.get('numpy')}, cpu {info.get('cpu')}")
     print(format_table(rows))
