@@ -249,6 +249,9 @@ def run(
     oracle: OracleOpt = None,
     prediction: PredictionOpt = None,
     sets: SetOpt = None,
+    seed: Annotated[
+        int | None, typer.Option("--seed", min=0, help="Override scenario.seed (a random family's draw).")
+    ] = None,
 ) -> None:
     """Run one scenario with every selected method; write summary.json, per-step tables, plots, report.md.
 
@@ -261,7 +264,9 @@ def run(
     from compare.config import ConfigError, load_config
     from compare.run import run_scenario
 
-    overrides = _with_options(_overrides(duration, time_scale, sensing, simulation, drive), oracle, prediction, sets)
+    overrides = _with_options(
+        _overrides(duration, time_scale, sensing, simulation, drive, seed), oracle, prediction, sets
+    )
     try:
         cfg, text = load_config(config, overrides)
         cfg = _select_methods(cfg, methods)

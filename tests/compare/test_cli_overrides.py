@@ -18,11 +18,13 @@ def test_prediction_and_set_reach_the_run(tmp_path):
     out = tmp_path / "run"
     args = ["run", str(CONFIGS / "case2.toml"), "--sensing", "geometric", "--duration", "1.0", "-m", "tpik"]
     args += ["--prediction", "estimated", "--set", "sensor.rho_m=1.0", "--set", "prediction.horizon_s=0.25"]
+    args += ["--seed", "7"]
     result = CliRunner().invoke(app, [*args, "--no-plots", "-q", "--out", str(out)])
     assert result.exit_code == 0, result.output
     written = tomllib.loads((out / "config.toml").read_text())
     assert written["prediction"]["mode"] == "estimated" and written["prediction"]["horizon_s"] == 0.25
     assert written["sensor"]["rho_m"] == 1.0
+    assert written["scenario"]["seed"] == 7
     assert any(c.startswith("closing_pred:") for c in load_steps(out, "tpik").columns)
 
 
