@@ -252,6 +252,9 @@ class _Step:
         self.events: list[str] = []
         self.gate = SensingGate(obstacles, obstacle_tasks, cps, settings, self.events, predictor)
         self.predicting = predictor is not None
+        # With a prediction the obstacle tasks' activation thresholds move with their feed-forward
+        # (SetTask.activation_bounds); the other set tasks get none, so their bands stay those above.
+        self.fed = [k for k, t in enumerate(self.set_tasks) if isinstance(t, ObstacleDistanceTask)]
         self.policy = FallbackPolicy(settings, solver.name, robot.v_max, self.events)
         self.targets = _Targets(ee_position_tasks(hierarchy, robot))
         n_steps = max(1, round(settings.duration_s / settings.dt))
@@ -296,8 +299,11 @@ class _Step:
         if status is SolveStatus.OK and fallback is None:
             # unmet_set_rates skips the tasks between their activation thresholds and the non-finite σ
             # itself; left out here first, it sees only the few it checks (the same verdict).
-            # With a prediction the thresholds move with the feed-forward (SetTask.activation_bounds).
-            now = [t.activation_bounds() for t in self.set_tasks] if self.predicting else self.bands
+            now = self.bands
+            if self.predicting:
+                now = list(now)
+                for k in self.fed:
+                    now[k] = self.set_tasks[k].activation_bounds()
             bands = enumerate(zip(sigmas, now, strict=True))
             near = [k for k, (s, (lo, hi)) in bands if (s >= hi or s <= lo) and math.isfinite(s)]
             tasks = [self.set_tasks[k] for k in near]
