@@ -650,6 +650,11 @@ TIMING_KEYS = frozenset(
 (config, seed): left out when runs are compared for determinism."""
 
 
+TIMING_COLUMNS = ("solve_time_us", "deadline_miss")
+"""Columns of a per-step table measured on the machine (the solve time and what it decides): the
+rest of the table is a function of (config, seed)."""
+
+
 def deterministic_view(summary: Any) -> Any:
     """``summary`` without the :data:`TIMING_KEYS` (recursively): equal for equal (config, seed)."""
     if isinstance(summary, dict):
