@@ -50,7 +50,11 @@ quantity back into a safe set.
   toward the start posture (the ``q`` of the hierarchy's first solve), ``lm_damping`` on every
   ``FrameTask`` and solver damping µ. Without them the Hessian is singular in the EE task's null
   space (eigenvalues at mink's default µ = 1e-12, the answer a minimum-norm one by accident);
-  with them every eigenvalue is at least µ + posture_cost².
+  with them every eigenvalue is at least µ + posture_cost². In the examples the frame and the
+  posture task both have gain 1 (each asks its whole error in one step); here the frame task
+  asks α = K dt of it (the control reference's rate), and the posture task takes the same α, so
+  that the two keep the examples' ratio (with gain 1 the posture would be 1/α ≈ 50 times
+  stronger against the EE and hold the arm near its start).
 * Joint limits: by default mink's own :class:`mink.ConfigurationLimit` (gain
   ``configuration_limit_gain``) and :class:`mink.VelocityLimit` (``robot.v_max``); the same
   limits as :mod:`tpik.limits` objects are :attr:`MinkSolver.limits`. Other limits (e.g. an
@@ -452,6 +456,10 @@ class MinkSolver(TimeLimited):
         assert isinstance(ftask, mink.FrameTask)
         ftask.gain = alpha
         ftask.set_target(_frame_target(R_t, p_t))
+        if self._posture is not None:
+            # mink's examples give the frame and posture tasks the same gain (1: each asks its whole
+            # error in one step); the frame task asks α of it here, and so does the posture task.
+            self._posture.gain = alpha
 
     def _update_return(self, ev: TaskEvaluation, sigma: np.ndarray, dt: float) -> list[tuple[int, float, float]]:
         r"""Rows of the return task; returns (task index, reference rate, side) of the tasks it pulls back.

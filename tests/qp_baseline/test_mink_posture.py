@@ -26,7 +26,11 @@ def test_the_preset_is_the_examples_values_and_the_config_overrides_it_key_by_ke
 
 
 def test_velocity_is_what_mink_solve_ik_returns_for_the_examples_setup(jaco):
-    """FrameTask with lm_damping, PostureTask at the start posture, damping 1e-3: as mink's Panda example."""
+    """FrameTask with lm_damping, PostureTask at the start posture, damping 1e-3: as mink's Panda example.
+
+    Both tasks take the per-step gain the EE task's reference gives (2 /s × dt): in the example both
+    have gain 1, each asking its whole error in one step, so they keep the example's ratio.
+    """
     q0 = jaco.home
     kin = jaco.kinematics(q0)
     target = kin.frame_position("end_effector") + np.array([0.02, -0.01, 0.03])
@@ -38,7 +42,7 @@ def test_velocity_is_what_mink_solve_ik_returns_for_the_examples_setup(jaco):
     pose = configuration.get_transform_frame_to_world(body, "body").as_matrix()
     pose[:3, 3] = target
     frame.set_target(mink.SE3.from_matrix(pose))
-    posture = mink.PostureTask(jaco.mj_model, cost=1e-2)
+    posture = mink.PostureTask(jaco.mj_model, cost=1e-2, gain=2.0 * DT)
     posture.set_target(q0)
     velocities = {name: float(v) for name, v in zip(jaco.joint_names, jaco.v_max, strict=True)}
     limits = [mink.ConfigurationLimit(jaco.mj_model), mink.VelocityLimit(jaco.mj_model, velocities)]
@@ -64,7 +68,9 @@ def test_the_posture_task_pulls_the_null_space_back_to_the_start_posture(jaco):
         if name == "mink-posture":
             np.testing.assert_array_equal(solver.posture_target, q0)
     back = float(-null @ steps["mink-posture"])  # rad/s toward q0 along the null direction
-    assert back > 0.1
+    cost, damping = POSTURE_PRESET["posture_cost"], POSTURE_PRESET["damping"]
+    # The posture task asks the EE task's gain (1 /s) times 0.2 rad, weighted cost² against the damping.
+    assert back == pytest.approx(1.0 * 0.2 * cost**2 / (cost**2 + damping), rel=0.05)
     ee_speed = np.linalg.norm(jaco.kinematics(q1).position_jacobian("end_effector") @ steps["mink-posture"])
     assert ee_speed < 0.05 * back  # the EE barely moves: the pull is in the null space
     assert abs(float(null @ steps["mink"])) < 1e-6  # mink alone has nothing pulling it back
