@@ -15,6 +15,7 @@ The grid of ``mink-posture`` (docs/benchmarks.md, "Equal care"): the return weig
 
 from __future__ import annotations
 
+import csv
 import itertools
 import json
 import math
@@ -25,7 +26,7 @@ from typing import Any
 from compare.analysis.metric import fmt_number, rate_with_ci
 from compare.analysis.metrics import to_jsonable
 from compare.analysis.report import markdown_table, write_markdown
-from compare.analysis.results import SWEEP_SUMMARY_FILE, write_json_atomic
+from compare.analysis.results import SWEEP_RUNS_FILE, SWEEP_SUMMARY_FILE, write_json_atomic
 from compare.config import override_value
 from compare.exceptions import CompareError
 
@@ -35,9 +36,13 @@ TUNING_REPORT = "tuning.md"
 EE_FACTOR = 2.0
 """A point tracks the EE when its median final EE error is at most this factor × the grid's best."""
 
+WAYPOINT_FRACTION = 0.5
+"""... and when it reaches, per run on average, at least this fraction of the grid's most waypoints."""
+
 RULE = (
-    f"first the points that track the EE (median final EE error at most {EE_FACTOR:g} × the grid's best: a "
-    "setting that stops following the target is not a safer tuning), then fewest runs with a joint-limit or "
+    f"first the points that track the EE (median final EE error at most {EE_FACTOR:g} × the grid's best, and "
+    f"at least {WAYPOINT_FRACTION:g} × the grid's most waypoints reached per run: a setting that stops "
+    "following the target is not a safer tuning), then fewest runs with a joint-limit or "
     "wall violation, the least time below a physical threshold, the fewest failed steps, the smallest median "
     "final EE error"
 )
@@ -88,7 +93,22 @@ def point_overrides(method: str, point: Mapping[str, Any]) -> dict[str, Any]:
     return overrides
 
 
-def _entry(method: str, point: Mapping[str, Any], summary: Mapping[str, Any]) -> dict[str, Any]:
+def _waypoints_mean(runs_csv: Path, method: str) -> float | None:
+    """Mean waypoints reached per run of ``method`` in a sweep's ``sweep_runs.csv`` (None: no such file or column)."""
+    if not runs_csv.is_file():
+        return None
+    with runs_csv.open(encoding="utf-8", newline="") as f:
+        values = [
+            float(row["waypoints_reached"])
+            for row in csv.DictReader(f)
+            if row.get("method") == method and row.get("waypoints_reached") not in (None, "")
+        ]
+    return sum(values) / len(values) if values else None
+
+
+def _entry(
+    method: str, point: Mapping[str, Any], summary: Mapping[str, Any], waypoints: float | None
+) -> dict[str, Any]:
     m = (summary.get("methods") or {}).get(method) or {}
     steps = m.get("status_steps") or {}
     return {
@@ -101,6 +121,7 @@ def _entry(method: str, point: Mapping[str, Any], summary: Mapping[str, Any]) ->
         "degraded_steps": steps.get("degraded"),
         "time_below_physical_s": m.get("time_below_physical_s"),
         "ee_error_final_m_median": (m.get("ee_error_final_m") or {}).get("median"),
+        "waypoints_reached_mean": waypoints,
         "solve_time_us_median": (m.get("solve_time_us") or {}).get("median_of_medians"),
     }
 
@@ -109,12 +130,21 @@ def _number(x: Any) -> float:
     return float(x) if isinstance(x, int | float) and math.isfinite(x) else math.inf
 
 
-def rank_key(entry: Mapping[str, Any], best_ee_m: float) -> tuple[float, float, float, float, float]:
-    """:data:`RULE` as a sort key, ``best_ee_m`` the grid's smallest median final EE error [m] (missing: last)."""
+def rank_key(
+    entry: Mapping[str, Any], best_ee_m: float, most_waypoints: float = 0.0
+) -> tuple[float, float, float, float, float]:
+    """:data:`RULE` as a sort key.
+
+    ``best_ee_m``: the grid's smallest median final EE error [m] (a point without it: last);
+    ``most_waypoints``: the grid's most waypoints reached per run (a point without the figure is
+    judged on the EE error alone).
+    """
     ee = _number(entry.get("ee_error_final_m_median"))
+    waypoints = entry.get("waypoints_reached_mean")
+    reaches = waypoints is None or waypoints >= WAYPOINT_FRACTION * most_waypoints
     violations = (entry.get("limit_or_wall_violation") or {}).get("count")
     return (
-        0.0 if ee <= EE_FACTOR * best_ee_m else 1.0,
+        0.0 if ee <= EE_FACTOR * best_ee_m and reaches else 1.0,
         _number(violations),
         _number(entry.get("time_below_physical_s")),
         _number(entry.get("failed_steps")),
@@ -128,9 +158,11 @@ def tuning_table(out_dir: Path, method: str, points: Sequence[Mapping[str, Any]]
     for point in points:
         path = Path(out_dir) / point_name(point) / SWEEP_SUMMARY_FILE
         if path.is_file():
-            entries.append(_entry(method, point, json.loads(path.read_text(encoding="utf-8"))))
+            waypoints = _waypoints_mean(path.parent / SWEEP_RUNS_FILE, method)
+            entries.append(_entry(method, point, json.loads(path.read_text(encoding="utf-8")), waypoints))
     best = min((_number(e["ee_error_final_m_median"]) for e in entries), default=math.inf)
-    entries.sort(key=lambda e: rank_key(e, best))
+    most = max((e["waypoints_reached_mean"] or 0.0 for e in entries), default=0.0)
+    entries.sort(key=lambda e: rank_key(e, best, most))
     return {
         "method": method,
         "rule": RULE,
@@ -163,6 +195,7 @@ def write_tuning(out_dir: Path, method: str, points: Sequence[Mapping[str, Any]]
         "time below a physical threshold [s]",
         "steps failed / degraded",
         "EE final error [m] (median)",
+        "waypoints reached per run (mean)",
         "solve median [µs]",
     ]
     rows = [
@@ -174,6 +207,7 @@ def write_tuning(out_dir: Path, method: str, points: Sequence[Mapping[str, Any]]
             fmt_number(e["time_below_physical_s"], ".2f"),
             f"{fmt_number(e['failed_steps'], 'd')} / {fmt_number(e['degraded_steps'], 'd')}",
             fmt_number(e["ee_error_final_m_median"], ".3f"),
+            fmt_number(e["waypoints_reached_mean"], ".2f"),
             fmt_number(e["solve_time_us_median"], ".0f"),
         ]
         for i, e in enumerate(table["points"])
@@ -185,6 +219,7 @@ def write_tuning(out_dir: Path, method: str, points: Sequence[Mapping[str, Any]]
 __all__ = [
     "EE_FACTOR",
     "RULE",
+    "WAYPOINT_FRACTION",
     "TUNING_FILE",
     "TUNING_REPORT",
     "GridError",

@@ -8,7 +8,7 @@ from pathlib import Path
 import pytest
 from typer.testing import CliRunner
 
-from compare.analysis.results import SWEEP_SUMMARY_FILE
+from compare.analysis.results import SWEEP_RUNS_FILE, SWEEP_SUMMARY_FILE
 from compare.campaign.tuning import (
     TUNING_FILE,
     TUNING_REPORT,
@@ -81,6 +81,21 @@ def test_points_tracking_the_ee_are_ranked_by_violations_time_below_failed_steps
     assert table["choice"] == points[4] and table["command"] == "tpik-compare tune ..."
     text = report.read_text()
     assert report.name == TUNING_REPORT and "6 of 6 points" in text and "level_cost_ratio = 30" in text
+
+
+def test_a_point_that_reaches_few_waypoints_does_not_track_the_ee(tmp_path):
+    points = grid_points(parse_grid(["posture_cost=0.01,0.1"]))
+    for point, violations, reached in ((points[0], 0, "0,1,0"), (points[1], 1, "4,3,5")):
+        d = tmp_path / point_name(point)
+        d.mkdir()
+        (d / SWEEP_SUMMARY_FILE).write_text(json.dumps(_summary(3, violations, 0.0, 0, 0.01)))
+        rows = "".join(f"{k},mink-posture,{w}\n" for k, w in enumerate(reached.split(",")))
+        (d / SWEEP_RUNS_FILE).write_text("run,method,waypoints_reached\n" + rows)
+    write_tuning(tmp_path, "mink-posture", points, "c")
+    table = json.loads((tmp_path / TUNING_FILE).read_text())
+    # 1/3 waypoint per run against 4: held near its start, it is ranked after a point with a violation
+    assert table["choice"] == points[1]
+    assert [e["waypoints_reached_mean"] for e in table["points"]] == [4.0, pytest.approx(1 / 3)]
 
 
 def test_a_point_not_finished_is_left_out(tmp_path):
