@@ -136,7 +136,7 @@ def main(argv: list[str] | None = None) -> int:
         "directory", type=existing_dir, help="a run directory (summary.json) or a sweep directory (runs/)"
     )
     parser.add_argument(
-        "--runs", type=positive_int, default=None, help="only the first N runs of a sweep (default: all)"
+        "--runs", type=positive_int, default=None, metavar="N", help="only the first N runs of a sweep (default: all)"
     )
     args = parser.parse_args(argv)
     directory = args.directory
