@@ -14,7 +14,6 @@ Raises :class:`ConfigDocError` for a key without a meaning: every key is documen
 
 from __future__ import annotations
 
-import argparse
 import dataclasses
 import inspect
 import math
@@ -31,6 +30,7 @@ from pydantic import BaseModel
 from pydantic.fields import FieldInfo
 from pydantic_core import PydanticUndefined
 
+from compare.arguments import ArgumentParser, output_path
 from compare.config import Config
 from compare.exceptions import CompareError
 from qp_baseline.backends import BACKENDS
@@ -314,21 +314,27 @@ def render() -> str:
 
 def main(argv: list[str] | None = None) -> int:
     """Write ``docs/config.md`` (``--check``: only compare, exit 1 when it is out of date)."""
-    parser = argparse.ArgumentParser(
+    parser = ArgumentParser(
         prog="python -m compare.config_doc",
-        description=f"Write {DOC_PATH.name} from the configuration models.",
+        description="Write the reference of every scenario TOML key (type, limits, default, unit, meaning),\n"
+        "generated from the configuration models, to docs/config.md.",
+    )
+    parser.add_argument(
+        "--out", type=output_path, default=DOC_PATH, help="the file to write or check (default: docs/config.md)"
     )
     parser.add_argument("--check", action="store_true", help="write nothing; exit 1 when the file is out of date")
     args = parser.parse_args(argv)
+    out: Path = args.out
     text = render()
     if args.check:
-        current = DOC_PATH.read_text(encoding="utf-8") if DOC_PATH.is_file() else ""
+        current = out.read_text(encoding="utf-8") if out.is_file() else ""
         if current != text:
-            print(f"{DOC_PATH} is out of date: python -m compare.config_doc", file=sys.stderr)
+            print(f"{out} is out of date: python -m compare.config_doc", file=sys.stderr)
             return 1
         return 0
-    DOC_PATH.write_text(text, encoding="utf-8")
-    print(DOC_PATH)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.write_text(text, encoding="utf-8")
+    print(out)
     return 0
 
 

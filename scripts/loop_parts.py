@@ -35,7 +35,6 @@ always restored.
 
 from __future__ import annotations
 
-import argparse
 import functools
 import importlib
 import json
@@ -54,6 +53,7 @@ from rich.table import Table
 
 import compare.run
 from compare.analysis.results import load_steps
+from compare.arguments import ArgumentParser, existing_file, output_path
 from compare.bench.timing import BenchRow, summarize
 from compare.campaign.sweep import seeded_config
 from compare.config import Config, load_config
@@ -415,14 +415,38 @@ def loop_parts_table(results: Sequence[LoopParts], entry: dict[str, Any], cost_n
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Time the loop's parts of every method given; print the table, write ``--json``; the exit code."""
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0], prog="python scripts/loop_parts.py")
-    parser.add_argument("--family", type=Path, default=RANDOM_CONFIG, help="Scenario family [configs/random.toml].")
-    parser.add_argument(
-        "-m", "--method", action="append", dest="methods", help="A method, alone in its runs (repeatable)."
+    parser = ArgumentParser(
+        prog="python scripts/loop_parts.py",
+        description=__doc__.splitlines()[0] + "\n\nPrints each part's exclusive time per control step [µs] "
+        "per method (whole runs, one method\nat a time, in this process).",
     )
-    parser.add_argument("--seed", action="append", type=int, dest="seeds", help="Seed of a timed run (repeatable).")
-    parser.add_argument("--clock", choices=tuple(CLOCKS), default="wall", help="What the parts are timed on [wall].")
-    parser.add_argument("--json", type=Path, dest="json_out", help="Write the rows and the parts as JSON.")
+    parser.add_argument(
+        "--family",
+        type=existing_file,
+        default=RANDOM_CONFIG,
+        metavar="TOML",
+        help="scenario family (default: configs/random.toml)",
+    )
+    parser.add_argument(
+        "-m",
+        "--method",
+        action="append",
+        dest="methods",
+        metavar="METHOD",
+        help=f"a method, alone in its runs; repeatable (default: {' '.join(METHODS)})",
+    )
+    parser.add_argument(
+        "--seed",
+        action="append",
+        type=int,
+        dest="seeds",
+        metavar="SEED",
+        help=f"seed of a timed run; repeatable (default: {' '.join(map(str, SEEDS))})",
+    )
+    parser.add_argument("--clock", choices=tuple(CLOCKS), default="wall", help="what the parts are timed on")
+    parser.add_argument(
+        "--json", type=output_path, dest="json_out", metavar="FILE", help="write the rows and the parts as JSON"
+    )
     args = parser.parse_args(argv)
     methods, seeds = tuple(args.methods or METHODS), tuple(args.seeds or SEEDS)
     try:

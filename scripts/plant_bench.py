@@ -25,7 +25,6 @@ check, start-up, results) and by two workers sharing a machine.
 
 from __future__ import annotations
 
-import argparse
 import json
 import sys
 import time
@@ -36,6 +35,7 @@ from pathlib import Path
 import numpy as np
 
 from compare.analysis.results import CONFIG_FILE, RUNS_DIR, load_steps, load_summary
+from compare.arguments import ArgumentParser, existing_dir, existing_file, output_path, positive_int
 from compare.bench.timing import BenchRow, summarize
 from compare.config import Config, load_config
 from compare.exceptions import CompareError
@@ -45,6 +45,9 @@ from compare.versions import versions
 
 RANDOM_CONFIG = Path(__file__).resolve().parents[1] / "configs" / "random.toml"
 """The scenario family whose plant is timed by default (the reference campaign's)."""
+
+MIN_STEPS = 200
+"""Fewest timed control periods the command line accepts (enough for a p95)."""
 
 COMMAND_RAD_S = 0.3
 """Largest joint velocity of the random command sequence [rad/s]."""
@@ -161,14 +164,29 @@ def plant_config_of(explicit: Path | None, sweep_dir: Path | None) -> Path:
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Time the plant, and with ``--sweep`` the sweep's ceiling; print them, write ``--json``; the exit code."""
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0], prog="python scripts/plant_bench.py")
-    parser.add_argument(
-        "--family", type=Path, help="Scenario family [the --sweep's config.toml, else configs/random.toml]."
+    parser = ArgumentParser(
+        prog="python scripts/plant_bench.py",
+        description=__doc__.splitlines()[0] + "\n\nPrints the median, p95 and mean time of one control period "
+        "[µs]; with --sweep, the simulated\nseconds per CPU second the sweep's solves and this plant allow.",
     )
-    parser.add_argument("--sweep", type=Path, help="A finished sweep, for its throughput ceiling.")
-    parser.add_argument("--steps", type=int, default=2000, help="Timed control periods (at least 200) [2000].")
-    parser.add_argument("--json", type=Path, dest="json_out", help="Write the row and the ceiling as JSON.")
+    parser.add_argument(
+        "--family",
+        type=existing_file,
+        metavar="TOML",
+        help="scenario family (default: the --sweep's config.toml, else configs/random.toml)",
+    )
+    parser.add_argument(
+        "--sweep", type=existing_dir, metavar="DIR", help="a finished sweep, for its throughput ceiling"
+    )
+    parser.add_argument(
+        "--steps", type=positive_int, default=2000, metavar="N", help=f"timed control periods, at least {MIN_STEPS}"
+    )
+    parser.add_argument(
+        "--json", type=output_path, dest="json_out", metavar="FILE", help="write the row and the ceiling as JSON"
+    )
     args = parser.parse_args(argv)
+    if args.steps < MIN_STEPS:
+        parser.error(f"argument --steps: expected at least {MIN_STEPS}, got {args.steps}")
     try:  # the sweep first: a wrong directory is refused before the plant is timed
         sweep = read_sweep_solves(args.sweep) if args.sweep is not None else None
         family = plant_config_of(args.family, args.sweep)
@@ -176,7 +194,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     except (FileNotFoundError, CompareError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
-    row = run_plant_bench(config, steps=max(args.steps, 200))
+    row = run_plant_bench(config, steps=args.steps)
     print(
         f"plant alone, one control period ({family}, {row.case}): median {row.median_us:.1f} µs, "
         f"p95 {row.p95_us:.1f} µs, mean {row.extra['mean_us']:.1f} µs (wall clock); "

@@ -18,7 +18,6 @@ first N runs of a sweep).
 
 from __future__ import annotations
 
-import argparse
 import json
 import sys
 from pathlib import Path
@@ -28,6 +27,7 @@ import numpy as np
 import pandas as pd
 
 from compare.analysis.results import RUNS_DIR, SUMMARY_FILE, load_steps
+from compare.arguments import ArgumentParser, existing_dir, positive_int
 from compare.config import Config, load_config
 from compare.scenarios.random_scenario import realize
 from compare.sensing.person import Person
@@ -127,17 +127,21 @@ def quality(directory: Path, max_runs: int | None = None) -> pd.DataFrame:
 
 def main(argv: list[str] | None = None) -> int:
     """Print the errors per run, method and control point, then their medians per method."""
-    parser = argparse.ArgumentParser(
+    parser = ArgumentParser(
         prog="python -m compare.analysis.prediction_quality",
-        description="The predicted closing speeds against the person's true ones.",
+        description="The predicted closing speeds [m/s] against the person's true ones: median and RMS error,\n"
+        "bias [m/s] and latency [s] per run, method and control point, then their medians per method.",
     )
-    parser.add_argument("directory", type=Path, help="a run directory (summary.json) or a sweep directory (runs/)")
-    parser.add_argument("--runs", type=int, default=None, help="only the first N runs of a sweep")
+    parser.add_argument(
+        "directory", type=existing_dir, help="a run directory (summary.json) or a sweep directory (runs/)"
+    )
+    parser.add_argument(
+        "--runs", type=positive_int, default=None, metavar="N", help="only the first N runs of a sweep (default: all)"
+    )
     args = parser.parse_args(argv)
     directory = args.directory
     if not (directory / SUMMARY_FILE).is_file() and not (directory / RUNS_DIR).is_dir():
-        print(f"error: {directory} is neither a run (summary.json) nor a sweep (runs/) directory", file=sys.stderr)
-        return 2
+        parser.error(f"{directory} is neither a run (summary.json) nor a sweep (runs/) directory")
     frame = quality(directory, args.runs)
     if frame.empty or "median_abs_error_mps" not in frame.columns:
         print("no run with prediction (closing_pred columns)")

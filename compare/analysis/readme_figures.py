@@ -16,18 +16,18 @@ no document or an unreadable results file is one line and exit code 2.
 
 from __future__ import annotations
 
-import argparse
 import json
 import re
 import sys
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, NoReturn
+from typing import Any
 
 from compare.analysis.atomic_files import write_text_atomic
 from compare.analysis.claims_tables import claims_markdown
 from compare.analysis.report import markdown_table
+from compare.arguments import ArgumentParser, existing_dir
 from compare.exceptions import CompareError
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -270,13 +270,13 @@ def stale(root: Path = ROOT) -> list[Path]:
 
 def main(argv: list[str] | None = None) -> int:
     """Rewrite the generated tables (``--check``: only compare, exit 1 when one is out of date)."""
-    parser = _Parser(
+    parser = ArgumentParser(
         prog="python -m compare.analysis.readme_figures",
         description="Rewrite the result tables of README.md and docs/ between <!-- figures:NAME --> markers"
         " from the results files committed in docs/.",
     )
     parser.add_argument("--check", action="store_true", help="write nothing; exit 1 when a table is out of date")
-    parser.add_argument("--root", type=Path, default=ROOT, help="the project checkout [this one]")
+    parser.add_argument("--root", type=existing_dir, default=ROOT, help="the project checkout (default: this one)")
     args = parser.parse_args(argv)
     try:
         generated = generate(args.root)
@@ -292,14 +292,6 @@ def main(argv: list[str] | None = None) -> int:
         write_text_atomic(path, generated[path][1])
         print(path)
     return 0
-
-
-class _Parser(argparse.ArgumentParser):
-    """An argument parser whose usage error is one line (``error: ...``) and exit code 2."""
-
-    def error(self, message: str) -> NoReturn:
-        print(f"error: {message}", file=sys.stderr)
-        raise SystemExit(2)
 
 
 if __name__ == "__main__":

@@ -18,7 +18,6 @@ from __future__ import annotations
 
 import json
 import math
-import sys
 from pathlib import Path
 from typing import Any
 
@@ -27,6 +26,7 @@ import pandas as pd
 
 from compare.analysis.metrics import VIOLATION_TOLERANCE
 from compare.analysis.results import RUNS_DIR, SUMMARY_FILE, load_steps
+from compare.arguments import ArgumentParser, existing_dir
 from compare.config import load_config
 from compare.scenarios.random_scenario import realize
 from compare.sensing.person import Person
@@ -105,15 +105,17 @@ def explain(directory: Path) -> pd.DataFrame:
 
 def main(argv: list[str] | None = None) -> int:
     """Print the episodes of a run or sweep directory and how well v/K predicts them."""
-    args = sys.argv[1:] if argv is None else argv
-    usage = "usage: python -m compare.analysis.violations RUN_OR_SWEEP_DIR"
-    if len(args) != 1 or args[0] in ("-h", "--help"):
-        print(usage, file=sys.stderr if len(args) != 1 else sys.stdout)
-        return 0 if args and args[0] in ("-h", "--help") else 2
-    directory = Path(args[0])
+    parser = ArgumentParser(
+        prog="python -m compare.analysis.violations",
+        description="Every obstacle violation episode of a run or sweep: the person's closing speed v [m/s]\n"
+        "toward the control point, the predicted undershoot v/K [m] and the measured worst margin [m].",
+    )
+    parser.add_argument(
+        "directory", type=existing_dir, help="a run directory (summary.json) or a sweep directory (runs/)"
+    )
+    directory = parser.parse_args(argv).directory
     if not (directory / SUMMARY_FILE).is_file() and not (directory / RUNS_DIR).is_dir():
-        print(f"error: {directory} is neither a run (summary.json) nor a sweep (runs/) directory", file=sys.stderr)
-        return 2
+        parser.error(f"{directory} is neither a run (summary.json) nor a sweep (runs/) directory")
     frame = explain(directory)
     if frame.empty:
         print("no obstacle violation")

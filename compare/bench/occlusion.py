@@ -61,6 +61,15 @@ from matplotlib.backends.backend_agg import FigureCanvasAgg  # noqa: E402
 from matplotlib.figure import Figure  # noqa: E402
 
 import robots  # noqa: E402
+from compare.arguments import (  # noqa: E402
+    ArgumentParser,
+    existing_file,
+    fraction,
+    non_negative_float,
+    output_path,
+    positive_float,
+    positive_int,
+)
 from compare.sensing import (  # noqa: E402
     PERSON_GROUP,
     ROBOT_VISUAL_GROUP,
@@ -70,6 +79,7 @@ from compare.sensing import (  # noqa: E402
     DepthSensingSettings,
     Person,
     PersonKeyframe,
+    SensingError,
     control_point_positions,
     set_arm_configuration,
     valid_fraction,
@@ -504,30 +514,57 @@ def plot_records(records: Sequence[PointRecord], path: Path, rho_m: float = 0.5)
     return path
 
 
+def _parser() -> ArgumentParser:
+    return ArgumentParser(
+        prog="python -m compare.bench.occlusion",
+        description=__doc__.split("\n\n")[0]
+        + "\n\nPrints Markdown tables of false far and false near readings per setup and cause, and the\n"
+        "distance step's CPU time; writes the summary and every reading as JSON with --json.",
+    )
+
+
+def _checked_fusion(parser: ArgumentParser, args: argparse.Namespace) -> FusionSettings:
+    """The fusion settings; a rig of fewer than two cameras or a bad value is a usage error."""
+    try:
+        cams = cameras_from_config(args.config)
+    except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError, TypeError) as exc:
+        parser.error(f"--config {args.config}: {exc}")
+    if len(cams) < 2:
+        parser.error(f"--config {args.config}: needs two or more [[sensor.cameras]], has {len(cams)}")
+    try:
+        return FusionSettings(
+            **{k: v for k, v in (("tolerance_m", args.tolerance), ("step_m", args.step)) if v is not None}
+        )
+    except SensingError as exc:
+        parser.error(str(exc))
+
+
 def main(argv: list[str] | None = None) -> int:
     """Run the bench (``--help``)."""
-    parser = argparse.ArgumentParser(
-        prog="python -m compare.bench.occlusion",
-        description=__doc__.split("\n\n")[0],
-        formatter_class=argparse.ArgumentDefaultsHelpFormatter,
-    )
-    parser.add_argument("--scenes", type=int, default=150, help="random scenes")
+    parser = _parser()
+    parser.add_argument("--scenes", type=positive_int, default=150, help="random scenes")
     parser.add_argument("--seed", type=int, default=1000, help="seed of the first scene")
-    parser.add_argument("--config", type=Path, default=DEFAULT_CONFIG, help="two-camera scenario TOML")
-    parser.add_argument("--noise", type=float, default=0.0, help="depth noise std [m]")
-    parser.add_argument("--dropout", type=float, default=0.0, help="share of pixels without a return")
-    parser.add_argument("--tolerance", type=float, default=None, help="fusion tolerance [m] (default: the fusion's)")
-    parser.add_argument("--step", type=float, default=None, help="fusion step [m] (default: the fusion's)")
-    parser.add_argument("--json", type=Path, default=None, help="write the summary here")
-    parser.add_argument("--plot", type=Path, default=None, help="write the reading-vs-truth figure (PNG)")
-    args = parser.parse_args(argv)
-    if not args.config.is_file():
-        parser.error(f"--config: {args.config} is not a file")
-    if args.scenes < 1:
-        parser.error(f"--scenes must be at least 1, got {args.scenes}")
-    fusion = FusionSettings(
-        **{k: v for k, v in (("tolerance_m", args.tolerance), ("step_m", args.step)) if v is not None}
+    parser.add_argument(
+        "--config",
+        type=existing_file,
+        default=DEFAULT_CONFIG,
+        help="scenario TOML whose [[sensor.cameras]] form the rig (default: configs/case1_two_cameras.toml)",
     )
+    parser.add_argument("--noise", type=non_negative_float, default=0.0, help="depth noise std [m]")
+    parser.add_argument("--dropout", type=fraction, default=0.0, help="share of pixels without a return, in [0, 1]")
+    parser.add_argument(
+        "--tolerance",
+        type=non_negative_float,
+        default=None,
+        help=f"fusion tolerance [m] (default: {FusionSettings.tolerance_m})",
+    )
+    parser.add_argument(
+        "--step", type=positive_float, default=None, help=f"fusion step [m] (default: {FusionSettings.step_m})"
+    )
+    parser.add_argument("--json", type=output_path, default=None, help="write the summary and the readings here (JSON)")
+    parser.add_argument("--plot", type=output_path, default=None, help="write the reading-vs-truth figure (PNG)")
+    args = parser.parse_args(argv)
+    fusion = _checked_fusion(parser, args)
     records, cost = run_scenes(
         args.scenes, args.seed, args.config, noise_std_m=args.noise, dropout=args.dropout, fusion=fusion
     )
@@ -551,6 +588,7 @@ def main(argv: list[str] | None = None) -> int:
         shown = [r for r in records if min(r.truth_m, r.one_m, r.two_m) <= 0.5]
         print(f"figure: {plot_records(shown, args.plot)}")
     if args.json is not None:
+        args.json.parent.mkdir(parents=True, exist_ok=True)
         args.json.write_text(json.dumps({"summary": summary, "records": [asdict(r) for r in records]}, default=float))
     return 0
 

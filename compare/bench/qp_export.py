@@ -16,6 +16,9 @@ format :math:`\min \tfrac12 x^TPx + q^Tx` s.t. :math:`Gx \le h,\ Ax = b,\ lb \le
 * ``candidates.csv``: every candidate QP, how hard it is and whether it was kept;
 * ``README.md``: what the problems are, how they were chosen, the commands that run them.
 
+Run ``python -m compare.bench.qp_export OUT_DIR [--method hqp-piqp] [--min-failing 2]`` (or
+``tpik-compare bench --only correctness --export-qps OUT_DIR``, which also runs the bench).
+
 **Candidates.** Every task-level QP the cascade of one HQP method sends to its backend on the
 bench's reference states (:mod:`compare.bench.qp_reference`: three case-2 states and 200 random
 ones). The cascade's final min-norm level (posed only by the inexact backends' cascades,
@@ -48,6 +51,7 @@ from __future__ import annotations
 import csv
 import math
 import re
+import sys
 import warnings
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
@@ -59,9 +63,11 @@ import pandas as pd
 import qpsolvers
 
 import robots
+from compare.arguments import ArgumentParser, output_dir, positive_int
+from compare.bench.qp_reference import ReferenceMismatch, load_reference
 from compare.bench.qp_states import apply_qp_state
 from compare.bench.solver_cases import case2_hierarchy
-from compare.methods import make_method
+from compare.methods import available_methods, make_method
 from qp_baseline.certificate import certify
 from qp_baseline.hqp import HqpSolver
 from qp_baseline.level_qp import LevelQp
@@ -586,6 +592,49 @@ def collect_bench_qps(method: str, entries: Sequence[object]) -> list[NamedLevel
     return out
 
 
+def main(argv: list[str] | None = None) -> int:
+    """``python -m compare.bench.qp_export OUT_DIR``: export the test set; returns the exit code."""
+    hqp = [m for m in available_methods() if m.startswith("hqp-")]
+    parser = ArgumentParser(
+        prog="python -m compare.bench.qp_export",
+        description="Write the hard level QPs an HQP cascade poses on the bench's stored reference states as a\n"
+        "qpbenchmark test set (problems.parquet, data/*.npz, solutions.csv, candidates.csv, README.md).\n"
+        "Judging every candidate with six QP solvers takes minutes. Also: tpik-compare bench --only\n"
+        "correctness --export-qps DIR.",
+    )
+    parser.add_argument(
+        "out_dir", type=output_dir, help="test-set directory (created; files of the same names replaced)"
+    )
+    parser.add_argument(
+        "--method",
+        choices=hqp,
+        default="hqp-piqp",
+        metavar="METHOD",
+        help=f"the HQP method whose cascade poses the QPs: {', '.join(hqp)}",
+    )
+    parser.add_argument(
+        "--min-failing",
+        type=positive_int,
+        metavar="N",
+        default=MIN_FAILING,
+        help="least number of solvers failing a state's problem for the state to be kept",
+    )
+    args = parser.parse_args(argv)
+    try:
+        entries = load_reference()
+    except (OSError, ReferenceMismatch) as exc:
+        parser.error(f"stored reference: {exc}")
+    made_with = (
+        f"python -m compare.bench.qp_export {args.out_dir} --method {args.method} --min-failing {args.min_failing}"
+    )
+    export = export_test_set(collect_bench_qps(args.method, entries), args.out_dir, made_with, args.min_failing)
+    print(
+        f"wrote {len(export.problems)} hard level QPs (of {len(export.candidates)} candidates) "
+        f"posed by {args.method} to {args.out_dir}"
+    )
+    return 0
+
+
 __all__ = [
     "FAMILY",
     "HIGH_ACCURACY_SETTINGS",
@@ -599,8 +648,13 @@ __all__ = [
     "collect_bench_qps",
     "export_test_set",
     "judge_candidates",
+    "main",
     "problem_name",
     "qpbenchmark_failures",
     "reference_solution",
     "select_problems",
 ]
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -16,7 +16,6 @@ Regenerate (≈ 15 s)::
 
 from __future__ import annotations
 
-import argparse
 import hashlib
 import json
 import sys
@@ -28,6 +27,7 @@ from typing import Any
 import numpy as np
 
 import robots
+from compare.arguments import ArgumentParser, output_path
 from compare.bench.qp_states import RANDOM_COUNT, RANDOM_SEED, QpState, apply_qp_state, case2_qp_states, random_states
 from compare.bench.solver_cases import case2_description, case2_hierarchy
 from compare.versions import versions
@@ -179,8 +179,17 @@ def load_reference(path: Path = REFERENCE_FILE, check: bool = True) -> list[Refe
 
 def main(argv: list[str] | None = None) -> int:
     """Regenerate the stored reference; returns the exit code."""
-    parser = argparse.ArgumentParser(prog="python -m compare.bench.qp_reference", description=__doc__.splitlines()[0])
-    parser.add_argument("--out", type=Path, default=REFERENCE_FILE, help=f"output file (default {REFERENCE_FILE})")
+    parser = ArgumentParser(
+        prog="python -m compare.bench.qp_reference",
+        description="Compute the lexicographic reference (level objectives and command [rad/s]) of the bench's\n"
+        f"QP states (three case-2 states and {RANDOM_COUNT} random ones) and write it as JSON (about 15 s).",
+    )
+    parser.add_argument(
+        "--out",
+        type=output_path,
+        default=REFERENCE_FILE,
+        help="output file (default: compare/bench/data/qp_reference.json, the stored reference)",
+    )
     args = parser.parse_args(argv)
     payload = write_reference(args.out)
     worst = max(s["kkt"] for s in payload["states"])

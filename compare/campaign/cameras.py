@@ -21,7 +21,6 @@ Run::
 
 from __future__ import annotations
 
-import argparse
 import json
 import math
 import sys
@@ -36,6 +35,7 @@ from scipy import stats
 
 from compare.analysis.results import RUNS_DIR, load_steps, load_summary, write_json_atomic
 from compare.analysis.statistics import mcnemar, rate
+from compare.arguments import ArgumentParser, existing_dir, output_dir
 
 FIGURE = "camera_comparison.png"
 RESULT = "camera_comparison.json"
@@ -171,19 +171,22 @@ def plot_comparison(result: dict[str, Any], path: Path) -> Path:
 
 def main(argv: list[str] | None = None) -> int:
     """``python -m compare.campaign.cameras ONE_DIR TWO_DIR --out DIR``: JSON and figure."""
-    parser = argparse.ArgumentParser(description="One vs two depth cameras on the same seeds (two sweeps).")
-    parser.add_argument("one", type=Path, help="sweep directory with one camera")
-    parser.add_argument("two", type=Path, help="sweep directory with two cameras")
-    parser.add_argument("--out", type=Path, required=True, help="output directory")
+    parser = ArgumentParser(
+        prog="python -m compare.campaign.cameras",
+        description="One vs two depth cameras on the same seeds (two sweeps of one family): obstacle\n"
+        "violation rates (McNemar), time below the physical threshold [s] (Wilcoxon) and occluded\n"
+        f"readings per method. Writes {RESULT} and {FIGURE} into --out and prints the JSON.",
+    )
+    parser.add_argument("one", type=existing_dir, help="sweep directory with one camera (runs/)")
+    parser.add_argument("two", type=existing_dir, help="sweep directory with two cameras (runs/)")
+    parser.add_argument("--out", type=output_dir, required=True, help="output directory (created)")
     args = parser.parse_args(argv)
-    try:
-        result = compare_sweeps(args.one, args.two)
-    except FileNotFoundError as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return 2
+    for sweep in (args.one, args.two):
+        if not (sweep / RUNS_DIR).is_dir():
+            parser.error(f"{sweep}: no {RUNS_DIR}/ directory (not a sweep)")
+    result = compare_sweeps(args.one, args.two)
     if not result["methods"]:
-        print(f"error: {args.one} and {args.two} share no (seed, method) run", file=sys.stderr)
-        return 2
+        parser.error(f"{args.one} and {args.two} share no (seed, method) run")
     args.out.mkdir(parents=True, exist_ok=True)
     write_json_atomic(args.out / RESULT, result)
     plot_comparison(result, args.out / FIGURE)

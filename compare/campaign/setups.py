@@ -44,6 +44,7 @@ from compare.analysis.atomic_files import write_text_atomic
 from compare.analysis.plots_setups import SPEED_PLOT, plot_held_by_speed
 from compare.analysis.results import RUNS_DIR, load_summary, write_json_atomic
 from compare.analysis.statistics import mcnemar, rate
+from compare.arguments import ArgumentParser, output_dir
 
 RESULT = "setups.json"
 REPORT = "setups.md"
@@ -320,27 +321,36 @@ def _speed_lines(result: dict[str, Any]) -> list[str]:
     return lines
 
 
-def _parse(spec: str) -> tuple[str, Path]:
+def _sweep_spec(spec: str) -> tuple[str, Path]:
+    """``type=`` converter: ``DIR[:LABEL]`` to ``(label, DIR)``, DIR a sweep directory (``runs/``)."""
     path, _, label = spec.partition(":")
-    return (label or Path(path).name), Path(path)
+    directory = Path(path)
+    if not directory.is_dir():
+        raise argparse.ArgumentTypeError(f"{path}: no such directory")
+    if not (directory / RUNS_DIR).is_dir():
+        raise argparse.ArgumentTypeError(f"{path}: no {RUNS_DIR}/ directory (not a sweep)")
+    return (label or directory.name), directory
 
 
 def main(argv: list[str] | None = None) -> int:
     """``python -m compare.campaign.setups DIR[:LABEL] DIR[:LABEL] ... --out DIR``."""
-    parser = argparse.ArgumentParser(
-        description="Sweeps of one family compared on the same seeds (the first is the baseline)."
+    parser = ArgumentParser(
+        prog="python -m compare.campaign.setups",
+        description="Sweeps of one family compared on the same seeds (the first is the baseline): safety\n"
+        "held (McNemar), mission error [m], waypoints and time to each [s] (Wilcoxon), held share by the\n"
+        f"person's peak speed [m/s]. Writes {RESULT}, {REPORT} and {SPEED_PLOT} into --out; prints the report.",
     )
-    parser.add_argument("sweeps", nargs="+", help="sweep directories, each DIR or DIR:LABEL")
-    parser.add_argument("--out", type=Path, required=True, help="output directory (setups.json, setups.md)")
+    parser.add_argument(
+        "sweeps", nargs="+", type=_sweep_spec, help="two or more sweep directories, each DIR or DIR:LABEL"
+    )
+    parser.add_argument("--out", type=output_dir, required=True, help="output directory (created)")
     args = parser.parse_args(argv)
     try:
-        result = compare_setups([_parse(s) for s in args.sweeps])
+        result = compare_setups(args.sweeps)
     except (FileNotFoundError, ValueError) as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return 2
+        parser.error(str(exc))
     if not result["methods"]:
-        print("error: the sweeps share no (seed, method) run", file=sys.stderr)
-        return 2
+        parser.error("the sweeps share no (seed, method) run")
     args.out.mkdir(parents=True, exist_ok=True)
     write_json_atomic(args.out / RESULT, result)
     text = render_markdown(result)

@@ -38,7 +38,6 @@ and ``read_q()`` when the joint angles are read.
 
 from __future__ import annotations
 
-import argparse
 import math
 import threading
 from collections import deque
@@ -46,6 +45,8 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
+
+from compare.arguments import ArgumentParser, positive_float
 
 CONNECTIONS = ("usb", "ethernet")
 
@@ -456,6 +457,10 @@ def simulate_stream(
     return model
 
 
+_WARM_UP_S = 1.0
+"""Start of the window :func:`tradeoff_table` measures [s] (the stream settles before it)."""
+
+
 def tradeoff_table(intervals_s: Sequence[float] = (0.01, 0.02, 0.04, 0.1), duration_s: float = 20.0) -> str:
     """Markdown table: per connection and ``feedback_publish_rate``, what the bridge gets (docs/hardware.md)."""
     rows = [
@@ -466,7 +471,7 @@ def tradeoff_table(intervals_s: Sequence[float] = (0.01, 0.02, 0.04, 0.1), durat
     for connection in CONNECTIONS:
         for interval in intervals_s:
             model = simulate_stream(DriverTiming.for_connection(connection, interval), duration_s)
-            s = stream_stats(model, 1.0, duration_s)
+            s = stream_stats(model, _WARM_UP_S, duration_s)
             rows.append(
                 f"| {connection} | {interval:g} | {s.state_rate_hz:.1f} | {s.state_gap_p99_ms:.0f} / "
                 f"{s.state_gap_max_ms:.0f} | {s.commands_executed_per_s:.1f} | "
@@ -478,9 +483,21 @@ def tradeoff_table(intervals_s: Sequence[float] = (0.01, 0.02, 0.04, 0.1), durat
 
 def main(argv: list[str] | None = None) -> int:
     """``python -m compare.hardware.driver_model``: print the trade-off table of docs/hardware.md."""
-    parser = argparse.ArgumentParser(prog="python -m compare.hardware.driver_model", description=__doc__.split("\n")[0])
-    parser.add_argument("--duration", type=float, default=20.0, help="Virtual time per row [s].")
+    parser = ArgumentParser(
+        prog="python -m compare.hardware.driver_model",
+        description=__doc__.split("\n")[0] + "\n\nPrints, per connection (USB, Ethernet) and "
+        "feedback_publish_rate [s], the joint-state\nrate [Hz], state gaps [ms], commands executed and "
+        "dropped, command latency [ms] and speed ratio\n(Markdown; virtual time, no ROS).",
+    )
+    parser.add_argument(
+        "--duration",
+        type=positive_float,
+        default=20.0,
+        help=f"virtual time per row [s], more than the {_WARM_UP_S:g} s warm-up",
+    )
     args = parser.parse_args(argv)
+    if args.duration <= _WARM_UP_S:
+        parser.error(f"argument --duration: expected more than the {_WARM_UP_S:g} s warm-up, got {args.duration:g}")
     print(tradeoff_table(duration_s=args.duration))
     return 0
 

@@ -34,7 +34,6 @@ tests also use to make valid and malformed messages for the bridge.
 
 from __future__ import annotations
 
-import argparse
 import dataclasses
 import json
 import logging
@@ -56,6 +55,13 @@ os.environ.setdefault("MUJOCO_GL", "egl")
 import mujoco  # noqa: E402
 
 import robots  # noqa: E402
+from compare.arguments import (  # noqa: E402
+    ArgumentParser,
+    existing_file,
+    non_negative_float,
+    output_path,
+    positive_float,
+)
 from compare.config import Config, ConfigError, load_config  # noqa: E402
 from compare.hardware.conversions import (  # noqa: E402
     deg_s_to_rad_s,
@@ -432,41 +438,86 @@ class StandIn:
         path.write_text(json.dumps(data), encoding="utf-8")
 
 
-def main(argv: list[str] | None = None) -> int:
-    """Command-line entry point (``python -m compare.hardware.standin``)."""
-    parser = argparse.ArgumentParser(prog="python -m compare.hardware.standin", description=__doc__.split("\n")[0])
-    parser.add_argument("config", type=Path, help="Scenario TOML (scene, person, [hardware] topics and rates).")
-    parser.add_argument("--duration", type=float, default=None, help="Scene time to run [s] (default: the scenario's).")
-    parser.add_argument("--time-scale", type=float, default=None, help="Override scenario.time_scale.")
+def _parser() -> ArgumentParser:
+    """The stand-in's options (module docstring)."""
+    parser = ArgumentParser(
+        prog="python -m compare.hardware.standin",
+        description=__doc__.split("\n")[0] + "\n\nServes the driver's topics and services and the depth camera "
+        "from the scenario's simulation\nin real time (needs a ROS master); see docs/hardware.md.",
+    )
+    parser.add_argument("config", type=existing_file, help="scenario TOML (scene, person, [hardware] topics and rates)")
     parser.add_argument(
-        "--connection", choices=CONNECTIONS, default=None, help="Driver connection (default hardware.connection_type)."
+        "--duration",
+        metavar="S",
+        type=positive_float,
+        default=None,
+        help="scene time to run [s] (default: the scenario's)",
+    )
+    parser.add_argument(
+        "--time-scale",
+        metavar="X",
+        type=positive_float,
+        default=None,
+        help="override scenario.time_scale (default: the scenario's)",
+    )
+    parser.add_argument(
+        "--connection", choices=CONNECTIONS, default=None, help="driver connection (default: hardware.connection_type)"
     )
     parser.add_argument(
         "--feedback-publish-rate",
-        type=float,
+        metavar="S",
+        type=positive_float,
         default=None,
-        help="The driver's status interval [s] (default hardware.feedback_publish_rate_s).",
+        help="the driver's status interval [s] (default: hardware.feedback_publish_rate_s)",
     )
     parser.add_argument(
         "--api-call-ms",
-        type=float,
+        type=non_negative_float,
         nargs=2,
         metavar=("BASE", "SPREAD"),
         default=None,
-        help="Duration of one blocking API call: BASE + Exp(SPREAD) [ms] (default: the connection's).",
+        help="duration of one blocking API call: BASE + Exp(SPREAD) [ms] (default: the connection's)",
     )
-    parser.add_argument("--seed", type=int, default=0, help="Seed of the API call durations.")
-    parser.add_argument("--stop-joint-states-after", type=float, default=None, help="Scene time [s].")
-    parser.add_argument("--stop-depth-after", type=float, default=None, help="Scene time [s].")
-    parser.add_argument("--encoding", choices=("16UC1", "32FC1"), default="16UC1")
-    parser.add_argument("--no-wait-for-motion", action="store_true", help="Start the scene clock at once.")
-    parser.add_argument("--no-depth", action="store_true", help="Publish no camera.")
-    parser.add_argument("--record", type=Path, default=None, help="Write a JSON record here at the end.")
-    parser.add_argument("--record-bag", type=Path, default=None, help="Write the published streams to this bag.")
-    parser.add_argument("--print-calibration", action="store_true", help="Print the [hardware] camera pose; exit.")
+    parser.add_argument("--seed", type=int, default=0, help="seed of the API call durations")
     parser.add_argument(
-        "--write-background", type=Path, default=None, help="Save the static scene's depth (background file); exit."
+        "--stop-joint-states-after",
+        metavar="S",
+        type=non_negative_float,
+        default=None,
+        help="stop the joint states at this scene time [s]",
     )
+    parser.add_argument(
+        "--stop-depth-after",
+        metavar="S",
+        type=non_negative_float,
+        default=None,
+        help="stop the depth stream at this scene time [s]",
+    )
+    parser.add_argument(
+        "--encoding", choices=("16UC1", "32FC1"), default="16UC1", help="depth encoding: 16UC1 [mm] or 32FC1 [m]"
+    )
+    parser.add_argument("--no-wait-for-motion", action="store_true", help="start the scene clock at once")
+    parser.add_argument("--no-depth", action="store_true", help="publish no camera")
+    parser.add_argument(
+        "--record", metavar="FILE", type=output_path, default=None, help="write a JSON record here at the end"
+    )
+    parser.add_argument(
+        "--record-bag", metavar="FILE", type=output_path, default=None, help="write the published streams to this bag"
+    )
+    parser.add_argument("--print-calibration", action="store_true", help="print the [hardware] camera pose; exit")
+    parser.add_argument(
+        "--write-background",
+        metavar="FILE",
+        type=output_path,
+        default=None,
+        help="save the static scene's depth (background file); exit",
+    )
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Command-line entry point (``python -m compare.hardware.standin``)."""
+    parser = _parser()
     args = parser.parse_args(argv)
     logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
     # A stop asked for while the scene is still being built (e.g. the bridge refused its start at

@@ -64,8 +64,10 @@ def test_the_script_writes_the_ceiling_and_refuses_a_directory_without_a_sweep(t
     ceiling = payload["throughput_ceiling"]
     assert ceiling["ceiling_sim_s_per_cpu_s"] == pytest.approx(0.01 / ((90.0 + ceiling["plant_us"]) * 1e-6))
     capsys.readouterr()
-    assert main(["--steps", "200", "--sweep", str(tmp_path / "none")]) == 2
-    assert capsys.readouterr().err.startswith("error: ")
+    for bad in (["--sweep", str(tmp_path / "none")], ["--steps", "10"]):
+        with pytest.raises(SystemExit) as exit_:
+            main(["--steps", "200", *bad])
+        assert exit_.value.code == 2 and capsys.readouterr().err.startswith("error: argument ")
 
 
 def test_the_plant_timed_for_a_sweep_is_its_own_unless_another_is_given(tmp_path):
@@ -78,7 +80,7 @@ def test_the_plant_timed_for_a_sweep_is_its_own_unless_another_is_given(tmp_path
     assert plant_config_of(None, sweep) == sweep / "config.toml"
     assert plant_config_of(RANDOM_CONFIG, sweep) == RANDOM_CONFIG
     out = tmp_path / "plant.json"
-    argv = ["--steps", "10", "--sweep", str(sweep), "--json", str(out)]
+    argv = ["--steps", "200", "--sweep", str(sweep), "--json", str(out)]
     assert main(argv) == 0
     payload = json.loads(out.read_text())
     assert payload["results"][0]["case"].startswith("kinematic-")  # the sweep's plant, not the default's

@@ -32,5 +32,7 @@ def test_a_perfect_estimate_has_no_error():
 
 
 def test_a_directory_that_is_no_run_is_one_line(tmp_path: Path, capsys):
-    assert main([str(tmp_path)]) == 2
-    assert "neither a run" in capsys.readouterr().err
+    with pytest.raises(SystemExit) as exit_:
+        main([str(tmp_path)])
+    err = capsys.readouterr().err
+    assert exit_.value.code == 2 and err.count("\n") == 1 and "neither a run" in err

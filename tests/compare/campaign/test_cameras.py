@@ -63,5 +63,9 @@ def test_the_command_writes_json_and_figure_and_refuses_a_non_sweep(tmp_path, ca
     assert result["methods"]["tpik"]["paired_runs"] == 6
     img = imread(tmp_path / "out" / FIGURE)
     assert img.shape[1] >= 800 and img.shape[0] >= 300
-    assert main([str(tmp_path / "missing"), str(two), "--out", str(tmp_path / "x")]) == 2
-    assert "not a sweep" in capsys.readouterr().err
+    with pytest.raises(SystemExit) as exit_:
+        main([str(tmp_path / "missing"), str(two), "--out", str(tmp_path / "x")])
+    assert exit_.value.code == 2 and "missing: no such directory" in capsys.readouterr().err
+    with pytest.raises(SystemExit) as exit_:
+        main([str(tmp_path), str(two), "--out", str(tmp_path / "x")])
+    assert exit_.value.code == 2 and "not a sweep" in capsys.readouterr().err

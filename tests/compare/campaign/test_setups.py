@@ -60,9 +60,14 @@ def test_no_verdict_no_avoidable_rate_and_bad_input_is_one_line(tmp_path: Path, 
     a = _sweep(tmp_path / "a", {0: True, 1: False}, ee=0.1, label=None)
     b = _sweep(tmp_path / "b", {0: False, 1: False}, ee=0.1, label=None)
     assert compare_setups([("a", a), ("b", b)])["methods"]["tpik"]["setups"]["b"]["held_avoidable"] is None
-    assert main([str(a), str(tmp_path / "missing"), "--out", str(tmp_path / "out")]) == 2
-    assert "no runs/ directory" in capsys.readouterr().err
-    assert main([f"{a}:x", f"{b}:x", "--out", str(tmp_path / "out")]) == 2
+    for args, message in (
+        ([str(a), str(tmp_path / "missing")], "missing: no such directory"),
+        ([str(a), str(tmp_path)], "no runs/ directory"),
+        ([f"{a}:x", f"{b}:x"], "setup labels must differ"),
+    ):
+        with pytest.raises(SystemExit) as exit_:
+            main([*args, "--out", str(tmp_path / "out")])
+        assert exit_.value.code == 2 and message in capsys.readouterr().err
     assert main([f"{a}:a", f"{b}:b", "--out", str(tmp_path / "out")]) == 0
     assert "| `tpik` | b | 2 |" in (tmp_path / "out" / "setups.md").read_text(encoding="utf-8")
 
