@@ -160,8 +160,9 @@ def tuning_table(out_dir: Path, method: str, points: Sequence[Mapping[str, Any]]
         if path.is_file():
             waypoints = _waypoints_mean(path.parent / SWEEP_RUNS_FILE, method)
             entries.append(_entry(method, point, json.loads(path.read_text(encoding="utf-8")), waypoints))
-    best = min((_number(e["ee_error_final_m_median"]) for e in entries), default=math.inf)
     most = max((e["waypoints_reached_mean"] or 0.0 for e in entries), default=0.0)
+    reaching = [e for e in entries if (e["waypoints_reached_mean"] or most) >= WAYPOINT_FRACTION * most]
+    best = min((_number(e["ee_error_final_m_median"]) for e in reaching), default=math.inf)
     entries.sort(key=lambda e: rank_key(e, best, most))
     return {
         "method": method,
