@@ -228,7 +228,7 @@ class Kinematics:
         self._check()
         pos = self._positions.get(name)
         if pos is None:
-            pos = self._data.oMf[self.robot.frame_id(name)].translation.copy()
+            pos = self.robot.origin_view(name).copy()
             pos.flags.writeable = False
             self._positions[name] = pos
         return pos
