@@ -92,10 +92,16 @@ class GeometricDistance:
             :class:`DistanceResult` with ``valid_fraction = 1`` and ``blind = False``.
         """
         names = list(control_points)
+        points = np.array([np.asarray(control_points[n], dtype=float) for n in names]) if names else np.empty((0, 3))
+        return self.compute_at(data, names, points, stamp_s)
+
+    def compute_at(
+        self, data: mujoco.MjData, names: Sequence[str], points: np.ndarray, stamp_s: float | None = None
+    ) -> DistanceResult:
+        """:meth:`compute` of the points ``points`` [m] (K, 3), float64, named ``names``."""
         readings: dict[str, ObstacleReading] = {}
         if names:
-            P = np.array([np.asarray(control_points[n], dtype=float) for n in names])  # (K, 3)
-            dist, closest = self._closest(data, P)
+            dist, closest = self._closest(data, points)
             for i, name in enumerate(names):
                 if dist[i] <= self.rho_m:
                     readings[name] = ObstacleReading(float(dist[i]), closest[i], True)

@@ -352,10 +352,13 @@ class GeometricObstacleSource:
         self.distance = distance
         self.data = data
         self.frames = tuple(frames)
+        self._points = np.empty((len(self.frames), 3))  # the control points of an update [m]
 
     def update(self, t: float, kin: Kinematics) -> DistanceResult:
         """Closest points at time ``t`` [s] for the control points at ``kin``."""
-        return self.distance.compute(self.data, control_point_positions(kin, self.frames), stamp_s=t)
+        for k, name in enumerate(self.frames):
+            self._points[k] = kin.frame_position(name)
+        return self.distance.compute_at(self.data, self.frames, self._points, stamp_s=t)
 
 
 def truth_function(
@@ -364,11 +367,13 @@ def truth_function(
     """``truth(kin)`` for ``compare.loop.closed_loop.run_loop``: true distance per control point [m] (no ρ cut)."""
     geometric = GeometricDistance(model, rho_m=math.inf)
     names = tuple(frames)
+    points = np.empty((len(names), 3))  # float64 (K, 3), as distances() builds it, filled at each call
 
     def truth(kin: Kinematics) -> dict[str, float]:
         if not names:
             return {}
-        points = np.array([kin.frame_position(n) for n in names])  # float64 (K, 3), as distances() builds it
+        for k, name in enumerate(names):
+            points[k] = kin.frame_position(name)
         return geometric.distances_at(data, names, points)
 
     return truth
