@@ -100,12 +100,16 @@ STEP_PART = "the step's own code"
 PLANT_PART = "plant (person, drive, MuJoCo sub-steps)"
 """The label of the simulated plant (what a step costs besides the loop and the method)."""
 
+TRUTH_PART = "ground-truth distance (kept a step, computed at the end)"
+"""The label of the ground truth: what a step keeps of it and its computation at the run's end."""
+
 PARTS: tuple[Part, ...] = (
     Part(PLANT_PART, "compare.loop.sim_io", "SimRobotIO.wait"),
     Part(GUARD_PART, "compare.loop.closed_loop", "timed_solve"),
     Part("kinematics snapshot", "robots.robot", "Robot.kinematics"),
     Part("sensing gate (obstacle source, ISO/TS 15066 monitor)", "compare.loop.sensing_gate", "SensingGate.step"),
-    Part("ground-truth distance", "compare.loop.simulation", "truth_function", returns_callable=True),
+    Part(TRUTH_PART, "compare.sensing.ground_truth", "GroundTruth.record"),
+    Part(TRUTH_PART, "compare.sensing.ground_truth", "GroundTruth.recorded"),
     Part("fallback policy", "compare.loop.fallback", "FallbackPolicy.decide"),
     Part("waypoints", "compare.loop.waypoints", "WaypointSchedule.update"),
     Part("joint reading, command, clock", "compare.loop.sim_io", "SimRobotIO.read_joints"),

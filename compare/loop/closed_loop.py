@@ -54,7 +54,7 @@ import pandas as pd
 
 from compare.loop.deadline import DeadlineGuard
 from compare.loop.fallback import FallbackPolicy, guard
-from compare.loop.recorder import StepRecorder
+from compare.loop.recorder import RecordedTruth, StepRecorder
 from compare.loop.robot_io import RobotIO
 from compare.loop.sensing_gate import (
     DistanceResultLike,
@@ -247,6 +247,8 @@ class _Step:
     ) -> None:
         self.io, self.robot, self.hierarchy, self.solver = io, robot, hierarchy, solver
         self.waypoints, self.truth = waypoints, truth
+        # A truth that records the steps computes them at the end (RecordedTruth), else one call a step.
+        self.recorded_truth = truth if isinstance(truth, RecordedTruth) else None
         self.dt, self.nq, self.ee_frame = settings.dt, robot.nq, robot.ee_frame
         self.stop_when_blind = settings.stop_when_blind
         set_tasks = hierarchy.set_tasks
@@ -260,6 +262,8 @@ class _Step:
         n_steps = max(1, round(settings.duration_s / settings.dt))
         self.recorder = StepRecorder(n_steps, robot.nq, set_tasks, obstacle_tasks, cps, predictor is not None)
         self.n_steps = n_steps
+        if self.recorded_truth is not None:
+            self.recorded_truth.start(n_steps)
         self.reference: ControlReference = solver.reference
         # A deadline miss: flagged by the solver's time-limit guard (compare.loop.deadline) when it
         # has one, else a solve longer than ``settings.deadline_s`` (default the control period).
@@ -285,7 +289,11 @@ class _Step:
         target_xyz = target.tolist()
         self.targets.set(target, target_xyz)
         sigmas = self.watch.measure(kin)
-        true_d = self.truth(kin) if self.truth is not None else {}
+        true_d: Mapping[str, float] | None = None
+        if self.recorded_truth is not None:
+            self.recorded_truth.record(i, kin)
+        else:
+            true_d = self.truth(kin) if self.truth is not None else {}
         # A fresh snapshot, nothing computed: the method's kinematics fall inside its timed solve.
         solved = timed_solve(self.solver, self.hierarchy, robot.kinematics(q), self.dt)
         qdot, status, active, message, missed, solve_us = solved
@@ -304,6 +312,12 @@ class _Step:
         stop_why = gate.reason if stopped else None
         rec.outcome(i, solve_us, missed, self.waypoints.index, fallback, gate.blind, stop_why, status.value)
         return t
+
+    def table(self) -> pd.DataFrame:
+        """The per-step table of the steps run (the recorded ground truth computed now)."""
+        if self.recorded_truth is not None:
+            self.recorder.true_distances(self.recorded_truth.recorded(self.recorder.n))
+        return self.recorder.frame()
 
 
 def run_loop(
@@ -361,4 +375,4 @@ def run_loop(
         raise
     io.stop()
     wall = time.perf_counter() - start_wall
-    return LoopOutput(step.recorder.frame(), wall, io.now() - step.t0, step.events)
+    return LoopOutput(step.table(), wall, io.now() - step.t0, step.events)

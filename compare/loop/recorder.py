@@ -16,10 +16,12 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping, Sequence
+from typing import Protocol, runtime_checkable
 
 import numpy as np
 import pandas as pd
 
+from robots import Kinematics
 from tpik.tasks import ObstacleDistanceTask, SetTask
 
 _MOTION = ("t", "ee_x", "ee_y", "ee_z", "target_x", "target_y", "target_z", "ee_error_m")
@@ -27,6 +29,30 @@ _MOTION = ("t", "ee_x", "ee_y", "ee_z", "target_x", "target_y", "target_z", "ee_
 Sensed = tuple[tuple[float, ...], tuple[tuple[bool, str], ...], tuple[tuple[float, float], ...]]
 """The sensing gate's readings of a step: measured distance, (occluded, camera), (predicted distance,
 closing speed), each per control point (:class:`~compare.loop.sensing_gate.SensingGate`)."""
+
+
+@runtime_checkable
+class RecordedTruth(Protocol):
+    """A ground truth (``truth(kin)``) that also keeps a run's steps and computes them at its end.
+
+    :class:`compare.sensing.ground_truth.GroundTruth`: the same numbers as a call per step.
+    """
+
+    def __call__(self, kin: Kinematics) -> Mapping[str, float]:
+        """The true distance per control point [m] now."""
+        ...
+
+    def start(self, n_steps: int) -> None:
+        """Room for a run of ``n_steps`` steps."""
+        ...
+
+    def record(self, i: int, kin: Kinematics) -> None:
+        """Keep step ``i`` (the control points of ``kin``, the obstacles now)."""
+        ...
+
+    def recorded(self, n: int) -> Mapping[str, np.ndarray]:
+        """The true distance [m] of steps ``0 .. n-1`` per frame, each (n,)."""
+        ...
 
 
 class StepRecorder:
@@ -127,10 +153,11 @@ class StepRecorder:
             if k is not None:
                 row[k] = True
 
-    def distances(self, i: int, sensed: Sensed, true_d: Mapping[str, float]) -> None:
-        """Row ``i``: the gate's readings and the true distances [m] (the truth: inf for a frame it lacks).
+    def distances(self, i: int, sensed: Sensed, true_d: Mapping[str, float] | None) -> None:
+        """Row ``i``: the gate's readings and the true distances [m] (inf for a frame the truth lacks).
 
-        The readings are kept by reference, once per change (the gate replaces them, never changes them).
+        The readings are kept by reference, once per change (the gate replaces them, never changes
+        them). ``true_d`` None: the true distances come with :meth:`true_distances`, at the end.
         """
         last = self._last_sensed
         if last is None or sensed[0] is not last[0] or sensed[1] is not last[1] or sensed[2] is not last[2]:
@@ -140,9 +167,19 @@ class StepRecorder:
         if true_d:
             self._true[i] = [true_d.get(cp, math.inf) for cp in self._cps]
             self._truth[i] = [true_d.get(frame, math.inf) for _, frame in self._obstacles]
-        else:
+        elif true_d is not None:
             self._true[i] = math.inf
             self._truth[i] = math.inf
+
+    def true_distances(self, per_frame: Mapping[str, np.ndarray]) -> None:
+        """The true distance [m] of every row recorded so far, per frame (inf for a frame not given)."""
+        n = self.n
+        recorded = self._sensed_at[:n] >= 0
+        missing = np.where(recorded, math.inf, np.nan)
+        for k, cp in enumerate(self._cps):
+            self._true[:n, k] = np.where(recorded, per_frame[cp][:n], np.nan) if cp in per_frame else missing
+        for k, (_, frame) in enumerate(self._obstacles):
+            self._truth[:n, k] = np.where(recorded, per_frame[frame][:n], np.nan) if frame in per_frame else missing
 
     def frame(self) -> pd.DataFrame:
         """The rows recorded so far as a DataFrame."""

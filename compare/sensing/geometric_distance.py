@@ -34,6 +34,11 @@ class GeometricDistance:
         rho_m: Largest distance reported as "in range" [m] (the depth mode's ρ, so both modes
             agree); ``math.inf`` reports every distance (ground truth).
         geom_ids: Explicit obstacle geoms instead of ``geom_group``.
+
+    Attributes:
+        geom_ids: The obstacle geoms (G,).
+        radius: Their radii [m] (G,).
+        half_length: Half length of their segments [m] (G,), 0 for a sphere.
     """
 
     def __init__(
@@ -58,6 +63,7 @@ class GeometricDistance:
         self.rho_m = float(rho_m)
         self._radius = model.geom_size[ids, 0].copy()
         self._half = np.where(types == mujoco.mjtGeom.mjGEOM_CAPSULE, model.geom_size[ids, 1], 0.0)
+        self.radius, self.half_length = self._radius, self._half
         # Flat indices of each geom's local z axis (column 2 of its row-major xmat) and the half
         # lengths as a column: ``segments`` gathers with one ``take`` instead of fancy indexing.
         self._axis_index = ids[:, None] * 9 + np.array([2, 5, 8])

@@ -6,7 +6,6 @@ Both produce :class:`~compare.sensing.results.DistanceResult` and both offer an
 
 from __future__ import annotations
 
-import math
 from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass, replace
 from typing import Any
@@ -20,6 +19,7 @@ from compare.sensing.exceptions import SensingError
 from compare.sensing.frames import DepthFrame
 from compare.sensing.fusion import DepthFusion, FusionSettings
 from compare.sensing.geometric_distance import GeometricDistance
+from compare.sensing.ground_truth import GroundTruth
 from compare.sensing.renderer import DepthCamera
 from compare.sensing.results import DistanceResult, ObstacleReading
 from compare.sensing.scene import control_point_positions
@@ -361,19 +361,9 @@ class GeometricObstacleSource:
         return self.distance.compute_at(self.data, self.frames, self._points, stamp_s=t)
 
 
-def truth_function(
-    model: mujoco.MjModel, data: mujoco.MjData, frames: Iterable[str]
-) -> Callable[[Kinematics], dict[str, float]]:
-    """``truth(kin)`` for ``compare.loop.closed_loop.run_loop``: true distance per control point [m] (no ρ cut)."""
-    geometric = GeometricDistance(model, rho_m=math.inf)
-    names = tuple(frames)
-    points = np.empty((len(names), 3))  # float64 (K, 3), as distances() builds it, filled at each call
+def truth_function(model: mujoco.MjModel, data: mujoco.MjData, frames: Iterable[str]) -> GroundTruth:
+    """``truth(kin)`` for ``compare.loop.closed_loop.run_loop``: true distance per control point [m] (no ρ cut).
 
-    def truth(kin: Kinematics) -> dict[str, float]:
-        if not names:
-            return {}
-        for k, name in enumerate(names):
-            points[k] = kin.frame_position(name)
-        return geometric.distances_at(data, names, points)
-
-    return truth
+    A :class:`~compare.sensing.ground_truth.GroundTruth`: the loop records its steps and computes them at the end.
+    """
+    return GroundTruth(model, data, frames)
