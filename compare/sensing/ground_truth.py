@@ -72,9 +72,11 @@ class GroundTruth:
         self.frames = tuple(frames)
         self._points = np.empty((len(self.frames), 3))  # float64 (K, 3), as distances() builds it
         ids = self.geometric.geom_ids
-        # The obstacle geoms' rows of MjData (its arrays are fixed): a slice when they are consecutive.
-        consecutive = bool(np.all(np.diff(ids) == 1))
-        self._rows = slice(int(ids[0]), int(ids[-1]) + 1) if consecutive else ids
+        # The obstacle geoms' rows of MjData (its arrays are fixed): views made once when they are consecutive.
+        rows = slice(int(ids[0]), int(ids[-1]) + 1) if bool(np.all(np.diff(ids) == 1)) else None
+        self._ids = ids
+        self._xpos_rows = None if rows is None else data.geom_xpos[rows]
+        self._xmat_rows = None if rows is None else data.geom_xmat[rows]
         self._steps_points = np.empty((0, len(self.frames), 3))
         self._steps_xpos = np.empty((0, ids.size, 3))
         self._steps_xmat = np.empty((0, ids.size, 9))
@@ -84,8 +86,7 @@ class GroundTruth:
         """The distances now, at the control points of ``kin``."""
         if not self.frames:
             return {}
-        for k, name in enumerate(self.frames):
-            self._points[k] = kin.frame_position(name)
+        kin.frame_positions(self.frames, self._points)
         return self.geometric.distances_at(self.data, self.frames, self._points)
 
     def start(self, n_steps: int) -> None:
@@ -97,11 +98,13 @@ class GroundTruth:
 
     def record(self, i: int, kin: Kinematics) -> None:
         """Keep step ``i``: the control points of ``kin`` and the capsules' poses now."""
-        points = self._steps_points[i]
-        for k, name in enumerate(self.frames):
-            points[k] = kin.frame_position(name)
-        self._steps_xpos[i] = self.data.geom_xpos[self._rows]
-        self._steps_xmat[i] = self.data.geom_xmat[self._rows]
+        kin.frame_positions(self.frames, self._steps_points[i])
+        if self._xpos_rows is not None and self._xmat_rows is not None:
+            self._steps_xpos[i] = self._xpos_rows
+            self._steps_xmat[i] = self._xmat_rows
+        else:
+            self._steps_xpos[i] = self.data.geom_xpos[self._ids]
+            self._steps_xmat[i] = self.data.geom_xmat[self._ids]
         self._kept[i] = True
 
     def recorded(self, n: int) -> dict[str, np.ndarray]:

@@ -356,8 +356,7 @@ class GeometricObstacleSource:
 
     def update(self, t: float, kin: Kinematics) -> DistanceResult:
         """Closest points at time ``t`` [s] for the control points at ``kin``."""
-        for k, name in enumerate(self.frames):
-            self._points[k] = kin.frame_position(name)
+        kin.frame_positions(self.frames, self._points)
         return self.distance.compute_at(self.data, self.frames, self._points, stamp_s=t)
 
 
