@@ -264,6 +264,13 @@ class Robot:
         self._generation += 1
         return Kinematics(self, q_arr, self._pin_data, self._generation, pending=True)
 
+    def renew(self, kin: Kinematics) -> Kinematics:
+        """:meth:`kinematics` at ``kin.q`` (checked once, when ``kin`` was taken): nothing computed, ``kin`` stale."""
+        if kin.robot is not self:
+            return self.kinematics(kin.q)
+        self._generation += 1
+        return Kinematics(self, kin.q, self._pin_data, self._generation, pending=True)
+
     def _compute_pinocchio(self, q: np.ndarray) -> None:
         """Forward kinematics, joint Jacobians and frame placements at ``q`` into the robot's pinocchio data.
 

@@ -107,6 +107,7 @@ PARTS: tuple[Part, ...] = (
     Part(PLANT_PART, "compare.loop.sim_io", "SimRobotIO.wait"),
     Part(GUARD_PART, "compare.loop.closed_loop", "timed_solve"),
     Part("kinematics snapshot", "robots.robot", "Robot.kinematics"),
+    Part("kinematics snapshot", "robots.robot", "Robot.renew"),
     Part("sensing gate (obstacle source, ISO/TS 15066 monitor)", "compare.loop.sensing_gate", "SensingGate.step"),
     Part(TRUTH_PART, "compare.sensing.ground_truth", "GroundTruth.record"),
     Part(TRUTH_PART, "compare.sensing.ground_truth", "GroundTruth.recorded"),

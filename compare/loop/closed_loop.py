@@ -295,7 +295,7 @@ class _Step:
         else:
             true_d = self.truth(kin) if self.truth is not None else {}
         # A fresh snapshot, nothing computed: the method's kinematics fall inside its timed solve.
-        solved = timed_solve(self.solver, self.hierarchy, robot.kinematics(q), self.dt)
+        solved = timed_solve(self.solver, self.hierarchy, robot.renew(kin), self.dt)
         qdot, status, active, message, missed, solve_us = solved
         command, fallback, status = self.policy.decide(t, qdot, status, message)
         stopped = gate.blind and self.stop_when_blind

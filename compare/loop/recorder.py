@@ -205,17 +205,13 @@ class StepRecorder:
 
     def _sensing_columns(self) -> dict[str, np.ndarray]:
         """Per control point: measured and true distance, occluded, camera (and the prediction) of each row."""
-        n, k_cp, count = self.n, len(self._cps), len(self._sensed)
+        n, k_cp = self.n, len(self._cps)
         # One row per kept reading, then the row of a step without one (NaN, False, ""): index -1.
-        measured = np.full((count + 1, k_cp), np.nan)
-        occluded = np.zeros((count + 1, k_cp), dtype=bool)
-        camera = np.full((count + 1, k_cp), "", dtype=object)
-        predicted = np.full((count + 1, k_cp, 2), np.nan)
-        for u, (meas, source, pred) in enumerate(self._sensed if k_cp else ()):
-            measured[u] = meas
-            occluded[u] = [occ for occ, _ in source]
-            camera[u] = [cam for _, cam in source]
-            predicted[u] = pred
+        sensed = [*self._sensed, ((math.nan,) * k_cp, ((False, ""),) * k_cp, ((math.nan, math.nan),) * k_cp)]
+        measured = np.array([meas for meas, _, _ in sensed], dtype=float).reshape(len(sensed), k_cp)
+        occluded = np.array([[occ for occ, _ in source] for _, source, _ in sensed], dtype=bool).reshape(measured.shape)
+        camera = np.array([[cam for _, cam in source] for _, source, _ in sensed], dtype=object).reshape(measured.shape)
+        predicted = np.array([pred for _, _, pred in sensed], dtype=float).reshape(len(sensed), k_cp, 2)
         at = self._sensed_at[:n]
         cols: dict[str, np.ndarray] = {}
         for c, cp in enumerate(self._cps):

@@ -203,6 +203,9 @@ class SensingGate:
 
     def _judge(self, t: float) -> None:
         """Blind or not at ``t`` [s]; a change (or a new kind of problem) is logged."""
+        if self._problem is None and not self._was_blind and t - self._last_good_t <= self._max_age_s:
+            self.blind, self.reason = False, ""  # the common case: good, and good before
+            return
         if self._problem is not None:
             reason_now = self._problem
         elif t - self._last_good_t > self._max_age_s:
