@@ -177,6 +177,10 @@ def warm_up_solver(
     return done
 
 
+_STATUS_VALUES = {status: status.value for status in SolveStatus}
+"""The table's word for each status (an Enum's ``value`` is a descriptor call)."""
+
+
 class _Targets:
     """Sets the EE position tasks' target, only when it changed (``set_target`` copies and checks)."""
 
@@ -310,7 +314,7 @@ class _Step:
         rec.distances(i, (gate.measured, gate.source, gate.predicted), true_d)
         missed = missed or (not self.guarded and solve_us > self.deadline_us)
         stop_why = gate.reason if stopped else None
-        rec.outcome(i, solve_us, missed, self.waypoints.index, fallback, gate.blind, stop_why, status.value)
+        rec.outcome(i, solve_us, missed, self.waypoints.index, fallback, gate.blind, stop_why, _STATUS_VALUES[status])
         return t
 
     def table(self) -> pd.DataFrame:
