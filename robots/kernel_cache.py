@@ -31,6 +31,7 @@ KERNEL_FILES = (
     "compare/loop/joint_drive.py",
     "compare/sensing/_fusion_kernel.py",
     "compare/sensing/_kernels.py",
+    "compare/sensing/ground_truth.py",
 )
 """Every file with a ``cache=True`` kernel (tests/robots/test_kernel_cache.py keeps it complete)."""
 

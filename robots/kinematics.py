@@ -228,10 +228,22 @@ class Kinematics:
         self._check()
         pos = self._positions.get(name)
         if pos is None:
-            pos = self._data.oMf[self.robot.frame_id(name)].translation.copy()
+            pos = self.robot.origin_view(name).copy()
             pos.flags.writeable = False
             self._positions[name] = pos
         return pos
+
+    def frame_positions(self, names: Sequence[str], out: np.ndarray) -> None:
+        """:meth:`frame_position` of each of ``names`` into the rows of ``out`` [m], shape (F, 3)."""
+        if type(self) is not Kinematics:  # a subclass with kinematics of its own
+            for f, name in enumerate(names):
+                out[f] = self.frame_position(name)
+            return
+        self._check()
+        cached, origin = self._positions, self.robot.origin_view
+        for f, name in enumerate(names):
+            pos = cached.get(name)
+            out[f] = origin(name) if pos is None else pos
 
     def frame_rotation(self, name: str) -> np.ndarray:
         """Frame orientation in the base frame. Shape (3, 3)."""

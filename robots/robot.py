@@ -9,6 +9,7 @@ from __future__ import annotations
 import copy
 import math
 from collections.abc import Sequence
+from typing import Any
 
 import mujoco
 import numpy as np
@@ -81,6 +82,7 @@ class Robot:
         self._support_cache: dict[tuple[str, ...], tuple[list[int], np.ndarray]] = {}
         self._placement_cache: dict[tuple[str, ...], tuple[np.ndarray, np.ndarray]] = {}
         self._chain: tuple[np.ndarray, np.ndarray] | None | bool = False  # not built yet
+        self._origin_views: dict[str, np.ndarray] = {}  # see origin_view
         self._workcell: mujoco.MjModel | None = None  # compiled once, copied for each caller
         for full, fid in self._frame_ids.items():
             entry = (fid, self._frame_joint[full])
@@ -150,6 +152,25 @@ class Robot:
         if entry is None:
             raise UnknownFrame(name, self.frame_names)
         return entry[0]
+
+    def origin_view(self, name: str) -> np.ndarray:
+        """The origin of frame ``name`` in the robot's pinocchio data [m], shape (3,): a live, read-only view.
+
+        It shows the placement of the latest computation (:meth:`Kinematics.frame_position` copies
+        it); the view of each frame is made once (pinocchio's accessor costs a microsecond a call).
+        """
+        view = self._origin_views.get(name)
+        if view is None:
+            view = self._pin_data.oMf[self.frame_id(name)].translation  # a view into the data's own memory
+            view.flags.writeable = False
+            self._origin_views[name] = view
+        return view
+
+    def __getstate__(self) -> dict[str, Any]:
+        """The robot without its views into the pinocchio data (a copy makes its own, of its own data)."""
+        state = self.__dict__.copy()
+        state["_origin_views"] = {}
+        return state
 
     def mujoco_body(self, name: str) -> str:
         """Name of the MuJoCo body of a frame given by full or short name (mink's frame names)."""
@@ -242,6 +263,13 @@ class Robot:
         q_arr = self.check_configuration(q)
         self._generation += 1
         return Kinematics(self, q_arr, self._pin_data, self._generation, pending=True)
+
+    def renew(self, kin: Kinematics) -> Kinematics:
+        """:meth:`kinematics` at ``kin.q`` (checked once, when ``kin`` was taken): nothing computed, ``kin`` stale."""
+        if kin.robot is not self:
+            return self.kinematics(kin.q)
+        self._generation += 1
+        return Kinematics(self, kin.q, self._pin_data, self._generation, pending=True)
 
     def _compute_pinocchio(self, q: np.ndarray) -> None:
         """Forward kinematics, joint Jacobians and frame placements at ``q`` into the robot's pinocchio data.

@@ -100,23 +100,28 @@ STEP_PART = "the step's own code"
 PLANT_PART = "plant (person, drive, MuJoCo sub-steps)"
 """The label of the simulated plant (what a step costs besides the loop and the method)."""
 
+TRUTH_PART = "ground-truth distance (kept a step, computed at the end)"
+"""The label of the ground truth: what a step keeps of it and its computation at the run's end."""
+
 PARTS: tuple[Part, ...] = (
     Part(PLANT_PART, "compare.loop.sim_io", "SimRobotIO.wait"),
     Part(GUARD_PART, "compare.loop.closed_loop", "timed_solve"),
     Part("kinematics snapshot", "robots.robot", "Robot.kinematics"),
+    Part("kinematics snapshot", "robots.robot", "Robot.renew"),
     Part("sensing gate (obstacle source, ISO/TS 15066 monitor)", "compare.loop.sensing_gate", "SensingGate.step"),
-    Part("ground-truth distance", "compare.loop.simulation", "truth_function", returns_callable=True),
+    Part(TRUTH_PART, "compare.sensing.ground_truth", "GroundTruth.record"),
+    Part(TRUTH_PART, "compare.sensing.ground_truth", "GroundTruth.recorded"),
     Part("fallback policy", "compare.loop.fallback", "FallbackPolicy.decide"),
     Part("waypoints", "compare.loop.waypoints", "WaypointSchedule.update"),
     Part("joint reading, command, clock", "compare.loop.sim_io", "SimRobotIO.read_joints"),
     Part("joint reading, command, clock", "compare.loop.sim_io", "SimRobotIO.send_velocity"),
     Part("joint reading, command, clock", "compare.loop.sim_io", "SimRobotIO.now"),
-    Part("σ of every set task recorded", "compare.loop.recorder", "StepRecorder.set_tasks"),
-    Part("status check (set-task reference rates)", "compare.loop.closed_loop", "unmet_set_rates"),
-    Part("motion, flags, status, distances recorded", "compare.loop.recorder", "StepRecorder.motion"),
-    Part("motion, flags, status, distances recorded", "compare.loop.recorder", "StepRecorder.flags"),
-    Part("motion, flags, status, distances recorded", "compare.loop.recorder", "StepRecorder.status"),
-    Part("motion, flags, status, distances recorded", "compare.loop.recorder", "StepRecorder.distances"),
+    Part("σ of every set task, rows of those past activation", "compare.loop.set_task_watch", "SetTaskWatch.measure"),
+    Part("status check (set-task reference rates)", "compare.loop.set_task_watch", "SetTaskWatch.unmet"),
+    Part("motion, σ, flags, status, distances recorded", "compare.loop.recorder", "StepRecorder.motion"),
+    Part("motion, σ, flags, status, distances recorded", "compare.loop.recorder", "StepRecorder.set_tasks"),
+    Part("motion, σ, flags, status, distances recorded", "compare.loop.recorder", "StepRecorder.outcome"),
+    Part("motion, σ, flags, status, distances recorded", "compare.loop.recorder", "StepRecorder.distances"),
     Part(STEP_PART, "compare.loop.closed_loop", "_Step.run"),
     Part("the loop around the steps", "compare.run", "run_loop"),
     Part("per run: method set-up, warm-up, summary", "compare.run", "run_method"),

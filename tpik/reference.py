@@ -131,8 +131,39 @@ def unmet_set_rates(
     Returns:
         Names of the tasks whose rate misses the bound.
     """
+    rows = [
+        task.compute_jacobian(kin) if past_activation(task, sigma) else None  # type: ignore[arg-type]
+        for task, sigma in zip(tasks, sigmas, strict=True)
+    ]
+    return unmet_rates(tasks, sigmas, rows, qdot, dt, reference, tolerance)
+
+
+def past_activation(task: SetTask, sigma: float) -> bool:
+    """Whether a finite σ is at or past an activation threshold of ``task`` (:meth:`SetTask.activation_bounds`)."""
+    if not math.isfinite(sigma):
+        return False
+    act_lo, act_hi = task.activation_bounds()
+    return sigma >= act_hi or sigma <= act_lo
+
+
+def unmet_rates(
+    tasks: tuple[SetTask, ...] | list[SetTask],
+    sigmas: list[float],
+    jacobians: list[np.ndarray | None],
+    qdot: np.ndarray,
+    dt: float,
+    reference: ControlReference = DEFAULT_REFERENCE,
+    tolerance: float = STATUS_RATE_TOLERANCE,
+) -> list[str]:
+    """:func:`unmet_set_rates` with each task's Jacobian row (1, n) at the step's snapshot given.
+
+    A row is read only for a task :func:`past_activation`; the others may be None.
+
+    Raises:
+        ValueError: A task past an activation threshold has no row.
+    """
     unmet: list[str] = []
-    for task, sigma in zip(tasks, sigmas, strict=True):
+    for task, sigma, jacobian in zip(tasks, sigmas, jacobians, strict=True):
         if not math.isfinite(sigma):
             continue
         act_lo, act_hi = task.activation_bounds()
@@ -140,7 +171,9 @@ def unmet_set_rates(
         lower = sigma <= act_lo
         if not (upper or lower):
             continue
-        rate = float(task.compute_jacobian(kin)[0] @ qdot)  # type: ignore[arg-type]
+        if jacobian is None:
+            raise ValueError(f"task '{task.name}' is past an activation threshold but has no Jacobian row")
+        rate = float(jacobian[0] @ qdot)
         lo, hi = reference.set_rates(task, sigma, dt)
         if (upper and rate > hi + tolerance) or (lower and rate < lo - tolerance):
             unmet.append(task.name)
@@ -151,7 +184,9 @@ __all__ = [
     "DEFAULT_REFERENCE",
     "STATUS_RATE_TOLERANCE",
     "ControlReference",
+    "past_activation",
     "effective_gain",
     "rate_bounds",
+    "unmet_rates",
     "unmet_set_rates",
 ]

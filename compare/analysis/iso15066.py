@@ -263,13 +263,12 @@ class SeparationMonitor:
         qcols = [f"q_{j}" for j in range(1, robot.nq + 1)]
         q = steps[qcols].to_numpy(dtype=float)
         need = have | np.roll(have, -1)  # P of the step before each monitored step, for Ṗ
-        positions = {cp: np.full((n, 3), np.nan) for cp in self.frames}
+        points = np.full((n, len(self.frames), 3), np.nan)
         for i in np.flatnonzero(need):
             if not np.all(np.isfinite(q[i])):
                 continue
-            kin = robot.kinematics(q[i])
-            for cp in self.frames:
-                positions[cp][i] = kin.frame_position(cp)
+            robot.kinematics(q[i]).frame_positions(self.frames, points[i])
+        positions = {cp: np.ascontiguousarray(points[:, k]) for k, cp in enumerate(self.frames)}
         params = IsoParameters.from_config(cfg)
         dt = np.diff(t, prepend=np.nan)
         for cp in self.frames:

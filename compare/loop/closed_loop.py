@@ -5,7 +5,8 @@ One control step (period ``dt``, 100 Hz in the paper):
 1. read the joint state from the :class:`~compare.loop.robot_io.RobotIO`;
 2. at the sensing rate (30 Hz), update the closest obstacle point of each control point
    from the obstacle source; between updates the latest estimate is used;
-3. advance the waypoint schedule and set the EE target;
+3. advance the waypoint schedule and set the EE target; evaluate σ of every set task and the
+   ground truth (the loop's own snapshot of ``q``, once per step);
 4. solve the hierarchy, timed: the method gets a kinematics snapshot at the step's ``q`` with
    nothing computed yet, so the kinematics it reads (pinocchio's for HQP, MuJoCo's for mink,
    TPIK's compiled chain) are computed inside its timed call — one rule for every method
@@ -35,7 +36,8 @@ control period) is flagged ``deadline_miss``.
 
 The parts, each in its own place: the sensing gate (:class:`~compare.loop.sensing_gate.SensingGate`),
 the timed solve (:func:`timed_solve`), the command guard and fallback policy
-(:class:`~compare.loop.fallback.FallbackPolicy`), the step table
+(:class:`~compare.loop.fallback.FallbackPolicy`), σ of the set tasks and the status check
+(:class:`~compare.loop.set_task_watch.SetTaskWatch`), the step table
 (:class:`~compare.loop.recorder.StepRecorder`); :class:`_Step` puts one control step together
 and :func:`run_loop` repeats it.
 """
@@ -43,7 +45,6 @@ and :func:`run_loop` repeats it.
 from __future__ import annotations
 
 import gc
-import math
 import time
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
@@ -53,7 +54,7 @@ import pandas as pd
 
 from compare.loop.deadline import DeadlineGuard
 from compare.loop.fallback import FallbackPolicy, guard
-from compare.loop.recorder import StepRecorder
+from compare.loop.recorder import RecordedTruth, StepRecorder
 from compare.loop.robot_io import RobotIO
 from compare.loop.sensing_gate import (
     DistanceResultLike,
@@ -62,6 +63,7 @@ from compare.loop.sensing_gate import (
     SensingGate,
     sensing_problem,
 )
+from compare.loop.set_task_watch import SetTaskWatch
 from compare.loop.settings import LoopSettings
 from compare.loop.waypoints import WaypointSchedule
 from compare.sensing.prediction import Predictor
@@ -70,7 +72,7 @@ from qp_baseline.time_limits import TimeLimitReached
 from robots import Kinematics, Robot
 from tpik.exceptions import TpikError
 from tpik.hierarchy import Hierarchy
-from tpik.reference import ControlReference, unmet_set_rates
+from tpik.reference import ControlReference
 from tpik.step_result import IkSolver, SolveStatus
 from tpik.tasks import ObstacleDistanceTask, PositionTask
 
@@ -175,6 +177,10 @@ def warm_up_solver(
     return done
 
 
+_STATUS_VALUES = {status: status.value for status in SolveStatus}
+"""The table's word for each status (an Enum's ``value`` is a descriptor call)."""
+
+
 class _Targets:
     """Sets the EE position tasks' target, only when it changed (``set_target`` copies and checks)."""
 
@@ -182,8 +188,10 @@ class _Targets:
         self._tasks = tasks
         self._last: list[float] | None = None
 
-    def set(self, target: np.ndarray) -> None:
-        value = np.asarray(target).tolist()
+    def set(self, target: np.ndarray, value: list[float] | None = None) -> None:
+        """Hand ``target`` [m] to the tasks unless it equals the last one (``value``: its ``tolist()``, if made)."""
+        if value is None:
+            value = np.asarray(target).tolist()
         if value == self._last:  # NaN never equals: a bad target is always handed over (and refused)
             return
         for task in self._tasks:
@@ -242,24 +250,24 @@ class _Step:
         predictor: Predictor | None = None,
     ) -> None:
         self.io, self.robot, self.hierarchy, self.solver = io, robot, hierarchy, solver
-        self.waypoints, self.settings, self.truth = waypoints, settings, truth
-        self.set_tasks = hierarchy.set_tasks  # looked up once (a property building a tuple)
-        # Activation thresholds (σ_{a,l}, σ_{a,u}) of each set task, read once (Thresholds are frozen):
-        # the step's status check visits only the tasks at or past one of them.
-        self.bands = [(t.thresholds.activation_lower, t.thresholds.activation_upper) for t in self.set_tasks]
-        obstacle_tasks = [t for t in self.set_tasks if isinstance(t, ObstacleDistanceTask)]
+        self.waypoints, self.truth = waypoints, truth
+        # A truth that records the steps computes them at the end (RecordedTruth), else one call a step.
+        self.recorded_truth = truth if isinstance(truth, RecordedTruth) else None
+        self.dt, self.nq, self.ee_frame = settings.dt, robot.nq, robot.ee_frame
+        self.stop_when_blind = settings.stop_when_blind
+        set_tasks = hierarchy.set_tasks
+        obstacle_tasks = [t for t in set_tasks if isinstance(t, ObstacleDistanceTask)]
         cps = control_points(hierarchy, robot)
         self.events: list[str] = []
         self.gate = SensingGate(obstacles, obstacle_tasks, cps, settings, self.events, predictor)
-        self.predicting = predictor is not None
-        # With a prediction the obstacle tasks' activation thresholds move with their feed-forward
-        # (SetTask.activation_bounds); the other set tasks get none, so their bands stay those above.
-        self.fed = [k for k, t in enumerate(self.set_tasks) if isinstance(t, ObstacleDistanceTask)]
+        self.watch = SetTaskWatch(set_tasks, predicting=predictor is not None)
         self.policy = FallbackPolicy(settings, solver.name, robot.v_max, self.events)
         self.targets = _Targets(ee_position_tasks(hierarchy, robot))
         n_steps = max(1, round(settings.duration_s / settings.dt))
-        self.recorder = StepRecorder(n_steps, robot.nq, self.set_tasks, obstacle_tasks, cps, self.predicting)
+        self.recorder = StepRecorder(n_steps, robot.nq, set_tasks, obstacle_tasks, cps, predictor is not None)
         self.n_steps = n_steps
+        if self.recorded_truth is not None:
+            self.recorded_truth.start(n_steps)
         self.reference: ControlReference = solver.reference
         # A deadline miss: flagged by the solver's time-limit guard (compare.loop.deadline) when it
         # has one, else a solve longer than ``settings.deadline_s`` (default the control period).
@@ -269,51 +277,51 @@ class _Step:
 
     def run(self, i: int) -> float | None:
         """Step ``i``; returns its loop time [s], or None when no joint reading came (zero sent)."""
-        io, robot, dt = self.io, self.robot, self.settings.dt
+        io, robot, gate = self.io, self.robot, self.gate
         reading = io.read_joints()
         t = io.now() - self.t0
         if reading is None:
-            io.send_velocity(np.zeros(robot.nq))
+            io.send_velocity(np.zeros(self.nq))
             return None
-        kin = robot.kinematics(reading.q)  # the loop's own: sensing and the waypoints
-        self.gate.step(t, kin)
-        ee = kin.frame_position(robot.ee_frame)
+        q = reading.q
+        # The loop's own snapshot of q: sensing, the waypoints, σ and the status check's rows, the
+        # ground truth, each computed once (the method's snapshot below is of the same q).
+        kin = robot.kinematics(q)
+        gate.step(t, kin)
+        ee = kin.frame_position(self.ee_frame)
         target = self.waypoints.update(t, ee)
-        self.targets.set(target)
+        target_xyz = target.tolist()
+        self.targets.set(target, target_xyz)
+        sigmas = self.watch.measure(kin)
+        true_d: Mapping[str, float] | None = None
+        if self.recorded_truth is not None:
+            self.recorded_truth.record(i, kin)
+        else:
+            true_d = self.truth(kin) if self.truth is not None else {}
         # A fresh snapshot, nothing computed: the method's kinematics fall inside its timed solve.
-        kin = robot.kinematics(reading.q)
-        qdot, status, active, message, missed, solve_us = timed_solve(self.solver, self.hierarchy, kin, dt)
-        if not kin.is_current:  # a solver took a snapshot of its own: take a fresh one
-            kin = robot.kinematics(reading.q)
+        solved = timed_solve(self.solver, self.hierarchy, robot.renew(kin), self.dt)
+        qdot, status, active, message, missed, solve_us = solved
         command, fallback, status = self.policy.decide(t, qdot, status, message)
-        stopped = self.gate.blind and self.settings.stop_when_blind
+        stopped = gate.blind and self.stop_when_blind
         if stopped:
-            command = np.zeros(robot.nq)
+            command = np.zeros(self.nq)
         io.send_velocity(command)
+        if status is SolveStatus.OK and fallback is None and self.watch.unmet(qdot, self.dt, self.reference):
+            status = SolveStatus.DEGRADED  # a set task's reference rate missed: the same rule for every method
         rec = self.recorder
-        rec.motion(i, t, ee, target, reading.q, command)
+        rec.motion(i, t, ee.tolist(), target_xyz, q, command)
+        rec.set_tasks(i, sigmas, active)
+        rec.distances(i, (gate.measured, gate.source, gate.predicted), true_d)
         missed = missed or (not self.guarded and solve_us > self.deadline_us)
-        stop_why = self.gate.reason if stopped else None
-        rec.flags(i, solve_us, missed, self.waypoints.index, fallback, self.gate.blind, stop_why)
-        sigmas = rec.set_tasks(i, kin, active)
-        if status is SolveStatus.OK and fallback is None:
-            # unmet_set_rates skips the tasks between their activation thresholds and the non-finite σ
-            # itself; left out here first, it sees only the few it checks (the same verdict).
-            now = self.bands
-            if self.predicting:
-                now = list(now)
-                for k in self.fed:
-                    now[k] = self.set_tasks[k].activation_bounds()
-            bands = enumerate(zip(sigmas, now, strict=True))
-            near = [k for k, (s, (lo, hi)) in bands if (s >= hi or s <= lo) and math.isfinite(s)]
-            tasks = [self.set_tasks[k] for k in near]
-            if near and unmet_set_rates(tasks, [sigmas[k] for k in near], kin, qdot, dt, self.reference):
-                status = SolveStatus.DEGRADED  # a set task's reference rate missed: the same rule for every method
-        rec.status(i, status.value)
-        rec.distances(i, self.gate.measured, self.gate.source, self.truth(kin) if self.truth is not None else {})
-        if self.predicting:
-            rec.predictions(i, self.gate.predicted)
+        stop_why = gate.reason if stopped else None
+        rec.outcome(i, solve_us, missed, self.waypoints.index, fallback, gate.blind, stop_why, _STATUS_VALUES[status])
         return t
+
+    def table(self) -> pd.DataFrame:
+        """The per-step table of the steps run (the recorded ground truth computed now)."""
+        if self.recorded_truth is not None:
+            self.recorder.true_distances(self.recorded_truth.recorded(self.recorder.n))
+        return self.recorder.frame()
 
 
 def run_loop(
@@ -371,4 +379,4 @@ def run_loop(
         raise
     io.stop()
     wall = time.perf_counter() - start_wall
-    return LoopOutput(step.recorder.frame(), wall, io.now() - step.t0, step.events)
+    return LoopOutput(step.table(), wall, io.now() - step.t0, step.events)

@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import logging
 import math
+import operator
 
 import numpy as np
 
@@ -68,6 +69,7 @@ class FallbackPolicy:
         self._name = solver_name
         self._v_max = v_max
         self._limits = guard_limits(v_max)
+        self._limit_list = self._limits.tolist()
         self._events = events
         self._last_safe = np.zeros(v_max.shape[0])
         self._last_safe_t = -math.inf
@@ -84,6 +86,8 @@ class FallbackPolicy:
         """
         if status is SolveStatus.FAILED:
             reason: str | None = message
+        elif self._within_limits(qdot):
+            reason = None
         else:
             reason = guard(np.asarray(qdot, dtype=float), self._v_max, self._limits)
         if reason is not None:
@@ -94,6 +98,12 @@ class FallbackPolicy:
             self._log(f"t={t:.3f} s: {self._name}: recovered after {t - self._since:.2f} s of fallback")
             self._since = None
         return command, None, status
+
+    def _within_limits(self, qdot: np.ndarray) -> bool:
+        """:func:`guard`'s common case, finite and within the limits, on Python floats (False: ask :func:`guard`)."""
+        if not (isinstance(qdot, np.ndarray) and qdot.dtype == np.float64 and qdot.shape == self._v_max.shape):
+            return False
+        return all(map(operator.le, map(abs, qdot.tolist()), self._limit_list))  # False for NaN, as guard's
 
     def _fallback(self, t: float, reason: str) -> np.ndarray:
         if self._mode == "hold_last":

@@ -9,16 +9,15 @@ until the next tick of its real clock.
 from __future__ import annotations
 
 import abc
-from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 
 from compare.sensing.frames import DepthFrame
 
 
-@dataclass(frozen=True)
-class JointReading:
-    """A joint state sample.
+class JointReading(NamedTuple):
+    """A joint state sample (immutable; a tuple, made at every control step).
 
     Attributes:
         q: Joint positions [rad], Kinova convention (the MJCF zero). Shape (n,).

@@ -79,9 +79,14 @@ def sensing_problem(result: DistanceResultLike, t: float, stale_after_s: float |
         if not r.in_range:
             continue
         point = r.closest_point
-        if not math.isfinite(r.distance_m) or point is None or not np.all(np.isfinite(point)):
+        if not math.isfinite(r.distance_m) or point is None or not _all_finite(point):
             return f"invalid reading for {name}"
     return None
+
+
+def _all_finite(point: np.ndarray) -> bool:
+    """Every entry finite: a finite sum is the cheap test, the exact one only when it fails."""
+    return math.isfinite(sum(np.ravel(point).tolist())) or bool(np.all(np.isfinite(point)))
 
 
 class SensingGate:
@@ -99,10 +104,14 @@ class SensingGate:
     Attributes:
         blind: The latest update (or its absence) is not to be trusted: stop.
         reason: Why it is blind ("" when it is not).
-        measured: Measured distance per control point of the last good update [m] (inf: none).
+        measured: Measured distance of each control point (in ``control_points`` order) of the
+            last good update [m] (inf: none).
         source: Per control point, (reading assumed from hidden space, camera name) of that update.
         predicted: Per control point, (predicted distance [m], predicted closing speed [m/s]) of
             that update; (inf, 0) without a predictor or a prediction.
+
+    The three are tuples, replaced (never changed in place) by a good update: a reader may keep
+    a reference as the value of its step.
     """
 
     def __init__(
@@ -126,9 +135,9 @@ class SensingGate:
         self._events = events
         self.blind = self.active
         self.reason = ""
-        self.measured: dict[str, float] = dict.fromkeys(self._cps, math.inf)
-        self.source: dict[str, tuple[bool, str]] = dict.fromkeys(self._cps, (False, ""))
-        self.predicted: dict[str, tuple[float, float]] = dict.fromkeys(self._cps, (math.inf, 0.0))
+        self.measured: tuple[float, ...] = (math.inf,) * len(self._cps)
+        self.source: tuple[tuple[bool, str], ...] = ((False, ""),) * len(self._cps)
+        self.predicted: tuple[tuple[float, float], ...] = ((math.inf, 0.0),) * len(self._cps)
         self._next_t = -math.inf
         self._last_good_t = -math.inf
         self._last_stamp = math.nan
@@ -166,14 +175,18 @@ class SensingGate:
             for task in self._tasks:
                 r = result.readings.get(task.frame)
                 task.set_obstacle(r.closest_point if r is not None and r.in_range else None)
+        measured: list[float] = []
+        source: list[tuple[bool, str]] = []
         for cp in self._cps:
             r = result.readings.get(cp)
-            usable = r is not None and r.in_range
-            self.measured[cp] = r.distance_m if usable else math.inf  # type: ignore[union-attr]
-            # What the reading is: assumed from hidden space (occluded) or measured, and by which camera.
-            self.source[cp] = (
-                (bool(getattr(r, "occluded", False)), getattr(r, "camera", None) or "") if usable else (False, "")
-            )
+            if r is not None and r.in_range:
+                measured.append(r.distance_m)
+                # What the reading is: assumed from hidden space (occluded) or measured, and by which camera.
+                source.append((bool(getattr(r, "occluded", False)), getattr(r, "camera", None) or ""))
+            else:
+                measured.append(math.inf)
+                source.append((False, ""))
+        self.measured, self.source = tuple(measured), tuple(source)
 
     def _hand_predictions(self, result: DistanceResultLike, t: float, kin: Kinematics) -> None:
         assert self._predictor is not None
@@ -184,12 +197,15 @@ class SensingGate:
                 task.set_obstacle(None)
             else:
                 task.set_obstacle(p.point, p.feedforward_mps, p.growth_m)
-        for cp in self._cps:
-            p = predictions.get(cp)
-            self.predicted[cp] = (math.inf, 0.0) if p is None else (p.distance_m, p.closing_mps)
+        self.predicted = tuple(
+            (math.inf, 0.0) if p is None else (p.distance_m, p.closing_mps) for p in map(predictions.get, self._cps)
+        )
 
     def _judge(self, t: float) -> None:
         """Blind or not at ``t`` [s]; a change (or a new kind of problem) is logged."""
+        if self._problem is None and not self._was_blind and t - self._last_good_t <= self._max_age_s:
+            self.blind, self.reason = False, ""  # the common case: good, and good before
+            return
         if self._problem is not None:
             reason_now = self._problem
         elif t - self._last_good_t > self._max_age_s:

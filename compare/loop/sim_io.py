@@ -89,6 +89,8 @@ class SimRobotIO(RobotIO):
         self._frames: list[DepthFrame | None] = [None] * len(cameras)
         self._substeps = max(1, round(dt / model.opt.timestep))
         self._command = np.zeros(nq)
+        # The arm's entries of the state and the controls, views made once (MjData's arrays are fixed).
+        self._qpos, self._qvel, self._ctrl = self.data.qpos[:nq], self.data.qvel[:nq], self.data.ctrl[:nq]
         self.data.qpos[:nq] = q0
         if scene_update is not None:
             scene_update(0.0, self.data)
@@ -105,9 +107,8 @@ class SimRobotIO(RobotIO):
 
     def read_joints(self) -> JointReading:
         """Exact joint state (no sensor model on encoders)."""
-        d = self.data
-        qdot = self._command.copy() if self.mode == "kinematic" else d.qvel[: self.nq].copy()
-        return JointReading(d.qpos[: self.nq].copy(), qdot, float(d.time))
+        qdot = self._command.copy() if self.mode == "kinematic" else self._qvel.copy()
+        return JointReading(self._qpos.copy(), qdot, float(self.data.time))
 
     def read_depth(self) -> DepthFrame | None:
         """Latest frame (of the first camera), rendering a new one when the camera period has elapsed."""
@@ -125,8 +126,8 @@ class SimRobotIO(RobotIO):
 
     def send_velocity(self, qdot: np.ndarray) -> None:
         """Joint velocity command [rad/s] (clipped to the servos' ``ctrlrange`` by the drive)."""
-        self._command = np.asarray(qdot, dtype=float).copy()
-        self.data.ctrl[: self.nq] = self._command
+        self._command = np.array(qdot, dtype=float)
+        self._ctrl[:] = self._command
 
     def wait(self) -> None:
         """Advance one control period."""

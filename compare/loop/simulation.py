@@ -5,7 +5,6 @@ Kept apart from the loop so the same loop runs on hardware (``compare.hardware``
 
 from __future__ import annotations
 
-from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 
 import mujoco
@@ -18,6 +17,7 @@ from compare.loop.robot_io import RobotIO
 from compare.loop.sim_io import SimRobotIO
 from compare.sensing.fusion import FusionSettings
 from compare.sensing.geometric_distance import GeometricDistance
+from compare.sensing.ground_truth import GroundTruth
 from compare.sensing.person import Person
 from compare.sensing.person_track import PersonTrack
 from compare.sensing.pipeline import (
@@ -39,7 +39,8 @@ class Simulation:
     Attributes:
         io: The MuJoCo RobotIO (owns ``model``/``data``).
         obstacles: Depth or geometric obstacle source.
-        truth: Ground-truth distance per control point [m], from the person's capsules.
+        truth: Ground-truth distance per control point [m], from the person's capsules (called a
+            step, or recording the steps for the end: :class:`~compare.sensing.ground_truth.GroundTruth`).
         person: The scripted person.
         pipeline: The depth pipeline (None in geometric mode): one camera's
             :class:`DepthPipeline`, or a :class:`DepthRig` with ``[[sensor.cameras]]`` of two or more.
@@ -48,7 +49,7 @@ class Simulation:
 
     io: SimRobotIO
     obstacles: ObstacleSource
-    truth: Callable[[robots.Kinematics], Mapping[str, float]]
+    truth: GroundTruth
     person: Person
     pipeline: DepthPipeline | DepthRig | None = None
     control_points: tuple[str, ...] = ()

@@ -45,11 +45,11 @@ class WaypointSchedule:
         """Advance the schedule at time ``t`` [s] given the EE position [m]; return the target."""
         if len(self.positions) == 1:
             return self.target
-        gap = ee_position - self.target
-        close = math.sqrt(float(gap.dot(gap))) < self.tolerance_m  # np.linalg.norm's own arithmetic, cheaper
-        if self._reached_at is None and close:
-            self._reached_at = t
-            self.reached_count += 1
+        if self._reached_at is None:
+            gap = ee_position - self.target
+            if math.sqrt(float(gap.dot(gap))) < self.tolerance_m:  # np.linalg.norm's own arithmetic, cheaper
+                self._reached_at = t
+                self.reached_count += 1
         if self._reached_at is not None and t - self._reached_at >= self.dwell_s:
             last = self.index == len(self.positions) - 1
             if not last or self.cycle:

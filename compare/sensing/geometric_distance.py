@@ -34,6 +34,11 @@ class GeometricDistance:
         rho_m: Largest distance reported as "in range" [m] (the depth mode's ρ, so both modes
             agree); ``math.inf`` reports every distance (ground truth).
         geom_ids: Explicit obstacle geoms instead of ``geom_group``.
+
+    Attributes:
+        geom_ids: The obstacle geoms (G,).
+        radius: Their radii [m] (G,).
+        half_length: Half length of their segments [m] (G,), 0 for a sphere.
     """
 
     def __init__(
@@ -58,6 +63,7 @@ class GeometricDistance:
         self.rho_m = float(rho_m)
         self._radius = model.geom_size[ids, 0].copy()
         self._half = np.where(types == mujoco.mjtGeom.mjGEOM_CAPSULE, model.geom_size[ids, 1], 0.0)
+        self.radius, self.half_length = self._radius, self._half
         # Flat indices of each geom's local z axis (column 2 of its row-major xmat) and the half
         # lengths as a column: ``segments`` gathers with one ``take`` instead of fancy indexing.
         self._axis_index = ids[:, None] * 9 + np.array([2, 5, 8])
@@ -92,10 +98,16 @@ class GeometricDistance:
             :class:`DistanceResult` with ``valid_fraction = 1`` and ``blind = False``.
         """
         names = list(control_points)
+        points = np.array([np.asarray(control_points[n], dtype=float) for n in names]) if names else np.empty((0, 3))
+        return self.compute_at(data, names, points, stamp_s)
+
+    def compute_at(
+        self, data: mujoco.MjData, names: Sequence[str], points: np.ndarray, stamp_s: float | None = None
+    ) -> DistanceResult:
+        """:meth:`compute` of the points ``points`` [m] (K, 3), float64, named ``names``."""
         readings: dict[str, ObstacleReading] = {}
         if names:
-            P = np.array([np.asarray(control_points[n], dtype=float) for n in names])  # (K, 3)
-            dist, closest = self._closest(data, P)
+            dist, closest = self._closest(data, points)
             for i, name in enumerate(names):
                 if dist[i] <= self.rho_m:
                     readings[name] = ObstacleReading(float(dist[i]), closest[i], True)

@@ -6,7 +6,6 @@ Both produce :class:`~compare.sensing.results.DistanceResult` and both offer an
 
 from __future__ import annotations
 
-import math
 from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass, replace
 from typing import Any
@@ -20,6 +19,7 @@ from compare.sensing.exceptions import SensingError
 from compare.sensing.frames import DepthFrame
 from compare.sensing.fusion import DepthFusion, FusionSettings
 from compare.sensing.geometric_distance import GeometricDistance
+from compare.sensing.ground_truth import GroundTruth
 from compare.sensing.renderer import DepthCamera
 from compare.sensing.results import DistanceResult, ObstacleReading
 from compare.sensing.scene import control_point_positions
@@ -352,23 +352,17 @@ class GeometricObstacleSource:
         self.distance = distance
         self.data = data
         self.frames = tuple(frames)
+        self._points = np.empty((len(self.frames), 3))  # the control points of an update [m]
 
     def update(self, t: float, kin: Kinematics) -> DistanceResult:
         """Closest points at time ``t`` [s] for the control points at ``kin``."""
-        return self.distance.compute(self.data, control_point_positions(kin, self.frames), stamp_s=t)
+        kin.frame_positions(self.frames, self._points)
+        return self.distance.compute_at(self.data, self.frames, self._points, stamp_s=t)
 
 
-def truth_function(
-    model: mujoco.MjModel, data: mujoco.MjData, frames: Iterable[str]
-) -> Callable[[Kinematics], dict[str, float]]:
-    """``truth(kin)`` for ``compare.loop.closed_loop.run_loop``: true distance per control point [m] (no ρ cut)."""
-    geometric = GeometricDistance(model, rho_m=math.inf)
-    names = tuple(frames)
+def truth_function(model: mujoco.MjModel, data: mujoco.MjData, frames: Iterable[str]) -> GroundTruth:
+    """``truth(kin)`` for ``compare.loop.closed_loop.run_loop``: true distance per control point [m] (no ρ cut).
 
-    def truth(kin: Kinematics) -> dict[str, float]:
-        if not names:
-            return {}
-        points = np.array([kin.frame_position(n) for n in names])  # float64 (K, 3), as distances() builds it
-        return geometric.distances_at(data, names, points)
-
-    return truth
+    A :class:`~compare.sensing.ground_truth.GroundTruth`: the loop records its steps and computes them at the end.
+    """
+    return GroundTruth(model, data, frames)

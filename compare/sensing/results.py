@@ -34,8 +34,13 @@ class ObstacleReading:
 
     @classmethod
     def nothing(cls) -> ObstacleReading:
-        """The reading "no obstacle within ρ"."""
+        """The reading "no obstacle within ρ" (one shared instance: a reading is immutable)."""
+        if cls is ObstacleReading:
+            return _NOTHING
         return cls(math.inf, None, False)
+
+
+_NOTHING = ObstacleReading(math.inf, None, False)
 
 
 @dataclass(frozen=True)

@@ -193,3 +193,43 @@ def test_check_current_raises_on_a_stale_snapshot_without_computing(jaco):
     jaco.kinematics(jaco.home)
     with pytest.raises(robots.StaleKinematics):
         kin.check_current()
+
+
+def test_frame_positions_are_the_per_frame_positions_bit_for_bit(jaco):
+    """Frames read before (cached) and not yet read alike; a stale snapshot raises."""
+    rng = np.random.default_rng(9)
+    out = np.full((len(FRAMES), 3), np.nan)
+    for _ in range(5):
+        kin = jaco.kinematics(random_configuration(jaco, rng))
+        kin.frame_position(FRAMES[0])
+        kin.frame_positions(FRAMES, out)
+        for f, frame in enumerate(FRAMES):
+            assert np.array_equal(out[f], kin.frame_position(frame))
+    jaco.kinematics(jaco.home)
+    with pytest.raises(robots.StaleKinematics):
+        kin.frame_positions(FRAMES, out)
+
+
+def test_an_origin_view_shows_the_latest_computation_and_a_copied_robot_has_its_own(jaco):
+    import copy
+
+    view = jaco.origin_view("link_4")
+    assert not view.flags.writeable
+    for q in (jaco.home, jaco.home + 0.2):
+        assert np.array_equal(view, jaco.frame_position(q, "link_4"))
+    twin = copy.deepcopy(jaco)
+    twin_view = twin.origin_view("link_4")
+    twin.frame_position(jaco.home, "link_4")
+    jaco.frame_position(jaco.home + 0.2, "link_4")
+    assert np.array_equal(twin_view, twin.frame_position(jaco.home, "link_4"))
+    assert not np.array_equal(twin_view, view)
+
+
+def test_a_renewed_snapshot_is_a_fresh_one_of_the_same_q(jaco):
+    kin = jaco.kinematics(jaco.home + 0.1)
+    kin.frame_position("link_6")
+    fresh = jaco.renew(kin)
+    assert fresh.q is kin.q and fresh.is_current and not kin.is_current
+    with pytest.raises(robots.StaleKinematics):
+        kin.frame_position("link_6")
+    assert np.array_equal(fresh.frame_position("link_6"), jaco.frame_position(jaco.home + 0.1, "link_6"))
