@@ -161,7 +161,11 @@ def tuning_table(out_dir: Path, method: str, points: Sequence[Mapping[str, Any]]
             waypoints = _waypoints_mean(path.parent / SWEEP_RUNS_FILE, method)
             entries.append(_entry(method, point, json.loads(path.read_text(encoding="utf-8")), waypoints))
     most = max((e["waypoints_reached_mean"] or 0.0 for e in entries), default=0.0)
-    reaching = [e for e in entries if (e["waypoints_reached_mean"] or most) >= WAYPOINT_FRACTION * most]
+    reaching = [
+        e
+        for e in entries
+        if e["waypoints_reached_mean"] is None or e["waypoints_reached_mean"] >= WAYPOINT_FRACTION * most
+    ]
     best = min((_number(e["ee_error_final_m_median"]) for e in reaching), default=math.inf)
     entries.sort(key=lambda e: rank_key(e, best, most))
     return {
