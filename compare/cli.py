@@ -337,6 +337,7 @@ def sweep(
     oracle: OracleOpt = None,
     prediction: PredictionOpt = None,
     sets: SetOpt = None,
+    quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress bar.")] = False,
 ) -> None:
     """Run a randomized batch in parallel; re-running the same command resumes it.
 
@@ -366,6 +367,7 @@ def sweep(
             methods=list(methods) if methods else None,
             executor=executor,
             address=address,
+            progress=not quiet,
             overwrite=overwrite,
         )
     except (ConfigError, ResultsError) as exc:

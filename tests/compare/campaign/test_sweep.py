@@ -351,3 +351,20 @@ def test_machine_steal_is_the_eighth_value_of_the_cpu_line(tmp_path):
     stat.write_text("cpu  1 2 3 4 5 6 7 x 0 0\n")  # a malformed field: no number, not a traceback
     assert machine_steal_s(stat) is None
     assert machine_steal_s(tmp_path / "missing") is None
+
+
+@pytest.mark.parametrize(("flag", "progress"), [((), True), (("-q",), False), (("--quiet",), False)])
+def test_sweep_quiet_turns_the_progress_bar_off(tmp_path, monkeypatch, flag, progress):
+    import compare.campaign.sweep as sweep_module
+
+    seen: dict[str, object] = {}
+
+    def fake_run_sweep(*args: object, **kwargs: object) -> dict[str, object]:
+        seen.update(kwargs)
+        return {"runs": 1}
+
+    monkeypatch.setattr(sweep_module, "run_sweep", fake_run_sweep)
+    args = ["sweep", str(CONFIGS / "random.toml"), "--out", str(tmp_path / "S"), "--n", "1", *flag]
+    result = CliRunner().invoke(app, args)
+    assert result.exit_code == 0, result.output
+    assert seen["progress"] is progress
