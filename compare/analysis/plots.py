@@ -279,12 +279,21 @@ def plot_iso15066(steps: pd.DataFrame, method: str, control_points: Sequence[str
     return save_figure(fig, path)
 
 
-def _annotated_point(ax: Axes, x: float, x_hi: float | None, y: float, label: str, color: Any) -> None:
+def _labelled_point(ax: Axes, x: float, x_hi: float | None, y: float, label: str, color: Any) -> None:
+    """A method's point ● with a bar to ``x_hi`` ending in |, named in the axes' legend.
+
+    A legend rather than a note beside the point: methods with close figures (the mink peers) would
+    write their names over each other.
+    """
     err = None if x_hi is None or x_hi < x else np.array([[0.0], [x_hi - x]])
-    ax.errorbar([x], [y], xerr=err, fmt="o", color=color, capsize=3, markersize=6)
+    ax.errorbar([x], [y], xerr=err, fmt="o", color=color, capsize=3, markersize=6, label=label)
     if x_hi is not None and x_hi >= x:
         ax.plot([x_hi], [y], marker="|", color=color, markersize=10)
-    ax.annotate(label, (x, y), textcoords="offset points", xytext=(5, 6), fontsize="small", color=color)
+
+
+def _points_legend(ax: Axes) -> None:
+    if ax.get_legend_handles_labels()[0]:
+        ax.legend(loc="best", fontsize="small")
 
 
 def plot_comparison(methods: dict[str, dict[str, Any]], path: Path, title: str = "") -> Path | None:
@@ -311,7 +320,8 @@ def plot_comparison(methods: dict[str, dict[str, Any]], path: Path, title: str =
             if x is None or y is None or x <= 0:
                 skipped.append(name)
                 continue
-            _annotated_point(ax, x, x_hi, y, name, colors[name])
+            _labelled_point(ax, x, x_hi, y, name, colors[name])
+        _points_legend(ax)
         _log_x(ax)
         ax.set_xlabel("solve time per step [µs] (● median, | p99)")
         if panel == "ee_error":
@@ -421,7 +431,7 @@ def plot_sweep(sweep_dir: Path) -> list[Path]:
         solve = agg.get("solve_time_us") or {}
         x, share = solve.get("median_of_medians"), rate_value(agg.get("share_runs_any_violation"))
         if x is not None and share is not None and x > 0:
-            _annotated_point(
+            _labelled_point(
                 left, x, solve.get("median_of_p99"), 100.0 * share, f"{name} (n={agg['runs']})", colors[name]
             )
         rows = ok[ok["method"] == name]
@@ -440,6 +450,7 @@ def plot_sweep(sweep_dir: Path) -> list[Path]:
     )
     left.set_ylim(-5.0, 110.0)
     left.grid(alpha=0.3, which="both")
+    _points_legend(left)
     _log_x(right)
     right.set(
         xlabel="median solve time of the run [µs]",

@@ -114,6 +114,27 @@ def test_plot_sweep_writes_comparison_and_distance_cdf(tmp_path):
         _assert_png(p)
 
 
+def test_sweep_comparison_names_every_method_in_a_legend(tmp_path, monkeypatch):
+    """Methods with close figures get one legend entry each, not notes written over each other."""
+    import compare.analysis.plots as plots
+
+    figures = {}
+    real_save = plots.save_figure
+
+    def keep(fig, path):
+        figures[Path(path).name] = fig
+        return real_save(fig, path)
+
+    monkeypatch.setattr(plots, "save_figure", keep)
+    for i in range(2):
+        _write_run(sweep_run_dir(tmp_path, i), seed=i, methods=(*METHODS, ("mink", 30.0, True)))
+    plot_sweep(tmp_path)
+    per_method = figures["sweep_comparison.png"].axes[0]
+    names = [text.get_text() for text in per_method.get_legend().get_texts()]
+    assert names == [f"{m[0]} (n=2)" for m in (*METHODS, ("mink",))]
+    assert not per_method.texts  # no note beside a point
+
+
 def test_summary_table_wide_and_narrow(plotted_run):
     run, _ = plotted_run
     summary = load_summary(run)
