@@ -15,6 +15,8 @@ import numpy as np
 from compare.analysis.plot_style import figure, save_figure
 
 SPEED_PLOT = "setups_speed.png"
+MAX_COLUMNS = 3
+"""Panels per row; more methods wrap onto further rows."""
 
 
 def plot_held_by_speed(result: dict[str, Any], path: Path) -> Path | None:
@@ -26,8 +28,13 @@ def plot_held_by_speed(result: dict[str, Any], path: Path) -> Path | None:
     }
     if not methods:
         return None
-    fig, axes = figure(1, len(methods), height_in=3.4, width_in=max(4.0, 3.2 * len(methods)))
-    for ax, (name, m) in zip(axes[0], methods.items(), strict=True):
+    cols = min(len(methods), MAX_COLUMNS)
+    rows = -(-len(methods) // cols)
+    fig, axes = figure(rows, cols, height_in=3.4 * rows, width_in=max(4.0, 3.6 * cols))
+    panels = list(axes.flat)
+    for ax in panels[len(methods) :]:
+        ax.set_visible(False)
+    for ax, (name, m) in zip(panels, methods.items(), strict=False):
         for k, (label, entry) in enumerate(m["setups"].items()):
             bins = [b for b in entry.get("held_by_torso_speed") or [] if b["held"]["rate"] is not None]
             if not bins:
@@ -41,6 +48,7 @@ def plot_held_by_speed(result: dict[str, Any], path: Path) -> Path | None:
         ax.set_xlabel("person's peak torso speed [m/s]")
         ax.set_ylim(0.0, 100.0)
         ax.grid(alpha=0.3)
-    axes[0, 0].set_ylabel("runs held [%] (Wilson 95 %)")
+    for row in axes:
+        row[0].set_ylabel("runs held [%] (Wilson 95 %)")
     axes[0, -1].legend(loc="upper right", fontsize="small")
     return save_figure(fig, Path(path))

@@ -96,3 +96,20 @@ def test_held_by_speed_bins_and_plot(tmp_path: Path) -> None:
     report = (tmp_path / "out" / "setups.md").read_text(encoding="utf-8")
     assert "peak torso speed" in report and "(2/2)" in report
     assert (tmp_path / "out" / "setups_speed.png").stat().st_size > 0
+
+
+def test_speed_plot_wraps_methods_onto_rows_of_three(tmp_path: Path, monkeypatch) -> None:
+    import compare.analysis.plots_setups as plots_setups
+
+    off = _sweep(tmp_path / "off", {s: False for s in range(8)}, ee=0.2)
+    on = _sweep(tmp_path / "on", {s: s < 4 for s in range(8)}, ee=0.2)
+    result = compare_setups([("off", off), ("on", on)])
+    entry = result["methods"]["tpik"]
+    result["methods"] = {f"m{k}": entry for k in range(4)}
+    kept = []
+    monkeypatch.setattr(plots_setups, "save_figure", lambda fig, path: kept.append(fig) or path)
+    plots_setups.plot_held_by_speed(result, tmp_path / "speed.png")
+    shown = [ax for ax in kept[0].axes if ax.get_visible()]
+    assert [ax.get_title() for ax in shown] == [f"m{k} (8 seeds)" for k in range(4)]
+    assert len(kept[0].axes) == 6  # 2 rows x 3 columns, the last two hidden
+    assert len({round(ax.get_position().y0, 3) for ax in shown}) == 2
