@@ -4,7 +4,7 @@ Called with a kinematics snapshot, :class:`GroundTruth` gives the distances at t
 (the capsules' poses read from ``MjData`` now). Over a run, :meth:`GroundTruth.record` keeps at
 each step what the distance is a function of, the control points and the capsules' poses, and
 :meth:`GroundTruth.recorded` computes every recorded step in one compiled call at the end:
-the arithmetic of a call per step (:func:`~compare.sensing._kernels.closest_on_geoms_kernel`),
+the kernel of a call per step (:func:`~compare.sensing._kernels.closest_on_geoms_kernel`),
 so the same numbers bit for bit, without a compiled call per control step.
 """
 
@@ -17,7 +17,7 @@ import mujoco
 import numba
 import numpy as np
 
-from compare.sensing._kernels import closest_on_capsules_kernel
+from compare.sensing._kernels import closest_on_geoms_kernel
 from compare.sensing.geometric_distance import GeometricDistance
 from robots import Kinematics
 
@@ -33,8 +33,8 @@ def closest_on_recorded_geoms(
 ) -> None:
     """Distance of each step's points to its capsules [m] into ``out`` (S, K), step by step.
 
-    Per step the arithmetic of :func:`~compare.sensing._kernels.closest_on_geoms_kernel` on the
-    poses recorded then.
+    Per step :func:`~compare.sensing._kernels.closest_on_geoms_kernel` on the poses recorded then
+    (the recorded rows are the obstacle geoms', in order).
 
     Args:
         points: Query points of each step [m], (S, K, 3).
@@ -45,15 +45,11 @@ def closest_on_recorded_geoms(
         out: Distances [m], (S, K).
     """
     n_geoms = half_length.shape[0]
+    rows = np.arange(n_geoms)
     a = np.empty((n_geoms, 3))
     b = np.empty((n_geoms, 3))
     for s in range(points.shape[0]):
-        for g in range(n_geoms):
-            for c in range(3):
-                offset = geom_xmat[s, g, 2 + 3 * c] * half_length[g]
-                a[g, c] = geom_xpos[s, g, c] - offset
-                b[g, c] = geom_xpos[s, g, c] + offset
-        dist, _ = closest_on_capsules_kernel(points[s], a, b, radius)
+        dist, _ = closest_on_geoms_kernel(points[s], geom_xpos[s], geom_xmat[s], rows, half_length, radius, a, b)
         out[s] = dist
 
 
