@@ -61,13 +61,12 @@ class GeometricDistance:
         self.model = model
         self.geom_ids = ids
         self.rho_m = float(rho_m)
-        self._radius = model.geom_size[ids, 0].copy()
-        self._half = np.where(types == mujoco.mjtGeom.mjGEOM_CAPSULE, model.geom_size[ids, 1], 0.0)
-        self.radius, self.half_length = self._radius, self._half
+        self.radius = model.geom_size[ids, 0].copy()
+        self.half_length = np.where(types == mujoco.mjtGeom.mjGEOM_CAPSULE, model.geom_size[ids, 1], 0.0)
         # Flat indices of each geom's local z axis (column 2 of its row-major xmat) and the half
         # lengths as a column: ``segments`` gathers with one ``take`` instead of fancy indexing.
         self._axis_index = ids[:, None] * 9 + np.array([2, 5, 8])
-        self._half_col = self._half[:, None].copy()
+        self._half_col = self.half_length[:, None].copy()
         self._ids = ids.astype(np.int64)
         self._a, self._b = np.empty((ids.size, 3)), np.empty((ids.size, 3))  # segment scratch of the kernel
 
@@ -76,12 +75,12 @@ class GeometricDistance:
         centre = data.geom_xpos.take(self.geom_ids, axis=0)
         axis = data.geom_xmat.take(self._axis_index)  # local z axis in the world, (G, 3)
         offset = axis * self._half_col
-        return centre - offset, centre + offset, self._radius
+        return centre - offset, centre + offset, self.radius
 
     def _closest(self, data: mujoco.MjData, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Distance (K,) and closest point (K, 3) of each point [m] (K, 3): :meth:`segments` and the kernel at once."""
         return closest_on_geoms_kernel(
-            points, data.geom_xpos, data.geom_xmat, self._ids, self._half, self._radius, self._a, self._b
+            points, data.geom_xpos, data.geom_xmat, self._ids, self.half_length, self.radius, self._a, self._b
         )
 
     def compute(
