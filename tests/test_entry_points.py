@@ -22,6 +22,7 @@ MISSING = "/no/such"
 ENTRY_POINTS: dict[str, list[str] | None] = {
     # entry point -> arguments naming a missing input (None: the tool reads no path)
     "compare.analysis.prediction_quality": [f"{MISSING}/run"],
+    "compare.analysis.reading_error": [f"{MISSING}/run"],
     "compare.analysis.readme_figures": ["--root", f"{MISSING}/checkout"],
     "compare.analysis.violations": [f"{MISSING}/run"],
     "compare.bench.occlusion": ["--config", f"{MISSING}.toml"],
