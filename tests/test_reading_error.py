@@ -40,6 +40,7 @@ def test_only_steps_with_the_person_within_count_and_a_missing_reading_is_missed
     assert figures["samples"] == 4
     assert figures["largest_over_mm"] == pytest.approx(50.0)
     assert figures["short_share"] == pytest.approx(1 / 3)  # -20 mm is short by more than 1 cm
+    assert figures["far_share"] == pytest.approx(1 / 3)  # +50 mm
     assert figures["missed_share"] == pytest.approx(1 / 4)
     assert figures["median_mm"] == pytest.approx(0.0, abs=1e-9)
 

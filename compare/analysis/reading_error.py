@@ -9,8 +9,8 @@ the reading error is
 
 negative when the reading is short of the truth (conservative: the arm keeps farther away) and
 positive when it reads too far (the dangerous side). Reported per directory and method: the
-samples, the median, mean, 5th and 95th percentiles of e, the share read short by more than
-:data:`SHORT_M`, the largest over-estimate, the share read from occluded space (``occluded:P``)
+samples, the median, mean, 5th and 95th percentiles of e, the shares read short and read far
+by more than :data:`OFF_M`, the largest over-estimate, the share read from occluded space (``occluded:P``)
 and the share missed (no reading although the person was within ``within_m``).
 
 ``python -m compare.analysis.reading_error DIR [DIR ...] [--method M] [--within 0.45] [--runs N]``
@@ -31,8 +31,8 @@ import pandas as pd
 from compare.analysis.results import RUNS_DIR, SUMMARY_FILE, load_steps
 from compare.arguments import ArgumentParser, existing_dir, output_path, positive_float, positive_int
 
-SHORT_M = 0.01
-"""A reading shorter than the truth by more than this counts as read short [m]."""
+OFF_M = 0.01
+"""A reading shorter (longer) than the truth by more than this counts as read short (far) [m]."""
 
 
 def step_errors(steps: pd.DataFrame, within_m: float) -> tuple[np.ndarray, int, int]:
@@ -70,7 +70,8 @@ def summarize_errors(errors: np.ndarray, occluded: int, missed: int) -> dict[str
         "mean_mm": float(np.mean(mm)),
         "p5_mm": float(np.percentile(mm, 5)),
         "p95_mm": float(np.percentile(mm, 95)),
-        "short_share": float(np.mean(errors < -SHORT_M)),
+        "short_share": float(np.mean(errors < -OFF_M)),
+        "far_share": float(np.mean(errors > OFF_M)),
         "largest_over_mm": float(np.max(mm)),
         "occluded_share": occluded / n,
         "missed_share": missed / (n + missed),
@@ -115,7 +116,7 @@ def main(argv: list[str] | None = None) -> int:
         prog="python -m compare.analysis.reading_error",
         description="Measured obstacle distances against the truth where the person is within --within:\n"
         "median, mean, 5th/95th percentile of measured - true [mm] (negative: read short, conservative),\n"
-        "the share read short by more than 1 cm, the largest over-estimate [mm], the shares read from\n"
+        "the shares read short and far by more than 1 cm, the largest over-estimate [mm], the shares read from\n"
         "occluded space and missed, per directory and method.",
     )
     parser.add_argument(
