@@ -26,7 +26,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from compare.analysis.results import RUNS_DIR, SUMMARY_FILE, load_steps
+from compare.analysis.results import RUNS_DIR, SUMMARY_FILE, load_steps, run_dirs
 from compare.arguments import ArgumentParser, existing_dir, positive_int
 from compare.config import Config, load_config
 from compare.scenarios.random_scenario import realize
@@ -118,11 +118,7 @@ def quality_run(run_dir: Path) -> list[dict[str, Any]]:
 
 def quality(directory: Path, max_runs: int | None = None) -> pd.DataFrame:
     """:func:`quality_run` for a run directory or the first ``max_runs`` runs of a sweep directory."""
-    directory = Path(directory)
-    runs = [directory] if (directory / SUMMARY_FILE).is_file() and not (directory / RUNS_DIR).is_dir() else []
-    runs = runs or sorted(p for p in (directory / RUNS_DIR).glob("*") if (p / SUMMARY_FILE).is_file())
-    runs = runs[:max_runs] if max_runs is not None else runs
-    return pd.DataFrame([row for run in runs for row in quality_run(run)])
+    return pd.DataFrame([row for run in run_dirs(directory, max_runs) for row in quality_run(run)])
 
 
 def main(argv: list[str] | None = None) -> int:

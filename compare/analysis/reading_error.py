@@ -28,7 +28,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from compare.analysis.results import RUNS_DIR, SUMMARY_FILE, load_steps
+from compare.analysis.results import SUMMARY_FILE, load_steps, run_dirs
 from compare.arguments import ArgumentParser, existing_dir, output_path, positive_float, positive_int
 
 OFF_M = 0.01
@@ -76,15 +76,6 @@ def summarize_errors(errors: np.ndarray, occluded: int, missed: int) -> dict[str
         "occluded_share": occluded / n,
         "missed_share": missed / (n + missed),
     }
-
-
-def run_dirs(directory: Path, max_runs: int | None = None) -> list[Path]:
-    """``directory`` itself when it is a run, else its sweep's runs (the first ``max_runs``)."""
-    directory = Path(directory)
-    if (directory / SUMMARY_FILE).is_file() and not (directory / RUNS_DIR).is_dir():
-        return [directory]
-    runs = sorted(p for p in (directory / RUNS_DIR).glob("*") if (p / SUMMARY_FILE).is_file())
-    return runs[:max_runs] if max_runs is not None else runs
 
 
 def reading_errors(

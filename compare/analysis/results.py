@@ -182,6 +182,19 @@ def steps_complete(run_dir: Path, entry: Mapping[str, Any]) -> bool:
     return expected is None or rows == int(expected)
 
 
+def run_dirs(directory: Path, max_runs: int | None = None) -> list[Path]:
+    """The run directories of ``directory``: itself or its sweep's runs, in order.
+
+    A run has ``summary.json`` and no ``runs/``; of a sweep, the runs with a ``summary.json``
+    (the first ``max_runs`` when given).
+    """
+    directory = Path(directory)
+    if (directory / SUMMARY_FILE).is_file() and not (directory / RUNS_DIR).is_dir():
+        return [directory]
+    runs = sorted(p for p in (directory / RUNS_DIR).glob("*") if (p / SUMMARY_FILE).is_file())
+    return runs[:max_runs] if max_runs is not None else runs
+
+
 def finished_methods(run_dir: Path, summary: Mapping[str, Any] | None = None) -> set[str]:
     """Methods of ``run_dir`` whose results are complete: in ``summary.json`` and their table readable.
 

@@ -25,7 +25,7 @@ import numpy as np
 import pandas as pd
 
 from compare.analysis.metrics import VIOLATION_TOLERANCE
-from compare.analysis.results import RUNS_DIR, SUMMARY_FILE, load_steps
+from compare.analysis.results import RUNS_DIR, SUMMARY_FILE, load_steps, run_dirs
 from compare.arguments import ArgumentParser, existing_dir
 from compare.config import load_config
 from compare.scenarios.random_scenario import realize
@@ -97,10 +97,7 @@ def explain_run(run_dir: Path) -> list[dict[str, Any]]:
 
 def explain(directory: Path) -> pd.DataFrame:
     """:func:`explain_run` for a run directory or every run of a sweep directory."""
-    directory = Path(directory)
-    runs = [directory] if (directory / SUMMARY_FILE).is_file() and not (directory / RUNS_DIR).is_dir() else []
-    runs = runs or sorted(p for p in (directory / RUNS_DIR).glob("*") if (p / SUMMARY_FILE).is_file())
-    return pd.DataFrame([row for run in runs for row in explain_run(run)])
+    return pd.DataFrame([row for run in run_dirs(directory) for row in explain_run(run)])
 
 
 def main(argv: list[str] | None = None) -> int:
