@@ -10,6 +10,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
+from compare.analysis import results as results_module
 from compare.analysis.exceptions import DirectoryBusy, ResultsConflict
 from compare.analysis.metrics import compute_summary
 from compare.analysis.results import (
@@ -119,16 +120,35 @@ def test_a_crash_during_a_rewrite_leaves_the_previous_summary(tmp_path, monkeypa
 
 
 def test_steps_fall_back_to_csv_when_parquet_fails(tmp_path, monkeypatch):
-    def no_parquet(self, *args, **kwargs):
+    def no_parquet(*args, **kwargs):
         raise ImportError("pyarrow missing")
 
-    monkeypatch.setattr(pd.DataFrame, "to_parquet", no_parquet)
+    monkeypatch.setattr(results_module.pq, "write_table", no_parquet)
     summary, steps = _method_result()
     path = ResultsWriter(tmp_path, "synthetic", 0, 10.0, None).add_method("tpik", summary, steps)
     assert path.suffix == ".csv"
     back = load_steps(tmp_path, "tpik")
     assert math.isinf(back["sigma:obstacle_link_7"].iloc[0])
     assert back["status"].iloc[0] == "ok"
+
+
+def test_steps_parquet_reads_back_as_the_same_table(tmp_path):
+    """Column by column (no pandas metadata): every dtype, NaN and ±inf come back as written."""
+    n = 5
+    steps = pd.DataFrame(
+        {
+            "t": np.arange(n) * 0.01,
+            "sigma:x": [0.1, np.nan, np.inf, -np.inf, 2.0],
+            "deadline_miss": np.array([True, False, True, False, False]),
+            "waypoint": np.arange(n, dtype=np.int32),
+            "status": ["ok", "degraded", "ok", "failed", "ok"],
+            "reason": [None, "blind", None, None, "stale"],
+        }
+    )
+    path = tmp_path / "steps.parquet"
+    results_module.write_steps_parquet(steps, path)
+    back = pd.read_parquet(path)
+    pd.testing.assert_frame_equal(back, steps, check_dtype=True)
 
 
 def test_load_steps_names_available_methods(tmp_path):
