@@ -84,3 +84,17 @@ def test_the_harness_renders_headless_without_mujoco_gl_set():
     code = "import compare.cli, mujoco; print(mujoco.GLContext.__module__)"  # the backend MuJoCo chose
     done = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=120)
     assert done.returncode == 0 and done.stdout.strip() == "mujoco.egl", done.stderr[-2000:]
+
+
+def test_llvmpipe_renders_in_the_calling_thread_unless_told_otherwise():
+    """The harness asks Mesa's software renderer for no worker threads; a user's own setting stands."""
+    import os
+    import subprocess
+    import sys
+
+    env = {k: v for k, v in os.environ.items() if k != "LP_NUM_THREADS"}
+    code = "import compare, os; print(os.environ['LP_NUM_THREADS'])"
+    for given, expected in ((None, "0"), ("3", "3")):
+        run_env = env if given is None else {**env, "LP_NUM_THREADS": given}
+        done = subprocess.run([sys.executable, "-c", code], env=run_env, capture_output=True, text=True, timeout=120)
+        assert done.returncode == 0 and done.stdout.strip() == expected, done.stderr[-2000:]
