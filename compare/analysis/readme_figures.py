@@ -120,12 +120,12 @@ def fair_campaign_table(summary: dict[str, Any]) -> str:
 
 
 def prediction_table(setups: dict[str, Any]) -> str:
-    """The prediction table of docs/separating.md from a ``setups.json`` of two setups.
+    """A two-setup table of docs/separating.md (prediction off against estimated, depth against geometric).
 
-    Per method, the baseline setup against the other (:mod:`compare.campaign.setups`): runs that
-    held the obstacle threshold in each (the most with the other setup in bold), the seeds held
-    in one only (exact McNemar p), joint / wall violations with the other setup, the mean EE error
-    and the waypoints reached in both.
+    From a ``setups.json`` of two setups, per method, the baseline setup against the other
+    (:mod:`compare.campaign.setups`): runs that held the obstacle threshold in each (the most with
+    the other setup in bold), the seeds held in one only (exact McNemar p), joint / wall violations
+    with the other setup, the mean EE error and the waypoints reached in both.
     """
     baseline = setups.get("baseline")
     others = [name for name in setups.get("setups") or {} if name != baseline]
@@ -137,8 +137,8 @@ def prediction_table(setups: dict[str, Any]) -> str:
         "method",
         f"held, {baseline}",
         f"held, {other}",
-        "held only with / only without (McNemar p)",
-        "joint / wall violations",
+        f"held only {other} / only {baseline} (McNemar p)",
+        f"joint / wall violations, {other}",
         f"mean EE error [m], {baseline} → {other}",
         f"waypoints reached, {baseline} → {other}",
     ]
@@ -179,6 +179,8 @@ class Figure:
 FIGURES: tuple[Figure, ...] = (
     Figure("fair-campaign", "docs/campaign-fair/sweep_summary.json", fair_campaign_table),
     Figure("predicted-campaign", "docs/campaign-predicted/setups.json", prediction_table),
+    Figure("depth-campaign", "docs/campaign-predicted/depth/setups.json", prediction_table),
+    Figure("depth-vs-geometric", "docs/campaign-predicted/depth-vs-geometric/setups.json", prediction_table),
     Figure("paper-claims", "docs/separating/claims.json", claims_markdown),
     Figure("paper-claims-predicted", "docs/separating/claims-predicted.json", claims_markdown),
 )

@@ -24,7 +24,8 @@ Run::
     python -m compare.campaign.setups results/predicted-off:off results/predicted-estimated:estimated \
         --out docs/campaign-predicted
 
-(``DIR:LABEL``; the label defaults to the directory's name.) Writes ``setups.json``,
+(``DIR:LABEL``; the label defaults to the directory's name; ``--seeds N``: only the first N seeds
+all of them ran.) Writes ``setups.json``,
 ``setups.md`` and ``setups_speed.png``.
 """
 
@@ -44,7 +45,7 @@ from compare.analysis.atomic_files import write_text_atomic
 from compare.analysis.plots_setups import SPEED_PLOT, plot_held_by_speed
 from compare.analysis.results import RUNS_DIR, load_summary, write_json_atomic
 from compare.analysis.statistics import mcnemar, rate
-from compare.arguments import ArgumentParser, output_dir
+from compare.arguments import ArgumentParser, output_dir, positive_int
 
 RESULT = "setups.json"
 REPORT = "setups.md"
@@ -207,8 +208,11 @@ def _setup_entry(rows: pd.DataFrame, base: pd.DataFrame, avoidable: np.ndarray, 
     }
 
 
-def compare_setups(setups: list[tuple[str, Path]]) -> dict[str, Any]:
+def compare_setups(setups: list[tuple[str, Path]], first_seeds: int | None = None) -> dict[str, Any]:
     """Paired comparison of the setups (module docstring); the first is the baseline.
+
+    ``first_seeds``: only the first this many seeds every setup ran (per method), e.g. to compare
+    sweeps still running on the seeds all of them finished.
 
     Returns:
         ``{"setups": {label: dir}, "baseline": label, "methods": {method: {"paired_runs",
@@ -226,7 +230,7 @@ def compare_setups(setups: list[tuple[str, Path]]) -> dict[str, Any]:
         per = {label: t[t["method"] == method].set_index("seed") for label, t in tables.items()}
         if any(p.empty for p in per.values()):
             continue
-        seeds = sorted(set.intersection(*(set(p.index) for p in per.values())))
+        seeds = sorted(set.intersection(*(set(p.index) for p in per.values())))[:first_seeds]
         if not seeds:
             continue
         base = per[baseline].loc[seeds]
@@ -344,9 +348,16 @@ def main(argv: list[str] | None = None) -> int:
         "sweeps", nargs="+", type=_sweep_spec, help="two or more sweep directories, each DIR or DIR:LABEL"
     )
     parser.add_argument("--out", type=output_dir, required=True, help="output directory (created)")
+    parser.add_argument(
+        "--seeds",
+        type=positive_int,
+        default=None,
+        metavar="N",
+        help="only the first N seeds every sweep ran, per method (default: all they share)",
+    )
     args = parser.parse_args(argv)
     try:
-        result = compare_setups(args.sweeps)
+        result = compare_setups(args.sweeps, args.seeds)
     except (FileNotFoundError, ValueError) as exc:
         parser.error(str(exc))
     if not result["methods"]:

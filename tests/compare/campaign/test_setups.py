@@ -56,6 +56,19 @@ def test_paired_counts_rates_and_mission_cost(tmp_path: Path) -> None:
     assert e_on["wall_violations"] == 1 and e_on["wall_margin_min_m"] == pytest.approx(-0.002)
 
 
+def test_first_seeds_pairs_only_the_first_shared_seeds(tmp_path: Path) -> None:
+    off = _sweep(tmp_path / "off", {s: s < 2 for s in range(10)}, ee=0.20)  # held 0, 1
+    on = _sweep(tmp_path / "on", {s: s % 2 == 0 for s in range(12)}, ee=0.25)  # held 0, 2, 4, ...
+    m = compare_setups([("off", off), ("on", on)], first_seeds=4)["methods"]["tpik"]
+    assert m["paired_runs"] == 4 and m["seeds"] == [0, 3]
+    assert m["setups"]["on"]["held"]["count"] == 2 and m["setups"]["off"]["held"]["count"] == 2  # 0, 2 / 0, 1
+    vs = m["setups"]["on"]["vs_baseline"]
+    assert (vs["only_this"], vs["only_baseline"]) == (1, 1)
+    assert main([f"{off}:off", f"{on}:on", "--seeds", "4", "--out", str(tmp_path / "out")]) == 0
+    written = json.loads((tmp_path / "out" / "setups.json").read_text(encoding="utf-8"))
+    assert written["methods"]["tpik"]["seeds"] == [0, 3]
+
+
 def test_no_verdict_no_avoidable_rate_and_bad_input_is_one_line(tmp_path: Path, capsys) -> None:
     a = _sweep(tmp_path / "a", {0: True, 1: False}, ee=0.1, label=None)
     b = _sweep(tmp_path / "b", {0: False, 1: False}, ee=0.1, label=None)
@@ -64,6 +77,7 @@ def test_no_verdict_no_avoidable_rate_and_bad_input_is_one_line(tmp_path: Path, 
         ([str(a), str(tmp_path / "missing")], "missing: no such directory"),
         ([str(a), str(tmp_path)], "no runs/ directory"),
         ([f"{a}:x", f"{b}:x"], "setup labels must differ"),
+        ([str(a), str(b), "--seeds", "0"], "--seeds"),
     ):
         with pytest.raises(SystemExit) as exit_:
             main([*args, "--out", str(tmp_path / "out")])
