@@ -25,8 +25,7 @@ Run::
         --out docs/campaign-predicted
 
 (``DIR:LABEL``; the label defaults to the directory's name; ``--seeds N``: only the first N seeds
-all of them ran.) Writes ``setups.json``,
-``setups.md`` and ``setups_speed.png``.
+all of them ran.) Writes ``setups.json``, ``setups.md`` and ``setups_speed.png``.
 """
 
 from __future__ import annotations
