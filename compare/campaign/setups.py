@@ -24,14 +24,22 @@ Run::
     python -m compare.campaign.setups results/predicted-off:off results/predicted-estimated:estimated \
         --out docs/campaign-predicted
 
-(``DIR:LABEL``; the label defaults to the directory's name; ``--seeds N``: only the first N seeds
-all of them ran.) Writes ``setups.json``, ``setups.md`` and ``setups_speed.png``.
+(``SOURCE:LABEL``; the label defaults to the directory's or file's name; ``--seeds N``: only the
+first N seeds all of them ran.) Writes ``setups.json``, ``setups.md`` and ``setups_speed.png``.
+
+A source is a sweep directory or a run table (:mod:`compare.campaign.run_table`); the sources of one
+label are merged, so a campaign grows over sweeps that no longer exist: ``--save-runs`` writes each
+setup's merged runs to ``runs/LABEL.csv`` in the output, and a later call takes that file beside the
+new sweep under the same label::
+
+    python -m compare.campaign.setups docs/campaign-predicted/depth/runs/off.csv:off results/depth-off:off \
+        docs/campaign-predicted/depth/runs/estimated.csv:estimated results/depth-estimated:estimated \
+        --out docs/campaign-predicted/depth --save-runs
 """
 
 from __future__ import annotations
 
 import argparse
-import math
 import sys
 from pathlib import Path
 from typing import Any
@@ -42,73 +50,18 @@ from scipy import stats
 
 from compare.analysis.atomic_files import write_text_atomic
 from compare.analysis.plots_setups import SPEED_PLOT, plot_held_by_speed
-from compare.analysis.results import RUNS_DIR, load_summary, write_json_atomic
+from compare.analysis.results import RUNS_DIR, write_json_atomic
 from compare.analysis.statistics import mcnemar, rate
 from compare.arguments import ArgumentParser, output_dir, positive_int
+from compare.campaign.run_table import RunTable, load_table, merge_tables, write_table
 
 RESULT = "setups.json"
 REPORT = "setups.md"
-COLUMNS = [
-    "seed",
-    "method",
-    "held",
-    "label",
-    "joint_violation",
-    "wall_violation",
-    "joint_margin",
-    "wall_margin",
-    "ee_error_mean",
-    "waypoints",
-    "physical_time_s",
-    "waypoint_times",
-    "torso_speed_mps",
-]
+RUNS_SUBDIR = "runs"
+"""``--save-runs`` writes each setup's run table (:mod:`compare.campaign.run_table`) here."""
 
 SPEED_BINS = 4
 """Bins of the held-vs-speed view: quantiles of the baseline's torso speeds (equal run counts)."""
-
-
-def _number(value: Any) -> float:
-    return math.nan if value is None else float(value)
-
-
-def sweep_runs(sweep_dir: Path) -> pd.DataFrame:
-    """One row per (seed, method) of a sweep (:data:`COLUMNS`).
-
-    Raises:
-        FileNotFoundError: ``sweep_dir`` has no ``runs/`` directory.
-    """
-    runs_dir = Path(sweep_dir) / RUNS_DIR
-    if not runs_dir.is_dir():
-        raise FileNotFoundError(f"{sweep_dir}: no {RUNS_DIR}/ directory (not a sweep)")
-    rows: list[dict[str, Any]] = []
-    for run_dir in sorted(p for p in runs_dir.iterdir() if p.is_dir()):
-        try:
-            summary = load_summary(run_dir)
-        except (OSError, ValueError):
-            continue
-        label = (summary.get("oracle") or {}).get("label")
-        speeds = (summary.get("person") or {}).get("max_speed_mps") or {}
-        for method, m in (summary.get("methods") or {}).items():
-            joints, walls = m.get("joint_limits") or {}, m.get("walls") or {}
-            rows.append(
-                {
-                    "seed": summary.get("seed"),
-                    "method": method,
-                    "held": int((m.get("obstacles") or {}).get("violations") or 0) == 0,
-                    "label": label,
-                    "joint_violation": int(joints.get("violations") or 0) > 0,
-                    "wall_violation": int(walls.get("violations") or 0) > 0,
-                    "joint_margin": _number(joints.get("safety_margin_min")),
-                    "wall_margin": _number(walls.get("safety_margin_min")),
-                    "ee_error_mean": _number((m.get("ee_error_m") or {}).get("mean")),
-                    "waypoints": _number(m.get("waypoints_reached")),
-                    "physical_time_s": _number((m.get("obstacles") or {}).get("physical_violation_time_s")),
-                    "waypoint_times": [_number(t) for t in m.get("time_to_waypoint_s") or []],
-                    "torso_speed_mps": _number(speeds.get("torso")),
-                }
-            )
-    return pd.DataFrame(rows, columns=COLUMNS)
 
 
 def _wilcoxon(a: np.ndarray, b: np.ndarray) -> float | None:
@@ -207,26 +160,47 @@ def _setup_entry(rows: pd.DataFrame, base: pd.DataFrame, avoidable: np.ndarray, 
     }
 
 
-def compare_setups(setups: list[tuple[str, Path]], first_seeds: int | None = None) -> dict[str, Any]:
-    """Paired comparison of the setups (module docstring); the first is the baseline.
+def setup_tables(setups: list[tuple[str, Path]]) -> dict[str, RunTable]:
+    """Each setup's runs: its sources (sweep directories or run tables) merged, in order of first mention.
 
-    ``first_seeds``: only the first this many seeds every setup ran (per method), e.g. to compare
-    sweeps still running on the seeds all of them finished.
+    Raises:
+        FileNotFoundError: A missing source.
+        ValueError: Sources of one setup that disagree (:func:`compare.campaign.run_table.merge_tables`).
+    """
+    grouped: dict[str, list[RunTable]] = {}
+    for label, path in setups:
+        grouped.setdefault(label, []).append(load_table(path))
+    return {label: merge_tables(tables, what=f"setup {label!r}") for label, tables in grouped.items()}
+
+
+def compare_setups(setups: list[tuple[str, Path]], first_seeds: int | None = None) -> dict[str, Any]:
+    """Paired comparison of the setups (module docstring); the first label is the baseline.
+
+    ``setups``: ``(label, source)`` pairs, a source a sweep directory or a run table; sources of one
+    label are merged. ``first_seeds``: only the first this many seeds every setup ran (per method),
+    e.g. to compare sweeps still running on the seeds all of them finished.
 
     Returns:
-        ``{"setups": {label: dir}, "baseline": label, "methods": {method: {"paired_runs",
+        ``{"setups": {label: sources}, "baseline": label, "methods": {method: {"paired_runs",
         "setups": {label: entry}}}}`` with each entry as :func:`_setup_entry` gives it.
     """
-    if len(setups) < 2:
-        raise ValueError("give at least two sweeps (DIR[:LABEL]) to compare")
-    labels = [label for label, _ in setups]
-    if len(set(labels)) != len(labels):
-        raise ValueError(f"setup labels must differ: {labels}")
-    tables = {label: sweep_runs(path) for label, path in setups}
+    return compare_tables(setup_tables(setups), first_seeds)
+
+
+def compare_tables(tables: dict[str, RunTable], first_seeds: int | None = None) -> dict[str, Any]:
+    """:func:`compare_setups` on runs already loaded: ``{label: table}``, the first the baseline."""
+    if len(tables) < 2:
+        raise ValueError("give at least two setups (SOURCE[:LABEL] with two labels) to compare")
+    labels = list(tables)
     baseline = labels[0]
-    out: dict[str, Any] = {"setups": {label: str(path) for label, path in setups}, "baseline": baseline, "methods": {}}
-    for method in tables[baseline]["method"].unique():
-        per = {label: t[t["method"] == method].set_index("seed") for label, t in tables.items()}
+    rows = {label: t.rows for label, t in tables.items()}
+    out: dict[str, Any] = {
+        "setups": {label: " + ".join(t.inputs or t.sources) for label, t in tables.items()},
+        "baseline": baseline,
+        "methods": {},
+    }
+    for method in rows[baseline]["method"].unique():
+        per = {label: t[t["method"] == method].set_index("seed") for label, t in rows.items()}
         if any(p.empty for p in per.values()):
             continue
         seeds = sorted(set.intersection(*(set(p.index) for p in per.values())))[:first_seeds]
@@ -324,15 +298,16 @@ def _speed_lines(result: dict[str, Any]) -> list[str]:
     return lines
 
 
-def _sweep_spec(spec: str) -> tuple[str, Path]:
-    """``type=`` converter: ``DIR[:LABEL]`` to ``(label, DIR)``, DIR a sweep directory (``runs/``)."""
+def _source_spec(spec: str) -> tuple[str, Path]:
+    """``type=`` converter: ``SOURCE[:LABEL]`` to ``(label, SOURCE)``, a sweep directory or a run table."""
     path, _, label = spec.partition(":")
-    directory = Path(path)
-    if not directory.is_dir():
-        raise argparse.ArgumentTypeError(f"{path}: no such directory")
-    if not (directory / RUNS_DIR).is_dir():
-        raise argparse.ArgumentTypeError(f"{path}: no {RUNS_DIR}/ directory (not a sweep)")
-    return (label or directory.name), directory
+    source = Path(path)
+    if source.is_dir():
+        if not (source / RUNS_DIR).is_dir():
+            raise argparse.ArgumentTypeError(f"{path}: no {RUNS_DIR}/ directory (not a sweep)")
+    elif not source.is_file():
+        raise argparse.ArgumentTypeError(f"{path}: no such directory or run table")
+    return label or (source.stem if source.is_file() else source.name), source
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -344,7 +319,11 @@ def main(argv: list[str] | None = None) -> int:
         f"person's peak speed [m/s]. Writes {RESULT}, {REPORT} and {SPEED_PLOT} into --out; prints the report.",
     )
     parser.add_argument(
-        "sweeps", nargs="+", type=_sweep_spec, help="two or more sweep directories, each DIR or DIR:LABEL"
+        "sweeps",
+        nargs="+",
+        type=_source_spec,
+        help="sources of two or more setups, each SOURCE or SOURCE:LABEL: a sweep directory or a run table "
+        "(runs/LABEL.csv of --save-runs); sources with one label are merged",
     )
     parser.add_argument("--out", type=output_dir, required=True, help="output directory (created)")
     parser.add_argument(
@@ -354,9 +333,16 @@ def main(argv: list[str] | None = None) -> int:
         metavar="N",
         help="only the first N seeds every sweep ran, per method (default: all they share)",
     )
+    parser.add_argument(
+        "--save-runs",
+        action="store_true",
+        help=f"also write each setup's merged runs to --out/{RUNS_SUBDIR}/LABEL.csv (+ .json: what they were "
+        "simulated with), a source for later comparisons once the sweep directories are gone",
+    )
     args = parser.parse_args(argv)
     try:
-        result = compare_setups(args.sweeps, args.seeds)
+        tables = setup_tables(args.sweeps)
+        result = compare_tables(tables, args.seeds)
     except (FileNotFoundError, ValueError) as exc:
         parser.error(str(exc))
     if not result["methods"]:
@@ -366,6 +352,10 @@ def main(argv: list[str] | None = None) -> int:
     text = render_markdown(result)
     write_text_atomic(args.out / REPORT, text)
     plot_held_by_speed(result, args.out / SPEED_PLOT)
+    if args.save_runs:
+        (args.out / RUNS_SUBDIR).mkdir(exist_ok=True)
+        for label, table in tables.items():
+            write_table(table, args.out / RUNS_SUBDIR / f"{label}.csv")
     print(text, end="")
     return 0
 

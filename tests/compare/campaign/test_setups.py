@@ -74,9 +74,10 @@ def test_no_verdict_no_avoidable_rate_and_bad_input_is_one_line(tmp_path: Path, 
     b = _sweep(tmp_path / "b", {0: False, 1: False}, ee=0.1, label=None)
     assert compare_setups([("a", a), ("b", b)])["methods"]["tpik"]["setups"]["b"]["held_avoidable"] is None
     for args, message in (
-        ([str(a), str(tmp_path / "missing")], "missing: no such directory"),
+        ([str(a), str(tmp_path / "missing")], "missing: no such directory or run table"),
         ([str(a), str(tmp_path)], "no runs/ directory"),
-        ([f"{a}:x", f"{b}:x"], "setup labels must differ"),
+        ([f"{a}:x", f"{b}:x"], "seed 0, tpik differs between"),
+        ([f"{a}:x", f"{a}:x"], "at least two setups"),
         ([str(a), str(b), "--seeds", "0"], "--seeds"),
     ):
         with pytest.raises(SystemExit) as exit_:
