@@ -24,6 +24,7 @@ import numpy as np
 from compare.sensing.camera import DepthNoise, camera_id, camera_model_from_mujoco
 from compare.sensing.exceptions import SensingError
 from compare.sensing.frames import CameraModel, DepthFrame
+from compare.sensing.noise_draws import shared_draws
 
 STATIC_GROUP = 0
 """Geom group of the static environment (floor, table)."""
@@ -112,8 +113,9 @@ class DepthCamera:
         self.camera: CameraModel = camera_model_from_mujoco(model, camera)
         self._moving = bool(model.cam_bodyid[self._cam_id] != 0 or model.cam_mode[self._cam_id] != 0)
         self.noise = noise or DepthNoise()
-        self._rng = np.random.default_rng(seed)
         w, h = self.camera.width, self.camera.height
+        # The same draws as default_rng(seed) would give, shared with the cameras seeded alike.
+        self._draws = shared_draws(seed, (h, w), self.noise.std_m > 0.0, self.noise.dropout)
         if w > model.vis.global_.offwidth or h > model.vis.global_.offheight:
             raise SensingError(
                 f"camera '{camera}' is {w}x{h} px but the offscreen buffer is "
@@ -209,14 +211,14 @@ class DepthCamera:
 
     def _add_noise(self, depth: np.ndarray) -> None:
         n = self.noise
-        if n.std_m > 0.0:
-            noise = self._rng.standard_normal(depth.shape, dtype=np.float32)
-            noise *= np.float32(n.std_m)
+        normal, dropped = self._draws.next_frame()
+        if normal is not None:
+            noise = normal * np.float32(n.std_m)
             if n.proportional:
                 noise *= depth
             depth += noise
-        if n.dropout > 0.0:
-            depth[self._rng.random(depth.shape, dtype=np.float32) < n.dropout] = 0.0
+        if dropped is not None:
+            depth[dropped] = 0.0
 
     def close(self) -> None:
         """Free the GL resources (idempotent)."""
