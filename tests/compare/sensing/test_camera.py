@@ -2,8 +2,10 @@
 
 from __future__ import annotations
 
+import mujoco
 import numpy as np
 import pytest
+from OpenGL import GL
 
 from compare.sensing import (
     DepthCamera,
@@ -16,6 +18,7 @@ from compare.sensing import (
     make_data,
     point_cloud,
     project,
+    renderer,
     set_camera_look_at,
     valid_fraction,
 )
@@ -184,6 +187,24 @@ class TestRendering:
         assert np.std(a[both] - clean[both]) == pytest.approx(0.01, rel=0.05)
         dropped = np.mean(a[clean > 0.6] == 0)
         assert dropped == pytest.approx(0.1, abs=0.01)
+
+    def test_colour_writes_off_leave_the_depth_bit_for_bit(self, model, monkeypatch):
+        data = make_data(model)
+        data.qpos[:7] = [0.3, 2.9, 0.2, 1.4, -0.5, 3.5, 0.1]  # the arm in view, over the table
+        mujoco.mj_kinematics(model, data)
+        cam = DepthCamera(model)
+        try:
+            cam.render_depth(data)  # a camera's first frame differs in the last bits: compare later ones
+            off = cam.render_depth(data)
+            assert not any(GL.glGetBooleanv(GL.GL_COLOR_WRITEMASK))
+            GL.glColorMask(True, True, True, True)
+            monkeypatch.setattr(renderer.GL, "glColorMask", lambda *mask: None)  # colour written
+            on = cam.render_depth(data)
+            assert all(GL.glGetBooleanv(GL.GL_COLOR_WRITEMASK))
+        finally:
+            cam.close()
+        np.testing.assert_array_equal(off, on)
+        assert np.count_nonzero(off) > 1000
 
     def test_closed_camera_refuses_to_render(self, model, rig):
         _, data = rig
