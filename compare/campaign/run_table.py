@@ -245,6 +245,21 @@ def _check_compatible(a: dict[str, Any], b: dict[str, Any], what: str) -> None:
             raise ValueError(f"{what}: {method} ran with other settings ({before} → {after})")
 
 
+def _add_sources(kept: list[dict[str, Any]], new: list[dict[str, Any]]) -> list[dict[str, Any]]:
+    """``kept`` then ``new``; a kept source that a new one repeats (the same sweep, grown since) is dropped."""
+
+    def same_sweep(a: dict[str, Any], b: dict[str, Any]) -> bool:
+        keys = ("from", "project_version", "git_commit")
+        inside = (
+            bool(a.get("seeds"))
+            and bool(b.get("seeds"))
+            and b["seeds"][0] <= a["seeds"][0] <= a["seeds"][-1] <= b["seeds"][-1]
+        )
+        return all(a.get(k) == b.get(k) for k in keys) and inside
+
+    return [k for k in kept if not any(same_sweep(k, n) for n in new)] + list(new)
+
+
 def merge_tables(tables: list[RunTable], what: str = "runs") -> RunTable:
     """The union of ``tables`` of one setup (module docstring); ``what`` names the setup in errors.
 
@@ -281,7 +296,7 @@ def merge_tables(tables: list[RunTable], what: str = "runs") -> RunTable:
             **(table.provenance.get("config_fingerprint") or {}),
             **(meta.get("config_fingerprint") or {}),
         }
-        meta["sources"] = list(meta.get("sources") or []) + list(table.provenance.get("sources") or [])
+        meta["sources"] = _add_sources(meta.get("sources") or [], table.provenance.get("sources") or [])
         merged.inputs += table.inputs
     merged.rows = merged.rows.sort_values(["seed", "method"], kind="stable").reset_index(drop=True)
     return merged

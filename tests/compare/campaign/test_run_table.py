@@ -77,6 +77,8 @@ def test_merge_unions_and_refuses_changed_runs_or_config(tmp_path: Path) -> None
     merged = merge_tables([first, second])
     assert sorted(set(merged.rows["seed"])) == list(range(10)) and len(merged.rows) == 20
     assert [s["seeds"] for s in merged.provenance["sources"]] == [[0, 5], [4, 9]]
+    again = merge_tables([merged, sweep_table(tmp_path / "b")])  # the same sweep once more: listed once
+    assert [s["seeds"] for s in again.provenance["sources"]] == [[0, 5], [4, 9]] and len(again.rows) == 20
     changed = sweep_table(_sweep(tmp_path / "c", range(5, 8), flip=5))
     with pytest.raises(ValueError, match=r"seed 5, tpik differs .*ee_error_mean"):
         merge_tables([first, changed], what="off")
