@@ -8,8 +8,8 @@ os.environ.setdefault("MUJOCO_GL", "egl")
 # Mesa's software rasterizer (llvmpipe, the headless renderer without a GPU) draws the depth
 # frames in the calling thread: the same images for less CPU than with its worker threads
 # (docs/benchmarks.md, "Depth-sensed campaigns: one rendering thread, no colour, noise drawn
-# once per run"), and a campaign runs its runs in parallel anyway. Only Mesa reads it, when the first GL
-# context opens.
+# once per run"), and a campaign runs its runs in parallel anyway. Only Mesa reads it, when the
+# first GL context opens.
 os.environ.setdefault("LP_NUM_THREADS", "0")
 
 from robots.kernel_cache import use_kernel_cache  # noqa: E402

@@ -25,7 +25,9 @@ from typing import Any
 import pandas as pd
 
 from compare.analysis.atomic_files import write_text_atomic
+from compare.analysis.exceptions import ResultsConflict
 from compare.analysis.results import MANIFEST_FILE, RUNS_DIR, load_summary, write_json_atomic
+from compare.campaign.manifest import load_manifest
 
 FORMAT = 1
 """Version of the table's layout."""
@@ -130,9 +132,9 @@ def sweep_table(sweep_dir: Path) -> RunTable:
     if not manifest_path.exists():
         return RunTable(rows, {"format": FORMAT, "sources": [source]})
     try:
-        manifest = json.loads(manifest_path.read_text(encoding="utf-8"))
-    except (OSError, ValueError) as exc:
-        raise ValueError(f"{manifest_path}: unreadable ({type(exc).__name__})") from None
+        manifest = load_manifest(sweep_dir) or {}
+    except ResultsConflict as exc:
+        raise ValueError(str(exc)) from None
     fingerprint = {k: v for k, v in (manifest.get("config_fingerprint") or {}).items() if k != SEED_KEY}
     versions = manifest.get("versions") or {}
     source.update({"project_version": versions.get("project"), "git_commit": versions.get("git_commit")})

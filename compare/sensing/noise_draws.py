@@ -10,7 +10,7 @@ what its own generator would have drawn, frame by frame: the frames kept are the
 output, and past them a camera continues from the generator's state after the last frame kept.
 
 The draws kept in a process are bounded by :data:`BUDGET_BYTES` (the environment variable
-``TPIK_NOISE_CACHE_MB`` sets it; 0 keeps none): the least recently read series are dropped first,
+``TPIK_NOISE_CACHE_MB`` sets it; 0 keeps none): the series a camera asked for least recently are dropped first,
 and a series that does not fit stops growing (its cameras draw the rest themselves).
 """
 
@@ -53,9 +53,9 @@ class DrawKey:
 class NoiseSeries:
     """The frames of draws of one :class:`DrawKey`, kept while the budget allows."""
 
-    def __init__(self, key: DrawKey) -> None:
+    def __init__(self, key: DrawKey, rng: np.random.Generator | None = None) -> None:
         self.key = key
-        self._rng = np.random.default_rng(key.seed)
+        self._rng = rng if rng is not None else np.random.default_rng(key.seed)
         self.normals: list[np.ndarray] = []
         self.dropped: list[np.ndarray] = []
         self.frozen = False
@@ -81,7 +81,7 @@ class NoiseSeries:
 
 
 class _Registry:
-    """The series of this process, least recently read first, within :data:`BUDGET_BYTES`."""
+    """The series of this process, least recently asked for first, within :data:`BUDGET_BYTES`."""
 
     def __init__(self) -> None:
         self._series: OrderedDict[DrawKey, NoiseSeries] = OrderedDict()
@@ -151,12 +151,8 @@ class NoiseDraws:
             if got is not None:
                 self._next += 1
                 return got
-            # Past the frames kept: continue privately from the state after them.
-            own = NoiseSeries(self._series.key)
-            own._rng = self._series.generator_after_kept()
-            for _ in range(self._next - self._series.frames):
-                own.draw_next()
-            self._own = own
+            # Past the frames kept (this camera read all of them): go on privately from the state after them.
+            self._own = NoiseSeries(self._series.key, self._series.generator_after_kept())
         return self._own.draw_next()
 
 

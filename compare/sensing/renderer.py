@@ -116,7 +116,9 @@ class DepthCamera:
         self.noise = noise or DepthNoise()
         w, h = self.camera.width, self.camera.height
         # The same draws as default_rng(seed) would give, shared with the cameras seeded alike.
-        self._draws = shared_draws(seed, (h, w), self.noise.std_m > 0.0, self.noise.dropout)
+        self._draws = (
+            None if self.noise.is_zero else shared_draws(seed, (h, w), self.noise.std_m > 0.0, self.noise.dropout)
+        )
         if w > model.vis.global_.offwidth or h > model.vis.global_.offheight:
             raise SensingError(
                 f"camera '{camera}' is {w}x{h} px but the offscreen buffer is "
@@ -214,6 +216,8 @@ class DepthCamera:
 
     def _add_noise(self, depth: np.ndarray) -> None:
         n = self.noise
+        if self._draws is None:
+            return
         normal, dropped = self._draws.next_frame()
         if normal is not None:
             noise = normal * np.float32(n.std_m)
