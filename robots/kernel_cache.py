@@ -29,6 +29,7 @@ KERNEL_FILES = (
     "qp_baseline/certificate_dense.py",
     "qp_baseline/set_rows.py",
     "compare/loop/joint_drive.py",
+    "compare/sensing/_frame_kernels.py",
     "compare/sensing/_fusion_kernel.py",
     "compare/sensing/_kernels.py",
     "compare/sensing/ground_truth.py",

@@ -21,6 +21,7 @@ from dataclasses import dataclass
 import mujoco
 import numpy as np
 
+from compare.sensing._frame_kernels import count_in_range
 from compare.sensing.exceptions import SensingError, UnknownSceneElement
 from compare.sensing.frames import CameraModel, DepthFrame
 
@@ -253,7 +254,10 @@ def valid_mask(frame: DepthFrame) -> np.ndarray:
 
 def valid_fraction(frame: DepthFrame) -> float:
     """Fraction of pixels of ``frame`` with a valid return, in [0, 1]."""
-    return float(np.count_nonzero(valid_mask(frame))) / frame.depth_m.size
+    d, cam = frame.depth_m, frame.camera
+    if d.dtype == np.float32 and d.ndim == 2:  # the frames of the cameras: one compiled pass
+        return float(count_in_range(d, np.float32(cam.min_range_m), np.float32(cam.max_range_m))) / d.size
+    return float(np.count_nonzero(valid_mask(frame))) / d.size
 
 
 def point_cloud(frame: DepthFrame, in_base_frame: bool = True) -> tuple[np.ndarray, np.ndarray]:

@@ -153,8 +153,7 @@ class DepthPipeline:
 
         Returns a new frame; NaN pixels (no return) stay NaN, which no later stage reads as obstacle.
         """
-        depth = np.array(frame.depth_m, dtype=np.float32, copy=True)
-        self.background.apply_inplace(depth)
+        depth = self.background.without(frame.depth_m)
         self.self_filter.apply_inplace(depth, q=q, data=data)
         return DepthFrame(depth, frame.stamp_s, frame.camera)
 

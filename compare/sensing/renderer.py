@@ -22,6 +22,7 @@ import mujoco
 import numpy as np
 from OpenGL import GL
 
+from compare.sensing._frame_kernels import depth_from_buffer
 from compare.sensing.camera import DepthNoise, camera_id, camera_model_from_mujoco
 from compare.sensing.exceptions import SensingError
 from compare.sensing.frames import CameraModel, DepthFrame
@@ -35,6 +36,10 @@ ROBOT_VISUAL_GROUP = 2
 """Geom group of the arm's visual geoms."""
 
 _PLANE_BOX_HALF_THICKNESS_M = 0.005
+_NO_PIXELS = np.empty((0, 0), dtype=np.float32)
+"""Stands for "no noise draws" in :func:`depth_from_buffer`."""
+_NO_MASK = np.empty((0, 0), dtype=bool)
+"""Stands for "no dropout" in :func:`depth_from_buffer`."""
 
 
 def planes_as_boxes(scene: mujoco.MjvScene, viewer_m: np.ndarray, reach_m: float) -> None:
@@ -192,14 +197,22 @@ class DepthCamera:
         GL.glColorMask(False, False, False, False)
         mujoco.mjr_render(self._rect, self._scene, self._ctx)
         mujoco.mjr_readPixels(None, self._raw, self._rect, self._ctx)
-        # OpenGL rows run bottom-up: flip while converting to metric depth (one pass per op).
-        out = np.multiply(self._raw[::-1], self._f_minus_n)
-        out += self._near
-        np.divide(self._fn, out, out=out)
-        if noisy and not self.noise.is_zero:
-            self._add_noise(out)
-        cam = self.camera
-        out[(out < cam.min_range_m) | (out > cam.max_range_m)] = 0.0
+        normal, dropped = self._draws.next_frame() if noisy and self._draws is not None else (None, None)
+        n, cam = self.noise, self.camera
+        out = np.empty_like(self._raw)
+        depth_from_buffer(
+            self._raw,
+            self._f_minus_n,
+            self._near,
+            self._fn,
+            _NO_PIXELS if normal is None else normal,
+            np.float32(n.std_m),
+            n.proportional,
+            _NO_MASK if dropped is None else dropped,
+            np.float32(cam.min_range_m),
+            np.float32(cam.max_range_m),
+            out,
+        )
         return out
 
     def render_static(self, data: mujoco.MjData) -> np.ndarray:
@@ -213,19 +226,6 @@ class DepthCamera:
     def _planes_as_boxes(self, data: mujoco.MjData) -> None:
         """Draw plane geoms as thin boxes (:func:`planes_as_boxes`) reaching past the camera's range."""
         planes_as_boxes(self._scene, data.cam_xpos[self._cam_id], 2.0 * self.camera.max_range_m)
-
-    def _add_noise(self, depth: np.ndarray) -> None:
-        n = self.noise
-        if self._draws is None:
-            return
-        normal, dropped = self._draws.next_frame()
-        if normal is not None:
-            noise = normal * np.float32(n.std_m)
-            if n.proportional:
-                noise *= depth
-            depth += noise
-        if dropped is not None:
-            depth[dropped] = 0.0
 
     def close(self) -> None:
         """Free the GL resources (idempotent)."""
