@@ -578,7 +578,11 @@ class PredictionConfig(_Strict):
         sample_s: Step of the true future over the horizon (``truth``) [s].
         acceleration_mps2: The estimate's white-noise acceleration a [m/s²].
         measurement_noise_m: The estimate's noise of a measured closest point [m].
-        occluded_noise_m: Its noise of a point assumed from occluded space [m].
+        occluded_noise_m: Its noise of a point assumed from occluded space [m] (followed itself:
+            ``hidden_surface = false``, or nothing of the surface hiding it measured).
+        hidden_surface: A point assumed from hidden space is followed at the measured surface
+            hiding it, and the person may close in behind that surface as fast as it closes in
+            (``compare.sensing.prediction``); false: the assumed point itself is followed.
 
     The sensing range ``[sensor] rho_m`` bounds what is seen (and so what can be predicted): a
     larger ρ sees the person earlier and costs more depth pixels per frame.
@@ -592,6 +596,7 @@ class PredictionConfig(_Strict):
     acceleration_mps2: float = Field(8.0, gt=0.0, le=100.0)
     measurement_noise_m: float = Field(0.01, gt=0.0, le=0.5)
     occluded_noise_m: float = Field(0.05, gt=0.0, le=1.0)
+    hidden_surface: bool = True
 
     def settings(self, iso: Iso15066Config, range_m: float) -> PredictionSettings | None:
         """The predictor's settings (None when ``mode = "off"``); ``range_m`` is the sensing range ρ [m]."""
@@ -604,6 +609,7 @@ class PredictionConfig(_Strict):
             growth_time_s=iso.reaction_time_s + iso.stopping_time_s if self.growth else 0.0,
             sample_s=self.sample_s,
             range_m=range_m,
+            hidden_surface=self.hidden_surface,
             motion_filter=MotionFilterSettings(
                 acceleration_mps2=self.acceleration_mps2,
                 measurement_m=self.measurement_noise_m,

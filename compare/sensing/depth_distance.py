@@ -170,8 +170,17 @@ class DepthDistance:
         # by more than the resolution (a point just behind a visible surface counts as measured).
         occluded = ev.hidden & (ev.distance_m < ev.measured_m - self.occluded_margin_m)
         o_base = sensor_to_base(self.camera, ev.point_sensor)
+        surface = np.isfinite(ev.measured_m)
+        e_base = sensor_to_base(self.camera, ev.measured_point_sensor) if occluded.any() else o_base
         readings = {
-            name: ObstacleReading(float(ev.distance_m[i]), o_base[i], True, bool(occluded[i]), self.name)
+            name: ObstacleReading(
+                float(ev.distance_m[i]),
+                o_base[i],
+                True,
+                bool(occluded[i]),
+                self.name,
+                e_base[i] if occluded[i] and surface[i] else None,
+            )
             if found[i]
             else ObstacleReading.nothing()
             for i, name in enumerate(names)

@@ -361,14 +361,16 @@ class DepthFusion:
                 continue
             c = int(best.camera[k])
             hidden = best.hidden_points.get(k)
-            if hidden is None:
-                raw = scan.raw[c][1]
-                ed = raw[9][k]
-                hidden_or_surface = np.array([raw[7][k] * ed, raw[8][k] * ed, ed])
-            else:
-                hidden_or_surface = hidden
-            point = sensor_to_base(self.distances[c].camera, hidden_or_surface)
-            readings[name] = ObstacleReading(float(best.distance[k]), point, True, hidden is not None, self.names[c])
+            raw = scan.raw[c][1]
+            ed = raw[9][k]
+            surface = np.array([raw[7][k] * ed, raw[8][k] * ed, ed])  # camera c's nearest measured point
+            point = sensor_to_base(self.distances[c].camera, surface if hidden is None else hidden)
+            seen = None
+            if hidden is not None and np.isfinite(raw[6][k]):
+                seen = sensor_to_base(self.distances[c].camera, surface)
+            readings[name] = ObstacleReading(
+                float(best.distance[k]), point, True, hidden is not None, self.names[c], seen
+            )
         return readings
 
 

@@ -23,6 +23,15 @@ switched on alone (:class:`PredictionSettings`), change what the shared obstacle
   :math:`v_c = \max(0, -n_O^T v)`, as :math:`v_h` and the reaction and stopping times of
   ``[iso15066]``.
 
+**Hidden space.** A depth reading whose closest point O is assumed from the space hidden behind
+a measured surface (``occluded``) does not move as the person does: the hidden space already
+counts as obstacle, so a person walking into it leaves O where it is. The estimate then follows
+the measured surface point E nearest to P (``surface_point``), the person as seen; the task's
+point is the nearer of the horizon points of O and E, and the closing speed and the feed-forward
+are the faster of the two approaches: the person may close in behind the surface as fast as the
+surface closes in. A measured closest point is its own surface point, so geometric sensing and
+unoccluded readings are unchanged.
+
 A control point with nothing in range gets nothing (its track ends). Nothing here reads the
 scenario's keyframes except :class:`TruePrediction`, which exists to bound what prediction can do.
 """
@@ -54,6 +63,8 @@ class PredictionSettings:
         growth_time_s: Part (c): T_r + T_s [s]; 0 = off.
         sample_s: Step of the true future over the horizon and of its finite difference [s].
         range_m: Largest distance of a predicted point handed to a task [m] (the sensing range ρ).
+        hidden_surface: Follow a point assumed from hidden space at the measured surface hiding
+            it (module docstring); False: follow the assumed point itself.
         motion_filter: Noise model of the estimate.
     """
 
@@ -63,6 +74,7 @@ class PredictionSettings:
     growth_time_s: float = 0.0
     sample_s: float = 0.05
     range_m: float = math.inf
+    hidden_surface: bool = True
     motion_filter: MotionFilterSettings = field(default_factory=MotionFilterSettings)
 
     def __post_init__(self) -> None:
@@ -103,6 +115,7 @@ class ReadingLike(Protocol):
     closest_point: np.ndarray | None
     in_range: bool
     occluded: bool
+    surface_point: np.ndarray | None
 
 
 class Predictor(Protocol):
@@ -173,10 +186,24 @@ class EstimatedPrediction:
                 out[cp] = None
                 continue
             o = np.asarray(r.closest_point, dtype=float)
-            v = motion.update(t, o, bool(r.occluded))
+            e = r.surface_point if s.hidden_surface else None
             p = kin.frame_position(cp)
+            if e is None:  # the closest point is measured (or nothing of its surface is known)
+                v = motion.update(t, o, bool(r.occluded))
+                point = nearest_on_path(p, o, v, s.horizon_s)
+                out[cp] = _finish(s, p, point, _approach_rate(p, o, v), _approach_rate(p, point, v))
+                continue
+            # Assumed from hidden space: the filter follows the surface that hides it, and the
+            # person may close in behind that surface as fast as the surface closes in.
+            e = np.asarray(e, dtype=float)
+            v = motion.update(t, e)
             point = nearest_on_path(p, o, v, s.horizon_s)
-            out[cp] = _finish(s, p, point, _approach_rate(p, o, v), _approach_rate(p, point, v))
+            seen = nearest_on_path(p, e, v, s.horizon_s)
+            if np.linalg.norm(seen - p) < np.linalg.norm(point - p):
+                point = seen
+            closing = max(_approach_rate(p, o, v), _approach_rate(p, e, v))
+            falling = max(_approach_rate(p, point, v), _approach_rate(p, seen, v))
+            out[cp] = _finish(s, p, point, closing, falling)
         return out
 
 

@@ -24,6 +24,9 @@ class ObstacleReading:
             for geometric sensing and when nothing is in range.
         camera: Name of the camera whose pixel gave the closest point (measured, or the one
             behind whose surface it is hidden); None in geometric mode or when nothing is in range.
+        surface_point: For an ``occluded`` reading, the measured surface point nearest to the
+            control point (base frame [m], shape (3,)): what is seen of the obstacle that hides
+            the closest point. None otherwise (the closest point is itself measured).
     """
 
     distance_m: float
@@ -31,6 +34,7 @@ class ObstacleReading:
     in_range: bool
     occluded: bool = False
     camera: str | None = None
+    surface_point: np.ndarray | None = None
 
     @classmethod
     def nothing(cls) -> ObstacleReading:

@@ -9,7 +9,7 @@ distances computed here from a person walking straight at a control point.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 import pytest
@@ -31,6 +31,7 @@ class _Reading:
     closest_point: np.ndarray | None
     in_range: bool = True
     occluded: bool = False
+    surface_point: np.ndarray | None = None
 
 
 class _Kin:
@@ -159,6 +160,38 @@ def test_a_receding_person_gives_no_feed_forward():
     last = _approach(PredictionSettings(horizon_s=0.5, growth_time_s=0.3), -0.8)[-1]
     assert last.closing_mps == 0.0 and last.growth_m == 0.0
     assert last.point[0] == pytest.approx(1.2 + 0.8 * 29 * PERIOD_S)  # the path's nearest point is O
+
+
+def test_a_person_closing_in_behind_a_surface_is_anticipated():
+    """A hidden closest point O that stays put while the surface hiding it closes in at 0.8 m/s.
+
+    Camera looking along +x, P at the origin, O on the ray 0.3 m beside P (the hidden space);
+    the surface E walks along the ray towards P's depth. O alone gives no approach; with E the
+    estimate follows the surface, and f and the closing speed are the surface's.
+    """
+    settings = PredictionSettings(horizon_s=0.25, growth_time_s=0.3)
+    kin = _Kin({"cp": np.zeros(3)})
+    hidden_only = EstimatedPrediction(settings, ["cp"])
+    switched_off = EstimatedPrediction(replace(settings, hidden_surface=False), ["cp"])
+    with_surface = EstimatedPrediction(settings, ["cp"])
+    o = np.array([0.0, 0.3, 0.0])
+    for k in range(30):
+        t = k * PERIOD_S
+        e = np.array([-1.2 + 0.8 * t, 0.3, 0.0])  # the person's surface on O's ray, nearing P's depth
+        a = hidden_only.predict(t, {"cp": _Reading(o, occluded=True)}, kin)["cp"]  # type: ignore[arg-type]
+        off = switched_off.predict(t, {"cp": _Reading(o, occluded=True, surface_point=e)}, kin)["cp"]  # type: ignore[arg-type]
+        b = with_surface.predict(t, {"cp": _Reading(o, occluded=True, surface_point=e)}, kin)["cp"]  # type: ignore[arg-type]
+        # switched off: the assumed point is followed, the surface ignored
+        assert (off.closing_mps, off.feedforward_mps) == (a.closing_mps, a.feedforward_mps)
+        assert off.distance_m == a.distance_m
+    assert a.closing_mps == pytest.approx(0.0, abs=1e-6) and a.feedforward_mps == pytest.approx(0.0, abs=1e-6)
+    closing_e = 0.8 * (-e[0]) / float(np.linalg.norm(e))  # -n_E^T v, v = (0.8, 0, 0)
+    assert b.closing_mps == pytest.approx(closing_e, abs=0.05)
+    seen = e + 0.25 * np.array([0.8, 0.0, 0.0])  # E's horizon point: the rate there is f
+    assert b.feedforward_mps == pytest.approx(0.8 * (-seen[0]) / float(np.linalg.norm(seen)), abs=0.05)
+    assert b.growth_m == pytest.approx(0.3 * b.closing_mps)
+    np.testing.assert_allclose(b.point, o)  # O stays the nearer point: the distance is not raised
+    assert with_surface.filters["cp"].velocity == pytest.approx([0.8, 0.0, 0.0], abs=0.05)
 
 
 def test_nothing_in_range_gives_nothing_and_ends_the_track():

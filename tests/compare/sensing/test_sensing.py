@@ -210,6 +210,14 @@ def test_point_right_behind_the_torso_is_in_its_shadow(model, person_rig):
     behind = torso + 0.45 * ray  # 0.29 m from the torso surface, hidden by it
     reading = distance.compute(frame, {"p": behind}).readings["p"]
     assert reading.in_range and reading.distance_m < 0.01
+    # What is seen of it: the torso's front, no nearer than the truth (its back) and at most the
+    # 0.45 m to the torso's axis on the ray, nearer the camera.
+    assert reading.occluded and reading.surface_point is not None
+    surface_gap = float(np.linalg.norm(reading.surface_point - behind))
+    truth, _ = closest_on_capsules(behind[None, :], *GeometricDistance(model, rho_m=math.inf).segments(data))
+    assert truth[0] - 0.01 <= surface_gap <= 0.45 + 0.01
+    depth = base_to_sensor(cam.camera, np.array([reading.surface_point, behind]))[:, 2]
+    assert depth[0] < depth[1]
 
 
 def test_flacco_rule_on_a_single_pixel(camera):
