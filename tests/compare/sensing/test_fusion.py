@@ -89,9 +89,13 @@ def test_one_camera_says_whether_a_reading_was_measured_or_assumed():
     distance = DepthDistance(CAM_A, RHO, name="a")
     shadow = distance.compute(_render(CAM_A, [FRONT]), {"p": P}).readings["p"]
     assert shadow.occluded and shadow.camera == "a" and shadow.distance_m < 0.05
+    # what is seen of it: the sphere's face towards the camera, nearest P at its rim (the near
+    # side, 0.3 m from P, is hidden): about hypot(0.4, 0.1) m
+    assert np.linalg.norm(shadow.surface_point - P) == pytest.approx(math.hypot(0.4, 0.1), abs=0.015)
     side = (np.array([0.25, 0.0, 0.0]), 0.1)  # beside P, in full view: measured, to a pixel footprint
     seen = distance.compute(_render(CAM_A, [side]), {"p": P}).readings["p"]
     assert not seen.occluded and seen.distance_m == pytest.approx(0.15, abs=0.01)
+    assert seen.surface_point is None  # measured: the closest point is its own surface point
     assert DepthDistance(CAM_A, RHO).compute(_render(CAM_A, []), {"p": P}).readings["p"].camera is None
 
 
@@ -120,6 +124,9 @@ def test_space_hidden_from_every_camera_stays_conservative():
     reading = fused.readings["p"]
     assert reading.occluded and reading.distance_m < 0.05
     assert all(r.readings["p"].occluded for r in fused.cameras)
+    # what the reading's camera measured nearest to P, as that camera alone reads it
+    alone = fused.cameras["ab".index(reading.camera)].readings["p"]
+    np.testing.assert_allclose(reading.surface_point, alone.surface_point, atol=1e-9)
 
 
 def test_the_arm_clears_only_the_space_in_front_of_it():
