@@ -8,11 +8,20 @@ against those numpy expressions.
 
 from __future__ import annotations
 
+import mujoco
 import numba
 import numpy as np
 
-SPHERE, CAPSULE, CYLINDER, BOX = 2, 3, 5, 6
-"""``mujoco.mjtGeom`` values of the shapes with an exact signed distance (others: bounding sphere)."""
+SPHERE, CAPSULE, CYLINDER, BOX = (
+    int(g)
+    for g in (
+        mujoco.mjtGeom.mjGEOM_SPHERE,
+        mujoco.mjtGeom.mjGEOM_CAPSULE,
+        mujoco.mjtGeom.mjGEOM_CYLINDER,
+        mujoco.mjtGeom.mjGEOM_BOX,
+    )
+)
+"""Geom types with an exact signed distance (others: their bounding sphere), as plain ints for numba."""
 
 
 @numba.njit(cache=True, nogil=True)

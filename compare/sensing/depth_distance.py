@@ -171,7 +171,7 @@ class DepthDistance:
         occluded = ev.hidden & (ev.distance_m < ev.measured_m - self.occluded_margin_m)
         o_base = sensor_to_base(self.camera, ev.point_sensor)
         surface = np.isfinite(ev.measured_m)
-        e_base = sensor_to_base(self.camera, ev.measured_point_sensor) if occluded.any() else o_base
+        e_base = sensor_to_base(self.camera, ev.measured_point_sensor) if occluded.any() else None
         readings = {
             name: ObstacleReading(
                 float(ev.distance_m[i]),
@@ -179,7 +179,7 @@ class DepthDistance:
                 True,
                 bool(occluded[i]),
                 self.name,
-                e_base[i] if occluded[i] and surface[i] else None,
+                e_base[i] if e_base is not None and occluded[i] and surface[i] else None,
             )
             if found[i]
             else ObstacleReading.nothing()

@@ -12,9 +12,9 @@ frame), updated at every accepted sensing update (30 Hz, depth or geometric alik
 
 (white-noise acceleration of spectral size a [m/s²], measurement noise s [m], larger for a point
 assumed from occluded space when nothing of the surface hiding it is known; a reading assumed
-from hidden space is tracked at its nearest measured surface point, :mod:`compare.sensing.prediction`).
-The closest point is not one material point: it slides over the
-person and jumps when another body part becomes the closest. An innovation beyond the χ²(3)
+from hidden space is tracked at its nearest measured surface point,
+:mod:`compare.sensing.prediction`). The closest point is not one material point: it slides over
+the person and jumps when another body part becomes the closest. An innovation beyond the χ²(3)
 gate (0.999) restarts the track at the new point with its velocity kept and its covariance reset;
 no reading in range ends the track. The filter sees only what the sensing gate accepted: never
 the scenario's keyframes.

@@ -10,8 +10,8 @@ what its own generator would have drawn, frame by frame: the frames kept are the
 output, and past them a camera continues from the generator's state after the last frame kept.
 
 The draws kept in a process are bounded by :data:`BUDGET_BYTES` (the environment variable
-``TPIK_NOISE_CACHE_MB`` sets it; 0 keeps none): the series a camera asked for least recently are dropped first,
-and a series that does not fit stops growing (its cameras draw the rest themselves).
+``TPIK_NOISE_CACHE_MB`` sets it; 0 keeps none): the series a camera asked for least recently are
+dropped first, and a series that does not fit stops growing (its cameras draw the rest themselves).
 """
 
 from __future__ import annotations

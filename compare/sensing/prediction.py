@@ -186,17 +186,13 @@ class EstimatedPrediction:
                 out[cp] = None
                 continue
             o = np.asarray(r.closest_point, dtype=float)
-            e = r.surface_point if s.hidden_surface else None
             p = kin.frame_position(cp)
-            if e is None:  # the closest point is measured (or nothing of its surface is known)
-                v = motion.update(t, o, bool(r.occluded))
-                point = nearest_on_path(p, o, v, s.horizon_s)
-                out[cp] = _finish(s, p, point, _approach_rate(p, o, v), _approach_rate(p, point, v))
-                continue
-            # Assumed from hidden space: the filter follows the surface that hides it, and the
-            # person may close in behind that surface as fast as the surface closes in.
-            e = np.asarray(e, dtype=float)
-            v = motion.update(t, e)
+            # The filter follows the surface point E: the closest point itself when it is measured
+            # (or nothing of the surface hiding it is known); the surface hiding it when it is
+            # assumed, and the person may close in behind that surface as fast as it closes in.
+            surface = r.surface_point if s.hidden_surface else None
+            e = o if surface is None else np.asarray(surface, dtype=float)
+            v = motion.update(t, e, bool(r.occluded) and surface is None)
             point = nearest_on_path(p, o, v, s.horizon_s)
             seen = nearest_on_path(p, e, v, s.horizon_s)
             if np.linalg.norm(seen - p) < np.linalg.norm(point - p):
