@@ -165,7 +165,8 @@ def run_method(
         progress.update(task_id, completed=sc.sim_time_s)
     steps = injector.annotate(out.steps)
     if monitor is not None:
-        steps = pd.concat([steps, monitor.margins(steps, robot, config.iso15066)], axis=1)
+        known = sim.truth.recorded_points(len(steps)) if sim.truth.frames == monitor.frames else None
+        steps = pd.concat([steps, monitor.margins(steps, robot, config.iso15066, known)], axis=1)
     summary = compute_summary(steps, run_meta(config, method, hierarchy, robot, out, sc.sensing, warmup_steps))
     summary["robot"] = robot.name
     summary["faults"] = injector.summarize(steps, settings.sensing_period_s)

@@ -53,7 +53,6 @@ import pandas as pd
 
 from compare.config import Iso15066Config
 from compare.loop.closed_loop import DistanceResultLike, ObstacleSource, sensing_problem
-from compare.sensing.scene import control_point_positions
 from robots import Kinematics, Robot
 
 
@@ -161,7 +160,7 @@ class _Update:
     t: float
     usable: bool
     points: dict[str, np.ndarray | None]  # closest obstacle point O per control point, None = none in range
-    control_points: dict[str, np.ndarray]  # P at the update [m]
+    control_points: np.ndarray  # P of each frame at the update [m], (F, 3)
 
 
 @dataclass
@@ -193,7 +192,9 @@ class SeparationMonitor:
             r = result.readings.get(cp)
             ok = usable and r is not None and r.in_range and r.closest_point is not None
             points[cp] = np.array(r.closest_point, dtype=float) if ok and r is not None else None
-        self.updates.append(_Update(t, usable, points, control_point_positions(kin, self.frames)))
+        positions = np.empty((len(self.frames), 3))
+        kin.frame_positions(self.frames, positions)
+        self.updates.append(_Update(t, usable, points, positions))
         return result
 
     def human_speeds(self, cfg: Iso15066Config) -> tuple[np.ndarray, dict[str, np.ndarray], dict[str, np.ndarray]]:
@@ -206,7 +207,7 @@ class SeparationMonitor:
         t = np.array([u.t for u in ups], dtype=float)
         v_h: dict[str, np.ndarray] = {}
         pts: dict[str, np.ndarray] = {}
-        for cp in self.frames:
+        for c, cp in enumerate(self.frames):
             v = np.zeros(len(ups))
             o = np.full((len(ups), 3), np.nan)
             est = 0.0
@@ -221,7 +222,7 @@ class SeparationMonitor:
                     est = cfg.human_speed_mps
                 elif prev is not None and u.t > prev[0]:
                     gap = u.t - prev[0]
-                    away = u.control_points[cp] - point
+                    away = u.control_points[c] - point
                     n = float(np.linalg.norm(away))
                     raw = float((point - prev[1]) @ away) / (n * gap) if n > 1e-9 else 0.0
                     raw = min(max(raw, 0.0), cfg.human_speed_max_mps)
@@ -233,7 +234,9 @@ class SeparationMonitor:
             pts[cp] = o
         return t, v_h, pts
 
-    def margins(self, steps: pd.DataFrame, robot: Robot, cfg: Iso15066Config) -> pd.DataFrame:
+    def margins(
+        self, steps: pd.DataFrame, robot: Robot, cfg: Iso15066Config, known: np.ndarray | None = None
+    ) -> pd.DataFrame:
         """Per-step ISO columns for every control point ``cp``.
 
         ``iso_margin_m:cp`` (d − S_p [m], NaN without obstacle in range), ``iso_sp_m:cp`` (S_p),
@@ -243,6 +246,8 @@ class SeparationMonitor:
             steps: The loop's per-step table (``t``, ``q_1..q_n``).
             robot: The arm model (forward kinematics of the recorded joint positions).
             cfg: ``[iso15066]``.
+            known: The control points of every step as the loop recorded them [m], (n, F, 3) in
+                :attr:`frames` order, NaN rows where not recorded (those are computed from ``q``).
         """
         n = len(steps)
         out = {
@@ -263,11 +268,13 @@ class SeparationMonitor:
         qcols = [f"q_{j}" for j in range(1, robot.nq + 1)]
         q = steps[qcols].to_numpy(dtype=float)
         need = have | np.roll(have, -1)  # P of the step before each monitored step, for Ṗ
-        points = np.full((n, len(self.frames), 3), np.nan)
-        for i in np.flatnonzero(need):
-            if not np.all(np.isfinite(q[i])):
-                continue
-            robot.kinematics(q[i]).frame_positions(self.frames, points[i])
+        shape = (n, len(self.frames), 3)
+        points = np.full(shape, np.nan)
+        if known is not None and known.shape == shape:  # the same q's kinematics, computed by the loop
+            points[need] = known[need]
+        for i in np.flatnonzero(need & np.isnan(points[:, 0, 0])):
+            if np.all(np.isfinite(q[i])):
+                robot.kinematics(q[i]).frame_positions(self.frames, points[i])
         positions = {cp: np.ascontiguousarray(points[:, k]) for k, cp in enumerate(self.frames)}
         params = IsoParameters.from_config(cfg)
         dt = np.diff(t, prepend=np.nan)

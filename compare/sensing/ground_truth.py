@@ -103,6 +103,14 @@ class GroundTruth:
             self._steps_xmat[i] = self.data.geom_xmat[self._ids]
         self._kept[i] = True
 
+    def recorded_points(self, n: int) -> np.ndarray:
+        """The control points of steps ``0 .. n-1`` as recorded [m], (n, K, 3); NaN rows at a step not recorded."""
+        out = np.full((n, len(self.frames), 3), np.nan)
+        m = min(n, self._kept.size)
+        kept = self._kept[:m]
+        out[:m][kept] = self._steps_points[:m][kept]
+        return out
+
     def recorded(self, n: int) -> dict[str, np.ndarray]:
         """The distances of steps ``0 .. n-1`` [m] per frame, each (n,); NaN at a step not recorded."""
         out = np.full((n, len(self.frames)), np.nan)

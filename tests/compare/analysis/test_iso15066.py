@@ -5,6 +5,7 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
+import pandas as pd
 import pytest
 
 import robots
@@ -101,6 +102,29 @@ def test_constant_human_speed_mode_uses_the_configured_speed(jaco):
         monitor.update(k / 30.0, kin)
     _, v_h, _ = monitor.human_speeds(Iso15066Config(human_speed="constant", human_speed_mps=1.6))
     assert np.all(v_h["link_4"] == 1.6)
+
+
+def test_margins_from_the_recorded_control_points_equal_those_recomputed_from_q(jaco):
+    rng = np.random.default_rng(3)
+    n, frames = 40, ("link_4", "link_6")
+    qs = jaco.home + 0.02 * np.cumsum(rng.standard_normal((n, jaco.nq)), axis=0)
+    t = np.arange(n) / 100.0
+    source = _MovingPoint(jaco.kinematics(jaco.home), (0.0, -1.0, 0.0), (0.0, 0.6, 0.0))
+    monitor = SeparationMonitor(source, None, frames)
+    known = np.full((n, len(frames), 3), np.nan)
+    for i in range(n):
+        kin = jaco.kinematics(qs[i])
+        if i % 3 == 0:
+            monitor.update(t[i], kin)
+        if i % 7:  # every seventh step not recorded: computed from q
+            kin.frame_positions(frames, known[i])
+    steps = pd.DataFrame({"t": t, **{f"q_{j + 1}": qs[:, j] for j in range(jaco.nq)}})
+    cfg = Iso15066Config()
+    recomputed = monitor.margins(steps, jaco, cfg)
+    assert np.isfinite(recomputed["iso_margin_m:link_4"]).sum() > 30
+    pd.testing.assert_frame_equal(monitor.margins(steps, jaco, cfg, known), recomputed, check_exact=True)
+    moved = known + 0.01  # the recorded points are what is used
+    assert not monitor.margins(steps, jaco, cfg, moved).equals(recomputed)
 
 
 def test_bad_iso_config_names_the_key():

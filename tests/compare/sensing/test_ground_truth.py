@@ -31,6 +31,7 @@ def test_recorded_steps_are_the_per_step_distances_bit_for_bit(jaco):
     truth.start(steps)
     rng = np.random.default_rng(5)
     want = np.full((steps, len(FRAMES)), np.nan)
+    want_points = np.full((steps, len(FRAMES), 3), np.nan)
     for i in range(steps):
         person.apply(i / (steps - 1), data)
         mujoco.mj_kinematics(model, data)
@@ -39,7 +40,11 @@ def test_recorded_steps_are_the_per_step_distances_bit_for_bit(jaco):
         if i != 3:
             truth.record(i, kin)
             want[i] = [now[f] for f in FRAMES]
+            kin.frame_positions(FRAMES, want_points[i])
     got = truth.recorded(steps)
+    points = truth.recorded_points(steps + 2)  # the control points kept, NaN where none was (and past the run)
+    assert np.array_equal(points[:steps].view(np.int64), want_points.view(np.int64))
+    assert np.isnan(points[steps:]).all()
     assert set(got) == set(FRAMES)
     table = np.column_stack([got[f] for f in FRAMES])
     assert np.array_equal(table.view(np.int64), want.view(np.int64))  # bit for bit, NaN rows included
