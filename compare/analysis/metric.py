@@ -192,7 +192,10 @@ class RunSteps:
         """Boolean column ``name`` (missing values and an absent column: False). Shape (T,)."""
         if name not in self.steps.columns:
             return np.zeros(len(self.steps), dtype=bool)
-        return self.steps[name].astype("boolean").fillna(False).to_numpy(dtype=bool)
+        values = self.steps[name]
+        if values.dtype == np.bool_:  # the loop's own table: no missing values to fill
+            return values.to_numpy(dtype=bool, copy=True)
+        return values.astype("boolean").fillna(False).to_numpy(dtype=bool)
 
     def shared(self, compute: Callable[[RunSteps], _T]) -> _T:
         """``compute(self)``, evaluated once per run: what several metrics read (task margins, a mask)."""

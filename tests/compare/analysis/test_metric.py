@@ -111,3 +111,16 @@ def test_explicit_columns_replace_those_of_the_label():
     column = Column("two cells", lambda e: "a", section="cost")
     metric = Metric("x", "m", None, label="x", run_columns=(column,), sweep_columns=lambda entries: [column] * 2)
     assert metric.run_table([]) == [column] and metric.sweep_table([{}]) == [column, column]
+
+
+def test_a_flag_is_the_same_from_a_bool_column_and_from_a_column_with_missing_values():
+    steps = make_steps()
+    values = np.arange(len(steps)) % 3 == 0
+    steps["fallback"] = values
+    nullable = steps.copy()
+    nullable["fallback"] = pd.array(np.where(values, True, None), dtype="object")  # a missing value is False
+    got = RunSteps(steps, make_meta()).flag("fallback")
+    assert got.dtype == bool and np.array_equal(got, values)
+    assert np.array_equal(RunSteps(nullable, make_meta()).flag("fallback"), values)
+    got[:] = False  # a copy: the table is untouched
+    assert np.array_equal(steps["fallback"].to_numpy(), values)
