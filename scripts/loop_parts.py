@@ -31,6 +31,13 @@ table says how many timed calls a step makes and what they cost, and beside it t
 CPU time per step with no timer installed (process CPU time, the figure a sweep is judged on).
 Timers are installed by replacing the named attributes for the duration of the call and are
 always restored.
+
+``--stand-in`` replaces the plant, the method's solve or both for the runs (:func:`stand_ins`):
+a control period then only advances the simulated clock, a solve answers a zero velocity. What is
+left is the loop's own code with nothing run between its steps; beside the same figure with the
+real plant and solve it shows how much of the shared loop's cost is theirs (their work evicts the
+loop's code and data from the caches). Such runs are not campaign runs: the arm and the person
+stand still.
 """
 
 from __future__ import annotations
@@ -58,7 +65,12 @@ from compare.bench.timing import BenchRow, summarize
 from compare.campaign.sweep import seeded_config
 from compare.config import Config, load_config
 from compare.exceptions import CompareError
+from compare.loop import closed_loop
+from compare.loop.sim_io import SimRobotIO
 from compare.versions import versions
+from robots import Kinematics
+from tpik.hierarchy import Hierarchy
+from tpik.step_result import IkSolver, SolveStatus
 
 RANDOM_CONFIG = Path(__file__).resolve().parents[1] / "configs" / "random.toml"
 """The scenario family timed by default (the reference campaign's)."""
@@ -138,6 +150,9 @@ SOLVE_PARTS: tuple[Part, ...] = (
     Part(OWN_SOLVE, "qp_baseline.mink_peer", "MinkSolver.solve"),
 )
 """On the CPU clock: the methods' own ``solve``, timed where the loop calls it."""
+
+STAND_INS = ("plant", "solve", "both")
+"""What ``--stand-in`` can replace (:func:`stand_ins`)."""
 
 CLOCKS = {"wall": "perf_counter_ns", "cpu": "thread_time_ns"}
 """What a part is timed on: the name of the ``time`` function [ns] (read when a timer is made)."""
@@ -226,6 +241,41 @@ def timers(profiler: PartProfiler, parts: Sequence[Part] = PARTS) -> Iterator[No
             setattr(owner, name, original)
 
 
+def _clock_only_period(io: SimRobotIO) -> None:
+    """A control period of the stand-in plant: the simulated clock advances, nothing moves."""
+    io.data.time += io.dt
+
+
+def _zero_solve(
+    solver: IkSolver, hierarchy: Hierarchy, kin: Kinematics, dt: float
+) -> tuple[np.ndarray, SolveStatus, tuple[str, ...], str, bool, float]:
+    """The stand-in solve: zero velocity, OK, no active task, no time (the method is not called)."""
+    return np.zeros(kin.nq), SolveStatus.OK, (), "", False, 0.0
+
+
+@contextmanager
+def stand_ins(kind: str | None) -> Iterator[None]:
+    """The plant (``plant``), the loop's timed solve (``solve``) or both replaced for the block; None: neither.
+
+    The stand-ins are :func:`_clock_only_period` for ``SimRobotIO.wait`` and :func:`_zero_solve`
+    for ``compare.loop.closed_loop.timed_solve``; the originals are always restored.
+    """
+    if kind is not None and kind not in STAND_INS:
+        raise ValueError(f"stand-in must be one of {', '.join(STAND_INS)}, got {kind!r}")
+    saved: list[tuple[Any, str, Any]] = []
+    if kind in ("plant", "both"):
+        saved.append((SimRobotIO, "wait", SimRobotIO.__dict__["wait"]))
+        SimRobotIO.wait = _clock_only_period  # type: ignore[method-assign]
+    if kind in ("solve", "both"):
+        saved.append((closed_loop, "timed_solve", closed_loop.timed_solve))
+        closed_loop.timed_solve = _zero_solve
+    try:
+        yield
+    finally:
+        for owner, name, original in reversed(saved):
+            setattr(owner, name, original)
+
+
 def wrapper_cost_ns(calls: int = 20_000, clock: str = "wall") -> float:
     """What one timed call adds to a run [ns]: a no-op part inside a timed parent, against the bare loop."""
 
@@ -305,7 +355,9 @@ def _run(config: Config, out: Path) -> None:
         raise LoopRunFailed(f"the run of seed {config.scenario.seed} failed ({what})")
 
 
-def run_loop_parts(config: Config, method: str, seeds: Sequence[int], clock: str = "wall") -> LoopParts:
+def run_loop_parts(
+    config: Config, method: str, seeds: Sequence[int], clock: str = "wall", stand_in: str | None = None
+) -> LoopParts:
     """Time the loop's parts on runs of ``config`` with ``method`` alone (module docstring).
 
     Args:
@@ -313,6 +365,7 @@ def run_loop_parts(config: Config, method: str, seeds: Sequence[int], clock: str
         method: The method driving the arm.
         seeds: Scenario seeds of the timed runs; one untimed run of the first seed comes before.
         clock: ``wall`` or ``cpu`` (:data:`CLOCKS`).
+        stand_in: Replace the plant, the solve or both in every run (:func:`stand_ins`); None: neither.
 
     Returns:
         :class:`LoopParts` of the timed runs.
@@ -321,7 +374,7 @@ def run_loop_parts(config: Config, method: str, seeds: Sequence[int], clock: str
         LoopRunFailed: A run's method ended in an error.
     """
     configs = [seeded_config(config, int(s), [method]) for s in seeds]
-    with tempfile.TemporaryDirectory(prefix="loop-parts-") as tmp:
+    with tempfile.TemporaryDirectory(prefix="loop-parts-") as tmp, stand_ins(stand_in):
         root = Path(tmp)
         _run(configs[0], root / "warm")
         cpu = 0.0
@@ -450,6 +503,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     )
     parser.add_argument("--clock", choices=tuple(CLOCKS), default="wall", help="what the parts are timed on")
     parser.add_argument(
+        "--stand-in",
+        choices=STAND_INS,
+        help="replace the plant, the solve or both: the loop's own code alone (not a campaign run)",
+    )
+    parser.add_argument(
         "--json", type=output_path, dest="json_out", metavar="FILE", help="write the rows and the parts as JSON"
     )
     args = parser.parse_args(argv)
@@ -463,7 +521,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         for method in methods:
             console.print(f"loop parts: {method}, seeds {' '.join(map(str, seeds))} ({args.family}) …")
             try:
-                results.append(run_loop_parts(config, method, list(seeds), args.clock))
+                results.append(run_loop_parts(config, method, list(seeds), args.clock, args.stand_in))
             except LoopRunFailed as exc:
                 raise LoopRunFailed(f"loop parts of {method}: {exc}") from exc
     except CompareError as exc:  # a config, a method or a run that failed: one line
@@ -473,9 +531,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     entry["config"] = str(args.family)
     entry["seeds"] = list(seeds)
     entry["clock"] = args.clock
+    entry["stand_in"] = args.stand_in
+    replaced = f"; stand-in {args.stand_in}" if args.stand_in else ""
     title = (
         f"Where a control step goes [µs per step, exclusive, {args.clock} clock] "
-        f"({args.family.name}, one method per run)"
+        f"({args.family.name}, one method per run{replaced})"
     )
     console.print(loop_parts_table(results, entry, cost_ns, title))
     if args.json_out is not None:

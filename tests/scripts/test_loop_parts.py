@@ -20,10 +20,13 @@ from loop_parts import (
     check_parts,
     main,
     run_loop_parts,
+    stand_ins,
     timers,
 )
 
 from compare.config import load_config
+from compare.loop import closed_loop
+from compare.loop.sim_io import SimRobotIO
 
 
 class _FakeClock:
@@ -160,3 +163,21 @@ def test_a_method_that_fails_in_its_runs_is_one_error_not_a_traceback(tmp_path, 
     assert main(["--family", str(family), "-m", "tpik", "--seed", "100001"]) == 2
     err = capsys.readouterr().err
     assert "error: loop parts of tpik" in err and "solver exploded" in err and "Traceback" not in err
+
+
+def test_stand_ins_leave_the_loops_own_code_and_are_always_taken_off(tmp_path):
+    config, _ = load_config(_short_family(tmp_path))
+    wait, solve = SimRobotIO.__dict__["wait"], closed_loop.timed_solve
+    both = run_loop_parts(config, "tpik", [100001], stand_in="both")
+    assert SimRobotIO.__dict__["wait"] is wait and closed_loop.timed_solve is solve
+    real = run_loop_parts(config, "tpik", [100001])
+    assert both.steps == real.steps
+    # No physics and no solve: the plant's row is a clock update, the own solve nothing.
+    assert both.parts_us[OWN_SOLVE] == 0.0 < real.parts_us[OWN_SOLVE]
+    assert both.parts_us[PLANT_PART] < 0.2 * real.parts_us[PLANT_PART]
+    with pytest.raises(ValueError, match="stand-in must be one of"), stand_ins("physics"):
+        pass
+    with pytest.raises(ZeroDivisionError), stand_ins("solve"):
+        assert closed_loop.timed_solve is not solve
+        _ = 1 / 0
+    assert closed_loop.timed_solve is solve
