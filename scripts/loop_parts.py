@@ -230,15 +230,24 @@ def timers(profiler: PartProfiler, parts: Sequence[Part] = PARTS) -> Iterator[No
     try:
         for part in parts:
             owner, name = _owner(part)
-            original = owner.__dict__[name] if isinstance(owner, type) else getattr(owner, name)
-            saved.append((owner, name, original))
             fn = getattr(owner, name)
             timed = profiler.wrap_factory(part.label, fn) if part.returns_callable else profiler.wrap(part.label, fn)
-            setattr(owner, name, timed)
+            _replace(owner, name, timed, saved)
         yield
     finally:
-        for owner, name, original in reversed(saved):
-            setattr(owner, name, original)
+        _restore(saved)
+
+
+def _replace(owner: Any, name: str, new: Any, saved: list[tuple[Any, str, Any]]) -> None:
+    """Set ``owner.name`` to ``new``, its original (a class's own attribute) kept in ``saved`` first."""
+    saved.append((owner, name, owner.__dict__[name] if isinstance(owner, type) else getattr(owner, name)))
+    setattr(owner, name, new)
+
+
+def _restore(saved: list[tuple[Any, str, Any]]) -> None:
+    """Put back what :func:`_replace` replaced, the last replacement first."""
+    for owner, name, original in reversed(saved):
+        setattr(owner, name, original)
 
 
 def _clock_only_period(io: SimRobotIO) -> None:
@@ -263,17 +272,14 @@ def stand_ins(kind: str | None) -> Iterator[None]:
     if kind is not None and kind not in STAND_INS:
         raise ValueError(f"stand-in must be one of {', '.join(STAND_INS)}, got {kind!r}")
     saved: list[tuple[Any, str, Any]] = []
-    if kind in ("plant", "both"):
-        saved.append((SimRobotIO, "wait", SimRobotIO.__dict__["wait"]))
-        SimRobotIO.wait = _clock_only_period  # type: ignore[method-assign]
-    if kind in ("solve", "both"):
-        saved.append((closed_loop, "timed_solve", closed_loop.timed_solve))
-        closed_loop.timed_solve = _zero_solve
     try:
+        if kind in ("plant", "both"):
+            _replace(SimRobotIO, "wait", _clock_only_period, saved)
+        if kind in ("solve", "both"):
+            _replace(closed_loop, "timed_solve", _zero_solve, saved)
         yield
     finally:
-        for owner, name, original in reversed(saved):
-            setattr(owner, name, original)
+        _restore(saved)
 
 
 def wrapper_cost_ns(calls: int = 20_000, clock: str = "wall") -> float:

@@ -248,6 +248,9 @@ class SeparationMonitor:
             cfg: ``[iso15066]``.
             known: The control points of every step as the loop recorded them [m], (n, F, 3) in
                 :attr:`frames` order, NaN rows where not recorded (those are computed from ``q``).
+
+        Raises:
+            ValueError: ``known`` is not of shape (n, F, 3).
         """
         n = len(steps)
         out = {
@@ -270,7 +273,9 @@ class SeparationMonitor:
         need = have | np.roll(have, -1)  # P of the step before each monitored step, for Ṗ
         shape = (n, len(self.frames), 3)
         points = np.full(shape, np.nan)
-        if known is not None and known.shape == shape:  # the same q's kinematics, computed by the loop
+        if known is not None:  # the same q's kinematics, computed by the loop
+            if known.shape != shape:
+                raise ValueError(f"known control points must have shape {shape}, got {known.shape}")
             points[need] = known[need]
         for i in np.flatnonzero(need & np.isnan(points[:, 0, 0])):
             if np.all(np.isfinite(q[i])):

@@ -125,6 +125,8 @@ def test_margins_from_the_recorded_control_points_equal_those_recomputed_from_q(
     pd.testing.assert_frame_equal(monitor.margins(steps, jaco, cfg, known), recomputed, check_exact=True)
     moved = known + 0.01  # the recorded points are what is used
     assert not monitor.margins(steps, jaco, cfg, moved).equals(recomputed)
+    with pytest.raises(ValueError, match=r"shape \(40, 2, 3\)"):
+        monitor.margins(steps, jaco, cfg, known[:, :1])
 
 
 def test_bad_iso_config_names_the_key():
