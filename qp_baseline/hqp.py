@@ -80,6 +80,7 @@ from qp_baseline.hqp_settings import CascadeSettings, HqpSettings, default_limit
 from qp_baseline.hqp_verify import AnswerJudge
 from qp_baseline.level_qp import LevelAnswer, LevelQp, QpCheck
 from qp_baseline.qp_problem import DenseProblem, dense_problem
+from qp_baseline.set_rows import warm_up_rows
 from qp_baseline.time_limits import TimeLimited
 from robots import Kinematics, Robot
 from tpik.hierarchy import Hierarchy
@@ -145,6 +146,7 @@ class HqpSolver(TimeLimited):
         """The options with the backend's defaults filled in."""
         warm_up_certificate()  # the compiled certificate and kernels are loaded now, not at the first step
         warm_up_kernels(robot.nq)
+        warm_up_rows(robot.nq)
         self.qp_log: list[LevelQp] | None = None
         """When a list, every backend-solved level QP is appended to it (:class:`LevelQp`)."""
         self._judge = AnswerJudge(solver, self.cascade_settings)

@@ -129,6 +129,26 @@ def _binding_rows(
     return kept
 
 
+def warm_up_rows(nq: int) -> None:
+    """Load the compiled evaluation and row kernels now (a solver's construction), not at its first control step."""
+    warm_up(nq)
+    if not _stack_rows.signatures:
+        empty = np.zeros((0, SET_JAC + nq))
+        _stack_rows(empty, np.zeros((0, 13)), 0.01, True, False, empty, np.zeros(0), np.zeros(0, dtype=np.int64))
+    if not _binding_rows.signatures:
+        one = np.zeros(1)
+        _binding_rows(
+            np.zeros((0, 1)),
+            one[:0],
+            np.zeros(0, dtype=np.int64),
+            0,
+            one,
+            one,
+            np.zeros(0, dtype=np.int64),
+            np.zeros(1, dtype=np.int64),
+        )
+
+
 @dataclass(frozen=True)
 class SetRows:
     r"""Rows :math:`G\dot q \le h` of a list of set-based tasks at one state.
@@ -167,22 +187,7 @@ class SetRowBuilder:
         self._evaluation: TaskEvaluation | None = None  # built at the first step (needs the robot)
         S = len(self.tasks)
         self._G, self._h, self._owner = np.empty((2 * S, self.nq)), np.empty(2 * S), np.empty(2 * S, dtype=np.int64)
-        warm_up(self.nq)  # the compiled evaluation is loaded now, not at the first control step
-        if not _stack_rows.signatures:
-            empty = np.zeros((0, SET_JAC + self.nq))
-            _stack_rows(empty, np.zeros((0, 13)), 0.01, True, False, empty, np.zeros(0), np.zeros(0, dtype=np.int64))
-        if not _binding_rows.signatures:
-            one = np.zeros(1)
-            _binding_rows(
-                np.zeros((0, 1)),
-                one[:0],
-                np.zeros(0, dtype=np.int64),
-                0,
-                one,
-                one,
-                np.zeros(0, dtype=np.int64),
-                np.zeros(1, dtype=np.int64),
-            )
+        warm_up_rows(self.nq)
 
     def build(self, kin: Kinematics, dt: float) -> SetRows:
         """Evaluate every task once at ``kin`` and stack its finite bounds.
@@ -252,4 +257,4 @@ class SetRowBuilder:
         return self._G[:kept], self._h[:kept], self._owner[:kept]
 
 
-__all__ = ["SetRowBuilder", "SetRows"]
+__all__ = ["SetRowBuilder", "SetRows", "warm_up_rows"]
