@@ -28,6 +28,7 @@ KERNEL_FILES = (
     "qp_baseline/cascade_kernels.py",
     "qp_baseline/certificate_dense.py",
     "qp_baseline/set_rows.py",
+    "compare/loop/_sigma_kernel.py",
     "compare/loop/joint_drive.py",
     "compare/sensing/_frame_kernels.py",
     "compare/sensing/_fusion_kernel.py",

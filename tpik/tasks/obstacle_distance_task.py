@@ -74,6 +74,7 @@ class ObstacleDistanceTask(SetTask):
                 f"task '{self.name}': rate_feedforward must be finite and margin_growth finite and >= 0, got {f}, {g}"
             )
         self._obstacle = as_finite_vector(self.name, "obstacle", point, 3)
+        self._obstacle.flags.writeable = False
         self._feedforward, self._growth = f, g
 
     @property
@@ -90,6 +91,11 @@ class ObstacleDistanceTask(SetTask):
     def obstacle(self) -> np.ndarray | None:
         """A copy of O [m], or None."""
         return None if self._obstacle is None else self._obstacle.copy()
+
+    @property
+    def obstacle_point(self) -> np.ndarray | None:
+        """O [m] itself, not a copy (read-only), or None; a new array at every :meth:`set_obstacle`."""
+        return self._obstacle
 
     def compute_value(self, kin: Kinematics) -> float:
         """σ = ‖O − P‖ − g [m]; +inf without obstacle."""
