@@ -30,6 +30,8 @@ KERNEL_FILES = (
     "qp_baseline/set_rows.py",
     "compare/loop/_sigma_kernel.py",
     "compare/loop/joint_drive.py",
+    "compare/loop/numpy_dot.py",
+    "compare/analysis/iso15066.py",
     "compare/sensing/_frame_kernels.py",
     "compare/sensing/_fusion_kernel.py",
     "compare/sensing/_kernels.py",

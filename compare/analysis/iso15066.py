@@ -48,11 +48,13 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
+import numba
 import numpy as np
 import pandas as pd
 
 from compare.config import Iso15066Config
 from compare.loop.closed_loop import DistanceResultLike, ObstacleSource, sensing_problem
+from compare.loop.numpy_dot import NUMPY_DOT_FUSED, dot3
 from robots import Kinematics, Robot
 
 
@@ -159,8 +161,59 @@ def separation_margin(
 class _Update:
     t: float
     usable: bool
-    points: dict[str, np.ndarray | None]  # closest obstacle point O per control point, None = none in range
+    points: np.ndarray  # closest obstacle point O per control point [m], (F, 3); NaN rows where none in range
+    has: np.ndarray  # whether each control point has one, (F,)
     control_points: np.ndarray  # P of each frame at the update [m], (F, 3)
+
+
+@numba.njit(cache=True, nogil=True)
+def _filtered_speeds(
+    t: np.ndarray,
+    points: np.ndarray,
+    has: np.ndarray,
+    control_points: np.ndarray,
+    constant: bool,
+    speed_mps: float,
+    max_mps: float,
+    filter_s: float,
+    fused: bool,
+    out: np.ndarray,
+) -> None:
+    r"""The low-passed speed :math:`v_h` toward each control point at each update into ``out`` (U, F) (module doc).
+
+    ``t`` (U,) [s], ``points`` O (U, F, 3) [m] where ``has`` (U, F), ``control_points`` P (U, F, 3)
+    [m]; ``out`` starts at zero and stays zero where ``has`` is False. The dot products are numpy's
+    (:func:`~compare.loop.numpy_dot.dot3`, ``fused`` as numpy's), the rest IEEE operations in the
+    order of the formula, so the result is the numpy computation's bit for bit.
+    """
+    for c in range(has.shape[1]):
+        est = 0.0
+        seen = False
+        prev_t = 0.0
+        p0 = p1 = p2 = 0.0
+        for k in range(has.shape[0]):
+            if not has[k, c]:
+                est = 0.0
+                seen = False
+                continue
+            o0, o1, o2 = points[k, c, 0], points[k, c, 1], points[k, c, 2]
+            if constant:
+                est = speed_mps
+            elif seen and t[k] > prev_t:
+                gap = t[k] - prev_t
+                a0, a1, a2 = control_points[k, c, 0] - o0, control_points[k, c, 1] - o1, control_points[k, c, 2] - o2
+                n = np.sqrt(dot3(a0, a1, a2, a0, a1, a2, fused))
+                raw = dot3(o0 - p0, o1 - p1, o2 - p2, a0, a1, a2, fused) / (n * gap) if n > 1e-9 else 0.0
+                if 0.0 > raw:  # max(raw, 0), then min(·, max_mps): Python's order of comparison
+                    raw = 0.0
+                if max_mps < raw:
+                    raw = max_mps
+                alpha = gap / (filter_s + gap)
+                est += alpha * (raw - est)
+            prev_t = t[k]
+            p0, p1, p2 = o0, o1, o2
+            seen = True
+            out[k, c] = est
 
 
 @dataclass
@@ -187,14 +240,17 @@ class SeparationMonitor:
         """Forward to the source and record the update."""
         result = self.source.update(t, kin)
         usable = sensing_problem(result, t, self.stale_after_s) is None
-        points: dict[str, np.ndarray | None] = {}
-        for cp in self.frames:
-            r = result.readings.get(cp)
-            ok = usable and r is not None and r.in_range and r.closest_point is not None
-            points[cp] = np.array(r.closest_point, dtype=float) if ok and r is not None else None
+        points = np.full((len(self.frames), 3), np.nan)
+        has = np.zeros(len(self.frames), dtype=bool)
+        if usable:
+            for c, cp in enumerate(self.frames):
+                r = result.readings.get(cp)
+                if r is not None and r.in_range and r.closest_point is not None:
+                    points[c] = r.closest_point
+                    has[c] = True
         positions = np.empty((len(self.frames), 3))
         kin.frame_positions(self.frames, positions)
-        self.updates.append(_Update(t, usable, points, positions))
+        self.updates.append(_Update(t, usable, points, has, positions))
         return result
 
     def human_speeds(self, cfg: Iso15066Config) -> tuple[np.ndarray, dict[str, np.ndarray], dict[str, np.ndarray]]:
@@ -205,33 +261,27 @@ class SeparationMonitor:
         """
         ups = [u for u in self.updates if u.usable]
         t = np.array([u.t for u in ups], dtype=float)
-        v_h: dict[str, np.ndarray] = {}
-        pts: dict[str, np.ndarray] = {}
-        for c, cp in enumerate(self.frames):
-            v = np.zeros(len(ups))
-            o = np.full((len(ups), 3), np.nan)
-            est = 0.0
-            prev: tuple[float, np.ndarray] | None = None
-            for k, u in enumerate(ups):
-                point = u.points.get(cp)
-                if point is None:
-                    est, prev = 0.0, None
-                    continue
-                o[k] = point
-                if cfg.human_speed == "constant":
-                    est = cfg.human_speed_mps
-                elif prev is not None and u.t > prev[0]:
-                    gap = u.t - prev[0]
-                    away = u.control_points[c] - point
-                    n = float(np.linalg.norm(away))
-                    raw = float((point - prev[1]) @ away) / (n * gap) if n > 1e-9 else 0.0
-                    raw = min(max(raw, 0.0), cfg.human_speed_max_mps)
-                    alpha = gap / (cfg.human_speed_filter_s + gap)
-                    est += alpha * (raw - est)
-                prev = (u.t, point)
-                v[k] = est
-            v_h[cp] = v
-            pts[cp] = o
+        shape = (len(ups), len(self.frames))
+        points = np.array([u.points for u in ups], dtype=float).reshape(*shape, 3)
+        has = np.array([u.has for u in ups], dtype=bool).reshape(shape)
+        positions = np.array([u.control_points for u in ups], dtype=float).reshape(*shape, 3)
+        v = np.zeros(shape)
+        constant = cfg.human_speed == "constant"
+        fused = NUMPY_DOT_FUSED is not False  # numpy's order here; fused where numpy's is neither
+        _filtered_speeds(
+            t,
+            points,
+            has,
+            positions,
+            constant,
+            float(cfg.human_speed_mps),
+            float(cfg.human_speed_max_mps),
+            float(cfg.human_speed_filter_s),
+            fused,
+            v,
+        )
+        v_h = {cp: v[:, c].copy() for c, cp in enumerate(self.frames)}
+        pts = {cp: points[:, c].copy() for c, cp in enumerate(self.frames)}
         return t, v_h, pts
 
     def margins(

@@ -1,10 +1,8 @@
 r"""σ of the built-in set tasks in one compiled call (numba), numpy's arithmetic bit for bit.
 
-A wall's σ is :math:`n^T p - d` and an obstacle task's :math:`\|O - P\| - g`, both a dot
-product of two 3-vectors in the tasks' own ``compute_value`` (numpy's ``dot``: OpenBLAS
-``ddot``, whose short-vector loop is :math:`s \leftarrow s + x_i y_i` from :math:`s = 0`, with
-the multiply-add fused where the CPU has FMA). :func:`dot3` repeats that chain, fused or not as
-:func:`numpy_dot_order` finds numpy's on this machine, so the σ here equal the tasks' own
+A wall's σ is :math:`n^T p - d` and an obstacle task's :math:`\|O - P\| - g`, both a numpy dot
+of two 3-vectors in the tasks' own ``compute_value``, here :func:`~compare.loop.numpy_dot.dot3`
+in the order numpy uses on the machine, so the σ equal the tasks' own
 (``tests/compare/loop/test_recorder.py``); where numpy's dot is neither chain, the loop asks
 every task itself.
 """
@@ -13,8 +11,8 @@ from __future__ import annotations
 
 import numba
 import numpy as np
-from numba import types
-from numba.extending import intrinsic
+
+from compare.loop.numpy_dot import dot3
 
 KIND_GIVEN = 0
 """σ already written by the caller (a task without a compiled σ)."""
@@ -29,27 +27,6 @@ SPEC_COLUMNS = 8
 """Columns of a task's row of ``spec``: kind, index, three values, a scalar, σ_{a,l}, σ_{a,u}."""
 
 
-@intrinsic
-def _fma(typingctx, a, b, c):  # noqa: ANN001, ANN202 (numba's typing signature)
-    """a·b + c rounded once (LLVM's ``llvm.fma.f64``: the CPU's FMA, or libm's exact one)."""
-    sig = types.float64(types.float64, types.float64, types.float64)
-
-    def codegen(context, builder, signature, args):  # noqa: ANN001, ANN202
-        return builder.fma(*args)
-
-    return sig, codegen
-
-
-@numba.njit(cache=True, nogil=True)
-def dot3(x0: float, x1: float, x2: float, y0: float, y1: float, y2: float, fused: bool) -> float:
-    """``numpy.dot`` of (x0, x1, x2) and (y0, y1, y2): 0 + x0·y0 + x1·y1 + x2·y2 in that order, fused or not."""
-    if fused:
-        s = _fma(x2, y2, _fma(x1, y1, _fma(x0, y0, 0.0)))
-    else:
-        s = ((0.0 + x0 * y0) + x1 * y1) + x2 * y2
-    return 0.0 + s
-
-
 @numba.njit(cache=True, nogil=True)
 def set_task_sigmas(
     q: np.ndarray, points: np.ndarray, spec: np.ndarray, sigma: np.ndarray, near: np.ndarray, fused: bool
@@ -62,7 +39,7 @@ def set_task_sigmas(
         spec: One row per task (:data:`SPEC_COLUMNS`): kind, index, values, scalar, σ_{a,l}, σ_{a,u}.
         sigma: σ per task, shape (K,); a :data:`KIND_GIVEN` entry is read, the others written.
         near: Receives the indices of the finite σ with σ ≥ σ_{a,u} or σ ≤ σ_{a,l}, in order.
-        fused: numpy's dot fuses its multiply-adds (:func:`numpy_dot_order`).
+        fused: numpy's dot fuses its multiply-adds (:data:`~compare.loop.numpy_dot.NUMPY_DOT_FUSED`).
 
     Returns:
         How many indices were written to ``near``.
@@ -93,23 +70,3 @@ def set_task_sigmas(
             near[count] = k
             count += 1
     return count
-
-
-def numpy_dot_order() -> bool | None:
-    """Whether numpy's dot of 3-vectors is :func:`dot3`'s fused chain (True), its plain one (False), or neither (None).
-
-    Probed on pairs whose fused and plain results differ, so a fused dot cannot pass as plain.
-    """
-    rng = np.random.default_rng(20261206)
-    fused_ok = plain_ok = True
-    differ = 0
-    for _ in range(64):
-        x, y = rng.normal(size=3), rng.normal(size=3) * 1e3
-        want = float(x.dot(y))
-        fused, plain = dot3(*x.tolist(), *y.tolist(), True), dot3(*x.tolist(), *y.tolist(), False)
-        differ += fused != plain
-        fused_ok &= want == fused
-        plain_ok &= want == plain
-    if differ == 0:  # nothing told the two apart: cannot know
-        return None
-    return True if fused_ok else False if plain_ok else None

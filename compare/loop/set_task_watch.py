@@ -25,14 +25,14 @@ from compare.loop._sigma_kernel import (
     KIND_OBSTACLE,
     KIND_WALL,
     SPEC_COLUMNS,
-    numpy_dot_order,
     set_task_sigmas,
 )
+from compare.loop.numpy_dot import NUMPY_DOT_FUSED
 from robots import Kinematics
 from tpik.reference import ControlReference, unmet_rates
 from tpik.tasks import JointLimitTask, ObstacleDistanceTask, SetTask, VirtualWallTask
 
-_FUSED = numpy_dot_order()
+_FUSED = NUMPY_DOT_FUSED
 """numpy's 3-vector dot on this machine: fused chain, plain chain, or None (no compiled σ)."""
 
 

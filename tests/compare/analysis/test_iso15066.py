@@ -95,6 +95,67 @@ def test_human_speed_is_estimated_from_the_measured_closest_points(jaco, velocit
     assert np.all(np.isfinite(points["link_4"]))
 
 
+def _numpy_speeds(monitor: SeparationMonitor, cfg: Iso15066Config) -> dict[str, np.ndarray]:
+    """The estimate of the module docstring with numpy's vector products, update by update (the reference)."""
+    ups = [u for u in monitor.updates if u.usable]
+    out = {}
+    for c, cp in enumerate(monitor.frames):
+        v, est, prev = np.zeros(len(ups)), 0.0, None
+        for k, u in enumerate(ups):
+            if not u.has[c]:
+                est, prev = 0.0, None
+                continue
+            point = u.points[c]
+            if cfg.human_speed == "constant":
+                est = cfg.human_speed_mps
+            elif prev is not None and u.t > prev[0]:
+                gap = u.t - prev[0]
+                away = u.control_points[c] - point
+                n = float(np.linalg.norm(away))
+                raw = float((point - prev[1]) @ away) / (n * gap) if n > 1e-9 else 0.0
+                raw = min(max(raw, 0.0), cfg.human_speed_max_mps)
+                est += gap / (cfg.human_speed_filter_s + gap) * (raw - est)
+            prev = (u.t, point)
+            v[k] = est
+        out[cp] = v
+    return out
+
+
+class _Jumpy:
+    """Random closest points of two control points, sometimes out of range, sometimes at a repeated time."""
+
+    def __init__(self, rng: np.random.Generator) -> None:
+        self.rng = rng
+
+    def update(self, t, kin):
+        readings = {}
+        for cp in ("link_4", "link_6"):
+            if self.rng.random() < 0.15:
+                continue
+            o = self.rng.normal(scale=0.4, size=3)
+            readings[cp] = ObstacleReading(float(np.linalg.norm(o)), o, bool(self.rng.random() < 0.9))
+        return DistanceResult(readings, 1.0, False, t)
+
+
+@pytest.mark.parametrize("mode", ["estimated", "constant"])
+def test_the_compiled_estimate_is_the_numpy_one_bit_for_bit(jaco, mode):
+    """Random points, gaps out of range, repeated times, moving control points: the same numbers exactly."""
+    rng = np.random.default_rng(9)
+    cfg = Iso15066Config(human_speed=mode, human_speed_filter_s=0.07)
+    monitor = SeparationMonitor(_Jumpy(rng), None, ("link_4", "link_6"))
+    t = 0.0
+    for _ in range(400):
+        q = jaco.home + rng.normal(scale=0.3, size=jaco.nq)
+        t += 0.0 if rng.random() < 0.05 else 1.0 / 30.0
+        monitor.update(t, jaco.kinematics(q))
+    _, v_h, points = monitor.human_speeds(cfg)
+    want = _numpy_speeds(monitor, cfg)
+    for cp in monitor.frames:
+        assert np.array_equal(v_h[cp], want[cp])
+        assert np.isnan(points[cp][:, 0]).sum() == sum(not u.has[monitor.frames.index(cp)] for u in monitor.updates)
+    assert mode == "constant" or np.count_nonzero(np.diff(v_h["link_4"])) > 100
+
+
 def test_constant_human_speed_mode_uses_the_configured_speed(jaco):
     kin = jaco.kinematics(jaco.home)
     monitor = SeparationMonitor(_MovingPoint(kin, (0.0, 0.0, 0.0), (0.0, 1.0, 0.0)), None, ("link_4",))

@@ -9,7 +9,7 @@ import pytest
 
 from compare.bench.solver_cases import apply_state, case2_hierarchy, case2_states
 from compare.loop import _sigma_kernel, set_task_watch
-from compare.loop._sigma_kernel import dot3, numpy_dot_order
+from compare.loop.numpy_dot import dot3, numpy_dot_order
 from compare.loop.set_task_watch import SetTaskWatch
 from tests.conftest import random_configuration
 from tpik.tasks import ObstacleDistanceTask, VirtualWallTask
