@@ -61,7 +61,7 @@ class SetTaskWatch:
         self._sigma = np.full(len(self.tasks), math.nan)
         self._near_index = np.zeros(len(self.tasks), dtype=np.int64)
         frames: dict[str, int] = {}
-        self._given: list[tuple[int, SetTask]] = []  # asked themselves
+        self._given: list[tuple[int, SetTask, bool]] = []  # asked themselves (and their moved bands)
         self._obstacles: list[tuple[int, ObstacleDistanceTask]] = []  # O, g (and bands) read when O changes
         for k, task in enumerate(self.tasks):
             th = task.thresholds
@@ -79,7 +79,7 @@ class SetTaskWatch:
                 self._spec[k, 2] = math.nan
                 self._obstacles.append((k, task))
             else:
-                self._given.append((k, task))
+                self._given.append((k, task, predicting and isinstance(task, ObstacleDistanceTask)))
         self._frames = tuple(frames)
         self._points = np.zeros((len(self._frames), 3))
         self._seen: list[np.ndarray | None] = [None] * len(self._obstacles)
@@ -87,8 +87,10 @@ class SetTaskWatch:
     def measure(self, kin: Kinematics) -> list[float]:
         """σ of every task at ``kin``, and the Jacobian rows of those at or past an activation threshold."""
         spec, sigma = self._spec, self._sigma
-        for k, task in self._given:
+        for k, task, fed in self._given:
             sigma[k] = task.compute_value(kin)
+            if fed:
+                spec[k, 6:8] = task.activation_bounds()
         seen = self._seen
         for m, (k, task) in enumerate(self._obstacles):
             point = task.obstacle_point

@@ -118,3 +118,27 @@ def test_a_joint_outside_q_is_an_index_error(jaco):
         _sigma_kernel.set_task_sigmas(
             np.zeros(jaco.nq), np.zeros((0, 3)), spec, np.zeros(1), np.zeros(1, dtype=np.int64), True
         )
+
+
+class _OwnObstacle(ObstacleDistanceTask):
+    """An obstacle task of its own class: asked itself, its bands still moved by the prediction."""
+
+
+@pytest.mark.parametrize("compiled", [True, False])
+def test_moved_bands_of_an_obstacle_task_asked_itself_are_read_every_step(jaco, monkeypatch, compiled):
+    """With a prediction, a subclass (or every task, with no known numpy order) gets its activation_bounds."""
+    if not compiled:
+        monkeypatch.setattr(set_task_watch, "_FUSED", None)
+    base = next(t for t in case2_hierarchy(jaco).set_tasks if isinstance(t, ObstacleDistanceTask))
+    task = _OwnObstacle("own", base.frame, base.thresholds, base.gain)
+    watch = SetTaskWatch([task], predicting=True)
+    kin = jaco.kinematics(random_configuration(jaco, np.random.default_rng(6)))
+    frame = kin.frame_position(task.frame)
+    lo = task.thresholds.activation_lower
+    task.set_obstacle(frame + [0.0, 0.0, lo + 0.02], 0.0, 0.0)  # just outside the activation band: not near
+    watch.measure(kin)
+    assert watch._near == []
+    task.set_obstacle(frame + [0.0, 0.0, lo + 0.02], 0.5, 0.0)  # closing: the band moves out past σ
+    assert task.activation_bounds()[0] > lo + 0.02
+    watch.measure(kin)
+    assert watch._near == [task]
