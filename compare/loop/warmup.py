@@ -3,7 +3,8 @@
 A fresh process (a sweep worker, a ``run``) pays on its first calls of each code path for lazy
 imports, for loading the compiled (numba) kernels from their cache and for building lookup
 caches: milliseconds that, on a timed step, would land in the solve-time percentiles and could
-count as deadline misses. :func:`warm_up_process` pays them once per process and method, on a
+count as deadline misses. :func:`warm_up_process` pays them once per process and method (the
+loop's own compiled σ, :class:`~compare.loop.set_task_watch.SetTaskWatch`, included), on a
 *throwaway* solver and hierarchy, at states where the set-based tasks are inactive, in their
 activation band and past their safety threshold (an obstacle placed at each control point's
 distance of interest), so that the branches a run takes later (mode search, active levels) are
@@ -25,6 +26,7 @@ import numpy as np
 
 from compare.config import Config
 from compare.loop.closed_loop import SOLVER_ERRORS, WARMUP_SOLVES, ee_position_tasks
+from compare.loop.set_task_watch import SetTaskWatch
 from compare.methods import make_method
 from robots import Robot
 from tpik.tasks import ObstacleDistanceTask
@@ -72,6 +74,7 @@ def warm_up_process(config: Config, method: str, robot: Robot, q0: np.ndarray) -
             except SOLVER_ERRORS:
                 break
             done += 1
+    SetTaskWatch(hierarchy.set_tasks).measure(robot.kinematics(q0))  # the loop's compiled σ, loaded now
     solver.close()
     del solver, hierarchy, obstacles  # the throwaway copy goes before the freeze below
     # What is alive now (modules, models, kernels, caches) lives as long as the process: out of the

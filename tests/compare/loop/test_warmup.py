@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import subprocess
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -76,3 +78,18 @@ def test_the_warm_up_solves_with_the_set_tasks_inactive_active_and_past_safety(r
     assert warmup.warm_up_process(config, "tpik", robot, q0) == 0  # once per process
     n = len(seen) // 3
     assert max(seen[n:]) > max(seen[:n])  # the obstacles in the activation band activate their tasks
+
+
+def test_the_warm_up_loads_the_loops_compiled_sigma_in_a_fresh_process():
+    """The first control step of a run loads no kernel of the loop's σ: the warm-up did (a process of its own)."""
+    code = (
+        "import robots; from tests.compare.loop.test_warmup import _config; "
+        "from compare.loop._sigma_kernel import set_task_sigmas; from compare.loop.warmup import warm_up_process; "
+        "r = robots.load(robots.DEFAULT_ROBOT); c = _config(r, 'tpik'); "
+        "before = len(set_task_sigmas.signatures); warm_up_process(c, 'tpik', r, r.home.copy()); "
+        "print(before, len(set_task_sigmas.signatures))"
+    )
+    root = Path(__file__).resolve().parents[3]
+    run = [sys.executable, "-c", code]
+    out = subprocess.run(run, capture_output=True, text=True, timeout=300, cwd=root, check=True)
+    assert out.stdout.split() == ["0", "1"]
