@@ -162,7 +162,6 @@ class _Update:
     t: float
     usable: bool
     points: np.ndarray  # closest obstacle point O per control point [m], (F, 3); NaN rows where none in range
-    has: np.ndarray  # whether each control point has one, (F,)
     control_points: np.ndarray  # P of each frame at the update [m], (F, 3)
 
 
@@ -241,16 +240,14 @@ class SeparationMonitor:
         result = self.source.update(t, kin)
         usable = sensing_problem(result, t, self.stale_after_s) is None
         points = np.full((len(self.frames), 3), np.nan)
-        has = np.zeros(len(self.frames), dtype=bool)
-        if usable:
+        if usable:  # a usable update's points in range are finite (sensing_problem)
             for c, cp in enumerate(self.frames):
                 r = result.readings.get(cp)
                 if r is not None and r.in_range and r.closest_point is not None:
                     points[c] = r.closest_point
-                    has[c] = True
         positions = np.empty((len(self.frames), 3))
         kin.frame_positions(self.frames, positions)
-        self.updates.append(_Update(t, usable, points, has, positions))
+        self.updates.append(_Update(t, usable, points, positions))
         return result
 
     def human_speeds(self, cfg: Iso15066Config) -> tuple[np.ndarray, dict[str, np.ndarray], dict[str, np.ndarray]]:
@@ -263,7 +260,7 @@ class SeparationMonitor:
         t = np.array([u.t for u in ups], dtype=float)
         shape = (len(ups), len(self.frames))
         points = np.array([u.points for u in ups], dtype=float).reshape(*shape, 3)
-        has = np.array([u.has for u in ups], dtype=bool).reshape(shape)
+        has = np.isfinite(points[:, :, 0])
         positions = np.array([u.control_points for u in ups], dtype=float).reshape(*shape, 3)
         v = np.zeros(shape)
         constant = cfg.human_speed == "constant"
