@@ -169,7 +169,6 @@ class _Update:
 def _filtered_speeds(
     t: np.ndarray,
     points: np.ndarray,
-    has: np.ndarray,
     control_points: np.ndarray,
     constant: bool,
     speed_mps: float,
@@ -180,18 +179,18 @@ def _filtered_speeds(
 ) -> None:
     r"""The low-passed speed :math:`v_h` toward each control point at each update into ``out`` (U, F) (module doc).
 
-    ``t`` (U,) [s], ``points`` O (U, F, 3) [m] where ``has`` (U, F), ``control_points`` P (U, F, 3)
-    [m]; ``out`` starts at zero and stays zero where ``has`` is False. The dot products are numpy's
+    ``t`` (U,) [s], ``points`` O (U, F, 3) [m] (a non-finite row: none in range), ``control_points`` P
+    (U, F, 3) [m]; ``out`` starts at zero and stays zero at a non-finite row. The dot products are numpy's
     (:func:`~compare.loop.numpy_dot.dot3`, ``fused`` as numpy's), the rest IEEE operations in the
     order of the formula, so the result is the numpy computation's bit for bit.
     """
-    for c in range(has.shape[1]):
+    for c in range(points.shape[1]):
         est = 0.0
         seen = False
         prev_t = 0.0
         p0 = p1 = p2 = 0.0
-        for k in range(has.shape[0]):
-            if not has[k, c]:
+        for k in range(points.shape[0]):
+            if not np.isfinite(points[k, c, 0]):
                 est = 0.0
                 seen = False
                 continue
@@ -260,7 +259,6 @@ class SeparationMonitor:
         t = np.array([u.t for u in ups], dtype=float)
         shape = (len(ups), len(self.frames))
         points = np.array([u.points for u in ups], dtype=float).reshape(*shape, 3)
-        has = np.isfinite(points[:, :, 0])
         positions = np.array([u.control_points for u in ups], dtype=float).reshape(*shape, 3)
         v = np.zeros(shape)
         constant = cfg.human_speed == "constant"
@@ -268,7 +266,6 @@ class SeparationMonitor:
         _filtered_speeds(
             t,
             points,
-            has,
             positions,
             constant,
             float(cfg.human_speed_mps),

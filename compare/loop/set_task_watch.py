@@ -32,9 +32,6 @@ from robots import Kinematics
 from tpik.reference import ControlReference, unmet_rates
 from tpik.tasks import JointLimitTask, ObstacleDistanceTask, SetTask, VirtualWallTask
 
-_FUSED = NUMPY_DOT_FUSED
-"""numpy's 3-vector dot on this machine: fused chain, plain chain, or None (no compiled σ)."""
-
 
 class SetTaskWatch:
     """σ and the status check of a hierarchy's set tasks (module docstring).
@@ -66,7 +63,7 @@ class SetTaskWatch:
         for k, task in enumerate(self.tasks):
             th = task.thresholds
             self._spec[k, 6:8] = th.activation_lower, th.activation_upper
-            kind = _kind(task) if _FUSED is not None else KIND_GIVEN
+            kind = _kind(task) if NUMPY_DOT_FUSED is not None else KIND_GIVEN
             self._spec[k, 0] = kind
             if kind == KIND_JOINT:
                 self._spec[k, 1] = task.joint - 1
@@ -102,7 +99,7 @@ class SetTaskWatch:
                     spec[k, 6:8] = task.activation_bounds()
         if self._frames:
             kin.frame_positions(self._frames, self._points)
-        count = set_task_sigmas(kin.q, self._points, spec, sigma, self._near_index, bool(_FUSED))
+        count = set_task_sigmas(kin.q, self._points, spec, sigma, self._near_index, bool(NUMPY_DOT_FUSED))
         sigmas = sigma.tolist()
         if count:
             near = self._near_index[:count].tolist()

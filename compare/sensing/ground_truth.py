@@ -106,9 +106,8 @@ class GroundTruth:
     def recorded_points(self, n: int) -> np.ndarray:
         """The control points of steps ``0 .. n-1`` as recorded [m], (n, K, 3); NaN rows at a step not recorded."""
         out = np.full((n, len(self.frames), 3), np.nan)
-        m = min(n, self._kept.size)
-        kept = self._kept[:m]
-        out[:m][kept] = self._steps_points[:m][kept]
+        kept = np.flatnonzero(self._kept[:n])
+        out[kept] = self._steps_points[kept]
         return out
 
     def recorded(self, n: int) -> dict[str, np.ndarray]:

@@ -76,7 +76,7 @@ def test_without_a_known_numpy_order_every_task_is_asked(jaco, monkeypatch):
     apply_state(hierarchy, case2_states(jaco)[2])
     kin = jaco.kinematics(random_configuration(jaco, np.random.default_rng(3)))
     compiled = SetTaskWatch(hierarchy.set_tasks).measure(kin)
-    monkeypatch.setattr(set_task_watch, "_FUSED", None)
+    monkeypatch.setattr(set_task_watch, "NUMPY_DOT_FUSED", None)
     watch = SetTaskWatch(hierarchy.set_tasks)
     assert all(kind == _sigma_kernel.KIND_GIVEN for kind in watch._spec[:, 0])
     assert watch.measure(kin) == compiled == [t.compute_value(kin) for t in hierarchy.set_tasks]
@@ -128,7 +128,7 @@ class _OwnObstacle(ObstacleDistanceTask):
 def test_moved_bands_of_an_obstacle_task_asked_itself_are_read_every_step(jaco, monkeypatch, compiled):
     """With a prediction, a subclass (or every task, with no known numpy order) gets its activation_bounds."""
     if not compiled:
-        monkeypatch.setattr(set_task_watch, "_FUSED", None)
+        monkeypatch.setattr(set_task_watch, "NUMPY_DOT_FUSED", None)
     base = next(t for t in case2_hierarchy(jaco).set_tasks if isinstance(t, ObstacleDistanceTask))
     task = _OwnObstacle("own", base.frame, base.thresholds, base.gain)
     watch = SetTaskWatch([task], predicting=True)
